@@ -1,0 +1,9 @@
+"""Pure-compute processors (no pxr): the Scene, the Tracer, and one module per technique."""
+
+from importlib import import_module
+
+# Built-in processors register themselves when their module is imported.
+BUILTIN_MODULES = ("ambient_occlusion",)
+
+for _module in BUILTIN_MODULES:
+    import_module(f"{__name__}.{_module}")

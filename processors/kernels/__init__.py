@@ -1,0 +1,1 @@
+"""Shared Warp functions (@wp.func) used by several processors."""

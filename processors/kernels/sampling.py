@@ -1,0 +1,76 @@
+"""Sampling maps shared by the processors, as Warp functions with numpy twins.
+
+The numpy twins exist so the maps can be tested (hypothesis, closed forms)
+without launching kernels; the kernels use the @wp.func versions.
+"""
+
+import numpy as np
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.func
+def concentric_disk(u1: float, u2: float) -> wp.vec2:
+    """Shirley-Chiu concentric map of [0,1)^2 onto the unit disk (area preserving, low distortion)."""
+    a = 2.0 * u1 - 1.0
+    b = 2.0 * u2 - 1.0
+    if a == 0.0 and b == 0.0:
+        return wp.vec2(0.0, 0.0)
+    r = float(0.0)
+    phi = float(0.0)
+    if a * a > b * b:
+        r = a
+        phi = (wp.pi / 4.0) * (b / a)
+    else:
+        r = b
+        phi = (wp.pi / 2.0) - (wp.pi / 4.0) * (a / b)
+    return wp.vec2(r * wp.cos(phi), r * wp.sin(phi))
+
+
+@wp.func
+def cosine_hemisphere(u1: float, u2: float) -> wp.vec3:
+    """Malley's method: lift the concentric disk sample to the +Z hemisphere, pdf = cos(theta) / pi."""
+    d = concentric_disk(u1, u2)
+    z = wp.sqrt(wp.max(0.0, 1.0 - d[0] * d[0] - d[1] * d[1]))
+    return wp.vec3(d[0], d[1], z)
+
+
+@wp.func
+def tangent_frame(n: wp.vec3) -> wp.mat33:
+    """Orthonormal basis with n as third column (Duff et al. 2017, branchless and continuous)."""
+    sign = wp.where(n[2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t = wp.vec3(1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
+    s = wp.vec3(b, sign + n[1] * n[1] * a, -n[1])
+    return wp.matrix_from_cols(t, s, n)
+
+
+@wp.func
+def stratified_pair(index: int, strata: int, state: wp.uint32) -> wp.vec2:
+    """Jittered sample in cell ``index`` of a strata x strata grid over [0,1)^2."""
+    sx = index % strata
+    sy = index // strata
+    inv = 1.0 / float(strata)
+    return wp.vec2((float(sx) + wp.randf(state)) * inv, (float(sy) + wp.randf(state)) * inv)
+
+
+def concentric_disk_np(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """numpy twin of concentric_disk: (N,) x (N,) -> (N, 2)."""
+    a = 2.0 * np.asarray(u1, np.float64) - 1.0
+    b = 2.0 * np.asarray(u2, np.float64) - 1.0
+    use_a = a * a > b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(use_a, a, b)
+        phi = np.where(use_a, np.pi / 4 * (b / a), np.pi / 2 - np.pi / 4 * (a / b))
+    phi = np.where((a == 0) & (b == 0), 0.0, phi)
+    r = np.where((a == 0) & (b == 0), 0.0, r)
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
+
+
+def cosine_hemisphere_np(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """numpy twin of cosine_hemisphere: (N,) x (N,) -> (N, 3) unit vectors with z >= 0."""
+    d = concentric_disk_np(u1, u2)
+    z = np.sqrt(np.maximum(0.0, 1.0 - (d * d).sum(axis=-1)))
+    return np.concatenate([d, z[:, None]], axis=-1)

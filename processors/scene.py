@@ -1,0 +1,200 @@
+"""The Scene: a flat, world-space, struct-of-arrays view of a USD stage.
+
+Built once per run by ``usdbake.stages.extract`` and handed read-only to every
+processor. No pxr here: processors see numpy arrays only.
+
+Positions are stored relative to ``origin`` (float64), so a stage placed
+1e6 units from the world origin keeps full float32 precision around its own
+geometry; ``world = origin + points``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+# Light kinds, in the order of UsdLux types we read.
+LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, LIGHT_RECT, LIGHT_DISK = range(5)
+LIGHT_KIND_NAMES = ("distant", "dome", "sphere", "rect", "disk")
+
+
+def _readonly(array: np.ndarray) -> np.ndarray:
+    array = np.ascontiguousarray(array)
+    array.flags.writeable = False
+    return array
+
+
+@dataclass(frozen=True)
+class Lights:
+    """UsdLux lights, one row each."""
+
+    light_paths: tuple[str, ...] = ()
+    light_kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    """(L,) int32, one of LIGHT_DISTANT .. LIGHT_DISK."""
+    light_radiance: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    """(L, 3) float32 intensity * 2^exposure * color (normalize already applied)."""
+    light_position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    """(L, 3) float32 position relative to Scene.origin."""
+    light_direction: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    """(L, 3) float32 unit emission direction (the light's -Z axis in world space)."""
+    light_size: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
+    """(L, 2) float32 radius (sphere, disk), width/height (rect) or angle in degrees (distant)."""
+
+    def __len__(self) -> int:
+        return len(self.light_paths)
+
+
+@dataclass(frozen=True)
+class Instances:
+    """UsdGeom.PointInstancer instances, kept as instances (issue: displacement fields)."""
+
+    instancer_paths: tuple[str, ...] = ()
+    prototype_paths: tuple[str, ...] = ()
+    instance_instancer: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    """(I,) int32 index into instancer_paths."""
+    instance_prototype: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    """(I,) int32 index into prototype_paths."""
+    instance_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.float64))
+    """(I, 4, 4) float64 prototype-to-world matrices (row-vector convention, as Gf), translation relative to origin."""
+
+    def __len__(self) -> int:
+        return len(self.instance_prototype)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Triangulated world-space geometry, materials, lights and instances.
+
+    Vertices (``points``) are kept per source prim, in the prim's authored
+    point order, so vertex-interpolated results map straight back onto the
+    prim's ``points``. Instanced geometry is flattened into the triangle
+    arrays (so it occludes) and marked with ``tri_instance``.
+    """
+
+    points: np.ndarray
+    """(P, 3) float32 vertex positions relative to ``origin``."""
+    tri_vertices: np.ndarray
+    """(T, 3) int32 indices into ``points``."""
+    tri_normals: np.ndarray
+    """(T, 3) float32 unit geometric normals (zero for degenerate triangles)."""
+    tri_areas: np.ndarray
+    """(T,) float32 triangle areas in stage units^2."""
+    tri_albedo: np.ndarray
+    """(T, 3) float32 diffuse reflectance in [0, 1]."""
+    tri_emission: np.ndarray
+    """(T, 3) float32 emitted radiance (emissiveColor)."""
+    tri_prim: np.ndarray
+    """(T,) int32 index into ``prim_paths``."""
+    tri_face: np.ndarray
+    """(T,) int32 index of the authored polygon within its prim."""
+    tri_instance: np.ndarray
+    """(T,) int32 point-instancer instance index, -1 for ordinary geometry."""
+    tri_double_sided: np.ndarray
+    """(T,) bool."""
+    point_prim: np.ndarray
+    """(P,) int32 index into ``prim_paths``."""
+    prim_paths: tuple[str, ...]
+    """Source mesh prim paths (an instanced prototype appears once per instance)."""
+    prim_point_start: np.ndarray
+    """(M + 1,) int64: the points of prim m are points[start[m]:start[m + 1]]."""
+    prim_face_count: np.ndarray
+    """(M,) int32 number of authored polygons per prim."""
+    prim_writable: np.ndarray
+    """(M,) bool: False for instance proxies and point-instancer prototypes (read-only in USD)."""
+    prim_skip: np.ndarray
+    """(M,) bool: the prim carries ``bake:skip = true``."""
+    prim_surface: tuple[str, ...]
+    """Path of the bound UsdPreviewSurface shader per prim, '' if none."""
+    lights: Lights = field(default_factory=Lights)
+    instances: Instances = field(default_factory=Instances)
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3, np.float64))
+    """(3,) float64 world position of the local frame the points are stored in."""
+    up_axis: str = "Y"
+    meters_per_unit: float = 1.0
+    time_code: float | None = None
+    """USD time code the stage was read at; None for the default time."""
+    source: str = ""
+    """Identifier of the stage's root layer (for messages only)."""
+    warnings: tuple[str, ...] = ()
+    """What extraction left out and why (holes, degenerate faces), for people."""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, np.ndarray):
+                object.__setattr__(self, f.name, _readonly(value))
+
+    @property
+    def num_triangles(self) -> int:
+        return len(self.tri_vertices)
+
+    @property
+    def num_points(self) -> int:
+        return len(self.points)
+
+    @property
+    def up_vector(self) -> np.ndarray:
+        """(3,) float32 unit up direction from the stage's upAxis."""
+        return np.array([0, 0, 1] if self.up_axis == "Z" else [0, 1, 0], np.float32)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(min, max) corners of the points, each (3,) float32."""
+        if self.num_points == 0:
+            zero = np.zeros(3, np.float32)
+            return zero, zero
+        return self.points.min(axis=0), self.points.max(axis=0)
+
+    @property
+    def diagonal(self) -> float:
+        lo, hi = self.bounds
+        return float(np.linalg.norm(hi.astype(np.float64) - lo))
+
+    def prim_points(self, prim: int) -> slice:
+        return slice(int(self.prim_point_start[prim]), int(self.prim_point_start[prim + 1]))
+
+    def fingerprint(self, facets: tuple[str, ...]) -> str:
+        """Content hash of the named facets (dtype, shape and bytes of every array)."""
+        digest = hashlib.sha256()
+        for facet in facets:
+            for name in FACETS[facet]:
+                _hash_value(digest, name, _lookup(self, name))
+        return digest.hexdigest()
+
+
+# Which Scene fields each fingerprint facet reads.
+FACETS: dict[str, tuple[str, ...]] = {
+    "geometry": (
+        "points", "tri_vertices", "tri_prim", "tri_face", "tri_instance", "tri_double_sided",
+        "point_prim", "prim_paths", "prim_point_start", "prim_writable", "prim_skip",
+        "origin", "up_axis", "meters_per_unit",
+    ),
+    "materials": ("tri_albedo", "tri_emission", "prim_surface"),
+    "lights": (
+        "lights.light_paths", "lights.light_kind", "lights.light_radiance",
+        "lights.light_position", "lights.light_direction", "lights.light_size",
+    ),
+    "instancers": (
+        "instances.instancer_paths", "instances.prototype_paths", "instances.instance_instancer",
+        "instances.instance_prototype", "instances.instance_transforms",
+    ),
+    "time": ("time_code",),
+}
+
+
+def _lookup(scene: Scene, dotted: str):
+    value = scene
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return value
+
+
+def _hash_value(digest, name: str, value) -> None:
+    digest.update(name.encode())
+    if isinstance(value, np.ndarray):
+        digest.update(f"{value.dtype.str}{value.shape}".encode())
+        digest.update(np.ascontiguousarray(value).tobytes())
+    else:
+        digest.update(repr(value).encode())

@@ -1,0 +1,202 @@
+"""One Warp BVH per run, shared by every processor.
+
+``Tracer`` wraps a ``wp.Mesh`` built from the Scene's triangles and offers
+batched closest-hit and any-hit queries. Large CPU launches are split into
+chunks, one Python thread per core: Warp releases the GIL while a CPU kernel
+runs, so the chunks run in parallel.
+
+Ray offsets: origins are pushed off the surface by ``epsilon`` along the
+normal. The Scene stores points relative to its own centre (Scene.origin),
+so coordinates never exceed the scene's own size and one epsilon
+proportional to the scene diagonal is safe at 1e-3 scale and 1e6 units from
+the world origin alike.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+RAY_EPSILON_RELATIVE = 1e-5
+"""Ray origin offset as a fraction of the scene diagonal: far above float32
+rounding of recentred coordinates (~1e-7 of the diagonal) and far below any
+feature a baker resolves."""
+
+CPU_BLOCK_DIM = 1
+"""Warp's CPU launch block size; stated so preloading and launching agree."""
+
+MIN_CHUNK = 4096
+"""Smallest work item per thread: below this, thread overhead beats the gain."""
+
+
+def default_threads() -> int:
+    return max(1, os.cpu_count() or 1)
+
+
+@dataclass(frozen=True)
+class Hits:
+    """Closest-hit results, one row per ray."""
+
+    hit_t: np.ndarray
+    """(N,) float32 distance along the unit direction, inf for a miss."""
+    hit_triangle: np.ndarray
+    """(N,) int32 triangle index, -1 for a miss."""
+    hit_uv: np.ndarray
+    """(N, 2) float32 barycentrics (u, v) of the hit; the point is u*v0 + v*v1 + (1-u-v)*v2."""
+    hit_front: np.ndarray
+    """(N,) bool: the ray met the front side (winding) of the triangle."""
+
+
+@wp.kernel
+def closest_hit_kernel(
+    start: int,
+    mesh: wp.uint64,
+    origins: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    max_t: float,
+    hit_t: wp.array(dtype=float),
+    hit_triangle: wp.array(dtype=int),
+    hit_uv: wp.array(dtype=wp.vec2),
+    hit_front: wp.array(dtype=wp.int8),
+):
+    i = start + wp.tid()
+    d = directions[i]
+    length = wp.length(d)
+    hit_t[i] = wp.inf
+    hit_triangle[i] = -1
+    if length > 0.0:
+        q = wp.mesh_query_ray(mesh, origins[i], d / length, max_t)
+        if q.result:
+            hit_t[i] = q.t
+            hit_triangle[i] = q.face
+            hit_uv[i] = wp.vec2(q.u, q.v)
+            hit_front[i] = wp.int8(wp.where(q.sign > 0.0, 1, 0))
+
+
+@wp.kernel
+def any_hit_kernel(
+    start: int,
+    mesh: wp.uint64,
+    origins: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    max_t: float,
+    occluded: wp.array(dtype=wp.int8),
+):
+    i = start + wp.tid()
+    d = directions[i]
+    length = wp.length(d)
+    blocked = 0
+    if length > 0.0:
+        if wp.mesh_query_ray_anyhit(mesh, origins[i], d / length, max_t):
+            blocked = 1
+    occluded[i] = wp.int8(blocked)
+
+
+class Tracer:
+    """A BVH over the scene triangles with batched ray queries.
+
+    Parameters
+    ----------
+    points : (P, 3) float32
+    tri_vertices : (T, 3) int32
+    device : str
+        "cpu" (default) or "cuda:N".
+    threads : int, optional
+        CPU threads for chunked launches (default: one per core).
+    """
+
+    def __init__(self, points: np.ndarray, tri_vertices: np.ndarray, *, device: str = "cpu",
+                 threads: int | None = None):
+        points = np.ascontiguousarray(points, np.float32).reshape(-1, 3)
+        tri_vertices = np.ascontiguousarray(tri_vertices, np.int32).reshape(-1, 3)
+        if not np.isfinite(points).all():
+            raise ValueError("Tracer: points contain NaN or inf")
+        if len(tri_vertices) == 0:
+            # wp.Mesh needs at least one triangle; a zero-area one is never hit.
+            points = np.zeros((3, 3), np.float32) if len(points) == 0 else points
+            tri_vertices = np.zeros((1, 3), np.int32)
+        self.device = wp.get_device(device)
+        self.threads = threads or default_threads()
+        self.num_triangles = len(tri_vertices)
+        self._points = wp.array(points, dtype=wp.vec3, device=self.device)
+        self._indices = wp.array(tri_vertices.ravel(), dtype=wp.int32, device=self.device)
+        self.mesh = wp.Mesh(points=self._points, indices=self._indices)
+        diagonal = float(np.linalg.norm(points.max(axis=0).astype(np.float64) - points.min(axis=0)))
+        self.epsilon = max(RAY_EPSILON_RELATIVE * diagonal, 1e-30)
+        self.rays_cast = 0
+
+    @classmethod
+    def from_scene(cls, scene, *, device: str = "cpu", threads: int | None = None) -> "Tracer":
+        return cls(scene.points, scene.tri_vertices, device=device, threads=threads)
+
+    # -- launching ---------------------------------------------------------
+
+    def launch(self, kernel, dim: int, inputs: list, *, threads: int | None = None) -> None:
+        """Launch ``kernel(start, *inputs)`` over ``dim`` items, chunked across CPU threads.
+
+        The kernel's first argument is the chunk's start index; it must compute
+        its item as ``start + wp.tid()`` and write only that item's outputs.
+        """
+        if dim <= 0:
+            return
+        threads = threads or self.threads
+        if self.device.is_cuda or threads == 1 or dim < 2 * MIN_CHUNK:
+            wp.launch(kernel, dim=dim, inputs=[0, *inputs], device=self.device)
+            wp.synchronize_device(self.device)
+            return
+        # Compile/load once on this thread (concurrent first loads would race);
+        # the same explicit CPU block_dim keeps the threads on this build.
+        kernel.module.load(self.device, CPU_BLOCK_DIM)
+        chunks = min(threads * 4, max(1, dim // MIN_CHUNK))
+        bounds = np.linspace(0, dim, chunks + 1).astype(np.int64)
+
+        def run(chunk: int) -> None:
+            lo, hi = int(bounds[chunk]), int(bounds[chunk + 1])
+            if hi > lo:
+                wp.launch(kernel, dim=hi - lo, inputs=[lo, *inputs], device=self.device, block_dim=CPU_BLOCK_DIM)
+
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            list(pool.map(run, range(chunks)))
+
+    def array(self, values: np.ndarray, dtype) -> wp.array:
+        return wp.array(np.ascontiguousarray(values), dtype=dtype, device=self.device)
+
+    # -- queries -------------------------------------------------------------
+
+    def closest_hit(self, origins: np.ndarray, directions: np.ndarray, max_t: float = np.inf) -> Hits:
+        """Closest hit along each ray; directions need not be normalized (t is a distance)."""
+        origins_wp, directions_wp, n = self._rays(origins, directions)
+        hit_t = wp.empty(n, dtype=float, device=self.device)
+        hit_triangle = wp.empty(n, dtype=int, device=self.device)
+        hit_uv = wp.zeros(n, dtype=wp.vec2, device=self.device)
+        hit_front = wp.zeros(n, dtype=wp.int8, device=self.device)
+        self.launch(closest_hit_kernel, n,
+                    [self.mesh.id, origins_wp, directions_wp, _finite(max_t), hit_t, hit_triangle, hit_uv, hit_front])
+        self.rays_cast += n
+        return Hits(hit_t.numpy(), hit_triangle.numpy(), hit_uv.numpy(), hit_front.numpy().astype(bool))
+
+    def occluded(self, origins: np.ndarray, directions: np.ndarray, max_t: float = np.inf) -> np.ndarray:
+        """(N,) bool: something lies along the ray within max_t."""
+        origins_wp, directions_wp, n = self._rays(origins, directions)
+        occluded = wp.zeros(n, dtype=wp.int8, device=self.device)
+        self.launch(any_hit_kernel, n, [self.mesh.id, origins_wp, directions_wp, _finite(max_t), occluded])
+        self.rays_cast += n
+        return occluded.numpy().astype(bool)
+
+    def _rays(self, origins: np.ndarray, directions: np.ndarray):
+        origins = np.ascontiguousarray(origins, np.float32).reshape(-1, 3)
+        directions = np.ascontiguousarray(directions, np.float32).reshape(-1, 3)
+        if origins.shape != directions.shape:
+            raise ValueError(f"origins {origins.shape} and directions {directions.shape} differ")
+        return self.array(origins, wp.vec3), self.array(directions, wp.vec3), len(origins)
+
+
+def _finite(max_t: float) -> float:
+    """Warp kernels take float32; inf is fine there but keep it explicit and finite-safe."""
+    return float(min(max_t, 3.0e38))

@@ -1,0 +1,268 @@
+"""The `usdbake` command: a thin layer over the library.
+
+    usdbake bake IN [-o OUT] [-p NAME ...] [--set NAME.param=value ...] [--config FILE.toml]
+                    [--device cpu|cuda:0] [--force] [--cache DIR] [--time T] [--json]
+    usdbake plan IN [same options]     what would run, what would skip and why
+    usdbake list [--json]              processors and their params
+    usdbake inspect OUT [--json]       the baked data a layer holds
+
+Exit codes: 0 success, 1 a processor failed, 2 bad input (one line, no traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from ..processors import base
+from .errors import UsageError
+from .pipeline import DEFAULT_PROCESSORS, Pipeline, ProcessorFailed
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse exits 2 already; keep it to one line
+        raise UsageError(message)
+
+
+def make_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="usdbake", description="Precomputed lighting for OpenUSD stages.")
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    def stage_options(sub):
+        sub.add_argument("input", help="input stage (.usd, .usda, .usdc); a usdbake output bakes its source")
+        sub.add_argument("-p", "--processor", action="append", dest="processors", metavar="NAME",
+                         help=f"processor to run (repeatable; default: {', '.join(DEFAULT_PROCESSORS)})")
+        sub.add_argument("--set", action="append", default=[], metavar="NAME.param=value",
+                         help="set a processor parameter (repeatable)")
+        sub.add_argument("--config", metavar="FILE.toml", help="processors and params from a TOML file")
+        sub.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda:N")
+        sub.add_argument("--cache", metavar="DIR", default=os.environ.get("USDBAKE_CACHE", _default_cache()),
+                         help="result cache folder (default: $USDBAKE_CACHE or ~/.cache/usdbake)")
+        sub.add_argument("--force", action="store_true", help="re-run even when results are up to date")
+        sub.add_argument("--time", type=float, default=None, help="time code to read (default: default time)")
+        sub.add_argument("--json", action="store_true", help="machine-readable output on stdout")
+
+    bake = commands.add_parser("bake", help="bake lighting into a new layer over the input")
+    stage_options(bake)
+    bake.add_argument("-o", "--output", help="output layer (default: IN.baked.usdc beside the input)")
+    plan = commands.add_parser("plan", help="show what would run, what would skip and why")
+    stage_options(plan)
+    listing = commands.add_parser("list", help="list processors and their parameters")
+    listing.add_argument("--json", action="store_true")
+    inspect = commands.add_parser("inspect", help="show the baked data a layer holds")
+    inspect.add_argument("output")
+    inspect.add_argument("--json", action="store_true")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    import warp as wp
+
+    wp.config.quiet = True  # keep stdout clean for --json; our own progress goes to stderr
+    console = Console(stderr=True, soft_wrap=True)
+    try:
+        args = make_parser().parse_args(argv)
+        return COMMANDS[args.command](args, console)
+    except (UsageError, base.ParamError) as error:
+        console.print(f"[red]usdbake: error:[/red] {error}", highlight=False)
+        return EXIT_USAGE
+    except ProcessorFailed as error:
+        console.print(f"[red]usdbake: {error}[/red]; no output was written", highlight=False)
+        return EXIT_FAILED
+
+
+def _default_cache() -> str:
+    return str(Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "usdbake")
+
+
+# ---------------------------------------------------------------------------
+# Options -> (processors, params)
+
+
+def resolve_options(args) -> tuple[list[str], dict[str, dict]]:
+    processors: list[str] = []
+    params: dict[str, dict] = {}
+    if args.config:
+        try:
+            with open(args.config, "rb") as handle:
+                config = tomllib.load(handle)
+        except OSError as error:
+            raise UsageError(f"{args.config}: {error.strerror}") from None
+        except tomllib.TOMLDecodeError as error:
+            raise UsageError(f"{args.config}: not valid TOML ({error})") from None
+        processors += list(config.pop("processors", []))
+        for name, values in config.items():
+            if not isinstance(values, dict):
+                raise UsageError(f"{args.config}: [{name}] must be a table of parameters")
+            params.setdefault(name, {}).update(values)
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        name, dot, param_name = key.partition(".")
+        if not sep or not dot or not name or not param_name:
+            raise UsageError(f"--set {item!r}: expected NAME.param=value")
+        params.setdefault(name.strip(), {})[param_name.strip()] = value
+    processors += args.processors or []
+    return processors or list(DEFAULT_PROCESSORS), params
+
+
+def open_source(path: str):
+    """Open the stage to bake: the input, or the source of a usdbake output."""
+    from pxr import Tf, Usd
+
+    from .bake_layer import bake_source
+
+    if not Path(path).exists():
+        raise UsageError(f"{path}: no such file")
+    try:
+        source = bake_source(path)
+        stage = Usd.Stage.Open(source)
+    except Tf.ErrorException as error:
+        raise UsageError(f"{path}: cannot be read as USD ({_usd_reason(error)})") from None
+    if stage is None:
+        raise UsageError(f"{path}: cannot be read as USD")
+    return source, stage
+
+
+def _usd_reason(error: Exception) -> str:
+    """The human part of a Tf error: the text after the last ' : ', without the quotes."""
+    return str(error).strip().splitlines()[-1].rsplit(" : ", 1)[-1].strip("'\" ")
+
+
+# ---------------------------------------------------------------------------
+# Commands
+
+
+def cmd_plan(args, console: Console) -> int:
+    from .extract import extract_scene
+
+    names, params = resolve_options(args)
+    pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force)
+    _, stage = open_source(args.input)
+    steps = pipeline.plan(extract_scene(stage, time=args.time))
+    if args.json:
+        print(json.dumps([step.report() for step in steps], indent=2, default=str))
+    else:
+        console.print(_summary_table(steps, planned=True))
+    return EXIT_OK
+
+
+def cmd_bake(args, console: Console) -> int:
+    from .bake_layer import save_atomically
+    from .extract import extract_scene
+
+    names, params = resolve_options(args)
+    pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force)
+    source, stage = open_source(args.input)
+    output = args.output or _default_output(args.input, source)
+    if Path(output).resolve() == Path(source).resolve():
+        raise UsageError(f"{output}: refusing to overwrite the input layer; choose another -o")
+    started = time.perf_counter()
+    with Progress(TextColumn("{task.description:<22}"), BarColumn(), TextColumn("{task.percentage:>5.1f}%"),
+                  TimeElapsedColumn(), console=console, transient=False, disable=args.json) as progress:
+        reading = progress.add_task("reading stage", total=1.0)
+        scene = extract_scene(stage, time=args.time)
+        progress.update(reading, completed=1.0)
+        tasks = {step.name: progress.add_task(step.name, total=1.0) for step in pipeline.plan(scene)
+                 if step.action != "skip"}
+        pipeline.run(scene, on_progress=lambda name, f: progress.update(tasks[name], completed=f))
+        writing = progress.add_task("writing layer", total=1.0)
+        save_atomically(output, source, pipeline.outputs(),
+                        pipeline.provenance({"source": os.path.relpath(source, Path(output).resolve().parent)}))
+        progress.update(writing, completed=1.0)
+    total = time.perf_counter() - started
+    for warning in scene.warnings:
+        console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
+    if args.json:
+        print(json.dumps({"output": output, "seconds": round(total, 3),
+                          "steps": [step.report() for step in pipeline.steps]}, indent=2, default=str))
+    else:
+        console.print(_summary_table(pipeline.steps))
+        for step in pipeline.steps:
+            for message in (step.result.messages if step.result else []):
+                console.print(f"{step.name}: {message}", highlight=False)
+        console.print(f"wrote {output} in {total:.2f} s", highlight=False)
+    return EXIT_OK
+
+
+def _default_output(input_path: str, source: str) -> str:
+    if Path(input_path).resolve() != Path(source).resolve():
+        return input_path  # re-baking a usdbake output replaces it
+    path = Path(source)
+    return str(path.with_name(f"{path.stem}.baked.usdc"))
+
+
+def _summary_table(steps, *, planned: bool = False) -> Table:
+    table = Table(title="plan" if planned else "bake summary")
+    for column in ("processor", "action", "reason", "time (s)", "Mrays/s"):
+        table.add_column(column, justify="right" if column in ("time (s)", "Mrays/s") else "left")
+    labels = {"run": "will run" if planned else "ran", "cached": "up to date", "skip": "skipped"}
+    for step in steps:
+        table.add_row(step.name, labels[step.action], step.reason,
+                      "" if planned else f"{step.seconds:.2f}",
+                      f"{step.mrays_per_second:.2f}" if step.mrays_per_second else "")
+    return table
+
+
+def cmd_list(args, console: Console) -> int:
+    rows = []
+    for name, cls in sorted(base.registry().items()):
+        rows.append({"name": name, "summary": cls.summary, "requires": list(cls.requires),
+                     "provides": list(cls.provides), "params": cls.Params.describe()})
+    if args.json:
+        print(json.dumps(rows, indent=2, default=str))
+        return EXIT_OK
+    for row in rows:
+        table = Table(title=f"{row['name']}: {row['summary']}", title_justify="left")
+        for column in ("param", "type", "default", "range", "meaning"):
+            table.add_column(column)
+        for p in row["params"]:
+            bounds = p["choices"] or (f"[{_fmt(p['low'])}, {_fmt(p['high'])}]"
+                                      if p["low"] is not None or p["high"] is not None else "")
+            table.add_row(p["name"], p["type"], _fmt(p["default"]), str(bounds), p["doc"])
+        console.print(table)
+    return EXIT_OK
+
+
+def _fmt(value) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float) and math.isinf(value):
+        return "inf"
+    return str(value)
+
+
+def cmd_inspect(args, console: Console) -> int:
+    from .inspect import inspect_layer
+
+    report = inspect_layer(args.output)
+    if args.json:
+        print(json.dumps(report, indent=2, default=str))
+        return EXIT_OK
+    console.print(f"{args.output}: baked by usdbake {report['provenance'].get('version', '?')} "
+                  f"from {report['provenance'].get('source', '?')}", highlight=False)
+    table = Table()
+    for column in ("property", "type", "interpolation", "elementSize", "values", "time samples"):
+        table.add_column(column)
+    for row in report["properties"]:
+        table.add_row(row["path"], row["type"], row["interpolation"], str(row["element_size"]),
+                      str(row["values"]), str(row["time_samples"]))
+    console.print(table)
+    return EXIT_OK
+
+
+COMMANDS = {"bake": cmd_bake, "plan": cmd_plan, "list": cmd_list, "inspect": cmd_inspect}
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,334 @@
+"""Stage -> Scene: traverse a composed Usd.Stage once and flatten it into arrays.
+
+Honours visibility, purpose (default/render only), active state, instance
+proxies of instanceable prims, and UsdGeom.PointInstancer (prototypes are
+flattened per instance so they occlude, and the instances are also kept as
+transforms in Scene.instances). Polygons are triangulated (fan for convex,
+ear clipping for concave), holes are skipped with a warning, winding follows
+``orientation`` and the sign of the transform's determinant (as Hydra does).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
+
+from ..processors.scene import (LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Instances,
+                                Lights, Scene)
+from .errors import StageError
+from .materials import MaterialReader
+from .triangulate import triangulate
+
+RENDERABLE_PURPOSES = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
+LIGHT_TYPES = (
+    (UsdLux.DistantLight, LIGHT_DISTANT), (UsdLux.DomeLight, LIGHT_DOME), (UsdLux.SphereLight, LIGHT_SPHERE),
+    (UsdLux.RectLight, LIGHT_RECT), (UsdLux.DiskLight, LIGHT_DISK),
+)
+
+
+@dataclass
+class LocalMesh:
+    """One mesh prim's triangulated topology and shading in its own space (shared by all its instances)."""
+
+    path: str
+    points: np.ndarray        # (P, 3) float64 local
+    triangles: np.ndarray     # (T, 3) int32, authored winding
+    tri_face: np.ndarray      # (T,) int32
+    face_count: int
+    tri_albedo: np.ndarray    # (T, 3) float32
+    tri_emission: np.ndarray  # (T, 3) float32
+    left_handed: bool
+    double_sided: bool
+    skip: bool
+    surface: str
+
+
+@dataclass
+class _Builder:
+    """Accumulates per-prim arrays, then concatenates them into a Scene."""
+
+    meshes: list = field(default_factory=list)       # (LocalMesh, world matrix (4,4) float64, writable, instance)
+    warnings: list = field(default_factory=list)
+
+    def add(self, mesh: LocalMesh, world: np.ndarray, writable: bool, instance: int = -1) -> None:
+        self.meshes.append((mesh, world, writable, instance))
+
+
+def extract_scene(stage: Usd.Stage, *, time: float | None = None) -> Scene:
+    """Flatten ``stage`` at ``time`` (None: the default time) into a Scene.
+
+    Raises StageError naming prim, attribute and value for data that cannot be baked
+    (NaN/inf points, out-of-range indices, mismatched counts).
+    """
+    timecode = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
+    xforms = UsdGeom.XformCache(timecode)
+    materials = MaterialReader(timecode)
+    builder = _Builder()
+    local_meshes: dict[str, LocalMesh] = {}
+    light_prims: list[Usd.Prim] = []
+    instances = _InstanceTable()
+
+    def local_mesh(prim: Usd.Prim) -> LocalMesh:
+        key = str(prim.GetPath())
+        if key not in local_meshes:
+            local_meshes[key] = _read_mesh(prim, timecode, materials, builder.warnings)
+        return local_meshes[key]
+
+    predicate = Usd.TraverseInstanceProxies(Usd.PrimIsActive & Usd.PrimIsDefined & ~Usd.PrimIsAbstract)
+    iterator = iter(Usd.PrimRange.Stage(stage, predicate))
+    for prim in iterator:
+        if not _renderable(prim, timecode):
+            iterator.PruneChildren()
+            continue
+        if prim.IsA(UsdGeom.PointInstancer):
+            _add_point_instancer(prim, timecode, xforms, local_mesh, builder, instances)
+            iterator.PruneChildren()
+        elif prim.IsA(UsdGeom.Mesh):
+            world = np.array(xforms.GetLocalToWorldTransform(prim), np.float64)
+            builder.add(local_mesh(prim), world, writable=not prim.IsInstanceProxy())
+        elif any(prim.IsA(light_type) for light_type, _ in LIGHT_TYPES):
+            light_prims.append(prim)
+
+    return _assemble(stage, builder, light_prims, instances, xforms, timecode, time)
+
+
+def _renderable(prim: Usd.Prim, timecode: Usd.TimeCode) -> bool:
+    imageable = UsdGeom.Imageable(prim)
+    if not imageable:
+        return True
+    if imageable.GetVisibilityAttr().Get(timecode) == UsdGeom.Tokens.invisible:
+        return False
+    purpose = imageable.GetPurposeAttr().Get()
+    return purpose in RENDERABLE_PURPOSES or not purpose
+
+
+def _read_mesh(prim: Usd.Prim, timecode: Usd.TimeCode, materials: "MaterialReader", warnings: list) -> LocalMesh:
+    mesh = UsdGeom.Mesh(prim)
+    path = str(prim.GetPath())
+    points = np.asarray(mesh.GetPointsAttr().Get(timecode) or [], np.float64).reshape(-1, 3)
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(timecode) or [], np.int64)
+    indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(timecode) or [], np.int64)
+    _validate_mesh(path, points, counts, indices)
+    skip_faces = counts < 3
+    if skip_faces.any():
+        warnings.append(f"{path}: {int(skip_faces.sum())} faces with fewer than 3 vertices skipped")
+    holes = np.asarray(mesh.GetHoleIndicesAttr().Get(timecode) or [], np.int64)
+    holes = holes[(holes >= 0) & (holes < len(counts))]
+    if len(holes):
+        skip_faces[holes] = True
+        warnings.append(f"{path}: {len(holes)} hole faces skipped")
+    triangles, tri_face = triangulate(points, counts, indices, skip_faces)
+    albedo, emission, surface = materials.face_shading(prim, len(counts))
+    skip_attr = prim.GetAttribute("bake:skip")
+    return LocalMesh(
+        path=path, points=points, triangles=triangles, tri_face=tri_face, face_count=len(counts),
+        tri_albedo=albedo[tri_face], tri_emission=emission[tri_face],
+        left_handed=mesh.GetOrientationAttr().Get(timecode) == UsdGeom.Tokens.leftHanded,
+        double_sided=bool(mesh.GetDoubleSidedAttr().Get(timecode)),
+        skip=bool(skip_attr and skip_attr.Get(timecode)), surface=surface,
+    )
+
+
+def _validate_mesh(path: str, points: np.ndarray, counts: np.ndarray, indices: np.ndarray) -> None:
+    bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
+    if len(bad):
+        raise StageError(path, "points", f"point {bad[0]} is {tuple(points[bad[0]])} "
+                                         f"({len(bad)} non-finite points); fix or remove them")
+    if counts.sum() != len(indices):
+        raise StageError(path, "faceVertexCounts", f"sum {int(counts.sum())} != len(faceVertexIndices) "
+                                                   f"{len(indices)}")
+    if (counts < 0).any():
+        raise StageError(path, "faceVertexCounts", f"negative count {int(counts.min())}")
+    out_of_range = np.flatnonzero((indices < 0) | (indices >= len(points)))
+    if len(out_of_range):
+        raise StageError(path, "faceVertexIndices", f"index {int(indices[out_of_range[0]])} at position "
+                                                    f"{out_of_range[0]} is outside 0..{len(points) - 1}")
+
+
+class _InstanceTable:
+    """Collects PointInstancer instances for Scene.instances."""
+
+    def __init__(self):
+        self.instancer_paths: list[str] = []
+        self.prototype_paths: list[str] = []
+        self.rows: list[tuple[int, int, np.ndarray]] = []
+
+    def prototype(self, path: str) -> int:
+        if path not in self.prototype_paths:
+            self.prototype_paths.append(path)
+        return self.prototype_paths.index(path)
+
+
+def _add_point_instancer(prim, timecode, xforms, local_mesh, builder: _Builder, instances: _InstanceTable) -> None:
+    instancer = UsdGeom.PointInstancer(prim)
+    path = str(prim.GetPath())
+    targets = instancer.GetPrototypesRel().GetTargets()
+    proto_indices = np.asarray(instancer.GetProtoIndicesAttr().Get(timecode) or [], np.int64)
+    if len(proto_indices) == 0:
+        return
+    bad = np.flatnonzero((proto_indices < 0) | (proto_indices >= len(targets)))
+    if len(bad):
+        raise StageError(path, "protoIndices", f"index {int(proto_indices[bad[0]])} at instance {bad[0]} "
+                                               f"but only {len(targets)} prototypes")
+    matrices = instancer.ComputeInstanceTransformsAtTime(
+        timecode, timecode, UsdGeom.PointInstancer.IncludeProtoXform, UsdGeom.PointInstancer.IgnoreMask)
+    if matrices is None or len(matrices) != len(proto_indices):
+        raise StageError(path, "positions", "instance transforms could not be computed (positions, "
+                                            "orientations and protoIndices must have matching lengths)")
+    mask = instancer.ComputeMaskAtTime(timecode) or [True] * len(proto_indices)
+    instancer_world = np.array(xforms.GetLocalToWorldTransform(prim), np.float64)
+    instancer_index = len(instances.instancer_paths)
+    instances.instancer_paths.append(path)
+    stage = prim.GetStage()
+    proto_meshes = {}
+    for proto_index, target in enumerate(targets):
+        proto_root = stage.GetPrimAtPath(target)
+        if not proto_root:
+            raise StageError(path, "prototypes", f"target {target} does not exist")
+        proto_meshes[proto_index] = _prototype_meshes(proto_root, timecode, xforms, local_mesh)
+    for row, (proto_index, matrix) in enumerate(zip(proto_indices, matrices)):
+        if not mask[row]:
+            continue
+        to_world = np.array(matrix, np.float64) @ instancer_world
+        instance = len(instances.rows)
+        instances.rows.append((instancer_index, instances.prototype(str(targets[proto_index])), to_world))
+        for mesh, relative in proto_meshes[proto_index]:
+            builder.add(mesh, relative @ to_world, writable=False, instance=instance)
+
+
+def _prototype_meshes(root: Usd.Prim, timecode, xforms, local_mesh) -> list:
+    """Renderable meshes under a prototype root, with transforms relative to the root's space."""
+    found = []
+    predicate = Usd.TraverseInstanceProxies(Usd.PrimIsActive & Usd.PrimIsDefined)
+    iterator = iter(Usd.PrimRange(root, predicate))
+    for prim in iterator:
+        if prim != root and not _renderable(prim, timecode):
+            iterator.PruneChildren()
+        elif prim.IsA(UsdGeom.Mesh):
+            relative = Gf.Matrix4d(1.0) if prim == root else xforms.ComputeRelativeTransform(prim, root)[0]
+            found.append((local_mesh(prim), np.array(relative, np.float64)))
+    return found
+
+
+def _assemble(stage, builder: _Builder, light_prims, instances: _InstanceTable, xforms, timecode, time) -> Scene:
+    world_points = [np.c_[m.points, np.ones(len(m.points))] @ world for m, world, _, _ in builder.meshes]
+    all_points = np.concatenate([p[:, :3] for p in world_points]) if world_points else np.zeros((0, 3))
+    origin = ((all_points.min(axis=0) + all_points.max(axis=0)) / 2) if len(all_points) else np.zeros(3)
+
+    point_start = np.zeros(len(builder.meshes) + 1, np.int64)
+    tri_parts, face_parts, prim_parts = [], [], []
+    for m_index, ((mesh, world, _, _), points) in enumerate(zip(builder.meshes, world_points)):
+        point_start[m_index + 1] = point_start[m_index] + len(points)
+        flip = mesh.left_handed ^ (np.linalg.det(world[:3, :3]) < 0)
+        triangles = mesh.triangles[:, ::-1] if flip else mesh.triangles
+        tri_parts.append(triangles + point_start[m_index])
+        prim_parts.append(np.full(len(triangles), m_index, np.int32))
+        face_parts.append(mesh.tri_face)
+
+    def cat(parts, empty_shape, dtype):
+        return np.concatenate(parts).astype(dtype) if parts else np.zeros(empty_shape, dtype)
+
+    points = (all_points - origin).astype(np.float32)
+    tri_vertices = cat(tri_parts, (0, 3), np.int32)
+    tri_normals, tri_areas = _triangle_normals(points, tri_vertices)
+    meshes = [m for m, _, _, _ in builder.meshes]
+    tri_prim = cat(prim_parts, 0, np.int32)
+    per_tri = lambda name, shape: cat([getattr(m, name) for m in meshes], shape, np.float32)  # noqa: E731
+    return Scene(
+        points=points, tri_vertices=tri_vertices, tri_normals=tri_normals, tri_areas=tri_areas,
+        tri_albedo=per_tri("tri_albedo", (0, 3)), tri_emission=per_tri("tri_emission", (0, 3)),
+        tri_prim=tri_prim, tri_face=cat(face_parts, 0, np.int32),
+        tri_instance=np.array([inst for _, _, _, inst in builder.meshes], np.int32)[tri_prim]
+        if len(tri_prim) else np.zeros(0, np.int32),
+        tri_double_sided=np.array([m.double_sided for m in meshes], bool)[tri_prim]
+        if len(tri_prim) else np.zeros(0, bool),
+        point_prim=np.repeat(np.arange(len(meshes), dtype=np.int32), np.diff(point_start)),
+        prim_paths=tuple(m.path for m in meshes),
+        prim_point_start=point_start,
+        prim_face_count=np.array([m.face_count for m in meshes], np.int32),
+        prim_writable=np.array([w for _, _, w, _ in builder.meshes], bool),
+        prim_skip=np.array([m.skip for m in meshes], bool),
+        prim_surface=tuple(m.surface for m in meshes),
+        lights=_read_lights(light_prims, xforms, timecode, origin),
+        instances=_instances(instances, origin),
+        origin=origin,
+        up_axis=str(UsdGeom.GetStageUpAxis(stage)),
+        meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
+        time_code=time,
+        source=stage.GetRootLayer().identifier,
+        warnings=tuple(builder.warnings),
+    )
+
+
+def _triangle_normals(points: np.ndarray, tri_vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit geometric normals (zero for degenerate triangles) and areas, computed in float64."""
+    corners = points[tri_vertices].astype(np.float64)
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    double_area = np.linalg.norm(cross, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normals = np.where(double_area[:, None] > 0, cross / double_area[:, None], 0.0)
+    return normals.astype(np.float32), (double_area / 2).astype(np.float32)
+
+
+def _instances(table: _InstanceTable, origin: np.ndarray) -> Instances:
+    transforms = np.array([m for _, _, m in table.rows], np.float64).reshape(-1, 4, 4)
+    transforms[:, 3, :3] -= origin
+    return Instances(
+        instancer_paths=tuple(table.instancer_paths), prototype_paths=tuple(table.prototype_paths),
+        instance_instancer=np.array([i for i, _, _ in table.rows], np.int32),
+        instance_prototype=np.array([p for _, p, _ in table.rows], np.int32),
+        instance_transforms=transforms,
+    )
+
+
+def _read_lights(prims: list, xforms, timecode, origin: np.ndarray) -> Lights:
+    rows = []
+    for prim in prims:
+        kind = next(k for light_type, k in LIGHT_TYPES if prim.IsA(light_type))
+        light = UsdLux.LightAPI(prim)
+        world = np.array(xforms.GetLocalToWorldTransform(prim), np.float64)
+        intensity = float(light.GetIntensityAttr().Get(timecode))
+        exposure = float(light.GetExposureAttr().Get(timecode))
+        color = np.array(light.GetColorAttr().Get(timecode), np.float64)
+        if light.GetEnableColorTemperatureAttr().Get(timecode):
+            color *= np.array(UsdLux.BlackbodyTemperatureAsRgb(light.GetColorTemperatureAttr().Get(timecode)))
+        radiance = intensity * 2.0 ** exposure * color
+        if not np.isfinite(radiance).all():
+            raise StageError(str(prim.GetPath()), "inputs:intensity", f"light radiance {radiance} is not finite")
+        size, area = _light_size(prim, kind, world, timecode)
+        if light.GetNormalizeAttr().Get(timecode) and area > 0:
+            radiance = radiance / area
+        direction = -world[2, :3]
+        norm = np.linalg.norm(direction)
+        rows.append((str(prim.GetPath()), kind, radiance, world[3, :3] - origin,
+                     direction / norm if norm > 0 else np.array([0.0, 0.0, -1.0]), size))
+    return Lights(
+        light_paths=tuple(r[0] for r in rows),
+        light_kind=np.array([r[1] for r in rows], np.int32),
+        light_radiance=np.array([r[2] for r in rows], np.float32).reshape(-1, 3),
+        light_position=np.array([r[3] for r in rows], np.float32).reshape(-1, 3),
+        light_direction=np.array([r[4] for r in rows], np.float32).reshape(-1, 3),
+        light_size=np.array([r[5] for r in rows], np.float32).reshape(-1, 2),
+    )
+
+
+def _light_size(prim, kind: int, world: np.ndarray, timecode) -> tuple[tuple[float, float], float]:
+    """(size pair, world-space emitting area) of a light."""
+    scale = np.linalg.norm(world[:3, :3], axis=1)  # row lengths: x, y, z axis scales
+    if kind == LIGHT_SPHERE:
+        radius = float(UsdLux.SphereLight(prim).GetRadiusAttr().Get(timecode)) * float(scale.max())
+        return (radius, radius), 4.0 * np.pi * radius * radius
+    if kind == LIGHT_DISK:
+        radius = float(UsdLux.DiskLight(prim).GetRadiusAttr().Get(timecode)) * float(scale[:2].max())
+        return (radius, radius), np.pi * radius * radius
+    if kind == LIGHT_RECT:
+        rect = UsdLux.RectLight(prim)
+        width = float(rect.GetWidthAttr().Get(timecode)) * float(scale[0])
+        height = float(rect.GetHeightAttr().Get(timecode)) * float(scale[1])
+        return (width, height), width * height
+    if kind == LIGHT_DISTANT:
+        angle = float(UsdLux.DistantLight(prim).GetAngleAttr().Get(timecode))
+        return (angle, angle), 0.0
+    return (0.0, 0.0), 0.0

@@ -1,0 +1,122 @@
+"""Per-face diffuse albedo and emission from bound materials.
+
+Order of precedence per face: the UsdPreviewSurface bound to the face's
+GeomSubset or to the prim (diffuseColor constant, or the mean of a
+diffuseColor texture read with OpenImageIO), else ``primvars:displayColor``
+(constant, uniform or the mean of other interpolations), else 0.5 grey.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdShade
+
+DEFAULT_ALBEDO = (0.5, 0.5, 0.5)
+PREVIEW_SURFACE = "UsdPreviewSurface"
+
+
+class MaterialReader:
+    """Reads and caches shading per material, so shared materials are read once."""
+
+    def __init__(self, timecode: Usd.TimeCode):
+        self.timecode = timecode
+        self._materials: dict[str, tuple[np.ndarray | None, np.ndarray, str]] = {}
+        self._textures: dict[str, np.ndarray | None] = {}
+
+    def face_shading(self, prim: Usd.Prim, face_count: int) -> tuple[np.ndarray, np.ndarray, str]:
+        """(F, 3) albedo, (F, 3) emission and the prim-level surface shader path ('' if none)."""
+        albedo = np.broadcast_to(self._display_color(prim, face_count), (face_count, 3)).astype(np.float32)
+        emission = np.zeros((face_count, 3), np.float32)
+        binding = UsdShade.MaterialBindingAPI(prim)
+        surface = ""
+        material, _ = binding.ComputeBoundMaterial()
+        if material:
+            diffuse, emissive, surface = self._shading(material)
+            if diffuse is not None:
+                albedo[:] = diffuse
+            emission[:] = emissive
+        for subset in UsdShade.MaterialBindingAPI.GetMaterialBindSubsets(binding):
+            subset_material, _ = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()
+            if not subset_material:
+                continue
+            faces = np.asarray(subset.GetIndicesAttr().Get(self.timecode) or [], np.int64)
+            faces = faces[(faces >= 0) & (faces < face_count)]
+            diffuse, emissive, _ = self._shading(subset_material)
+            if diffuse is not None:
+                albedo[faces] = diffuse
+            emission[faces] = emissive
+        return np.clip(albedo, 0.0, 1.0), np.maximum(emission, 0.0), surface
+
+    def _display_color(self, prim: Usd.Prim, face_count: int) -> np.ndarray:
+        primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
+        values = primvar.ComputeFlattened(self.timecode) if primvar and primvar.HasValue() else None
+        if values is None or len(values) == 0:
+            return np.array(DEFAULT_ALBEDO, np.float32)
+        values = np.asarray(values, np.float32).reshape(-1, 3)
+        if primvar.GetInterpolation() == UsdGeom.Tokens.uniform and len(values) == face_count:
+            return values
+        return values.mean(axis=0)
+
+    def _shading(self, material: UsdShade.Material) -> tuple[np.ndarray | None, np.ndarray, str]:
+        key = str(material.GetPath())
+        if key not in self._materials:
+            self._materials[key] = self._read_material(material)
+        return self._materials[key]
+
+    def _read_material(self, material: UsdShade.Material):
+        shader = material.ComputeSurfaceSource()[0]
+        if not shader or shader.GetIdAttr().Get() != PREVIEW_SURFACE:
+            return None, np.zeros(3, np.float32), ""
+        diffuse = self._color_input(shader, "diffuseColor", (0.18, 0.18, 0.18))
+        emissive = self._color_input(shader, "emissiveColor", (0.0, 0.0, 0.0))
+        return diffuse, emissive, str(shader.GetPath())
+
+    def _color_input(self, shader: UsdShade.Shader, name: str, fallback) -> np.ndarray:
+        shader_input = shader.GetInput(name)
+        if not shader_input:
+            return np.array(fallback, np.float32)
+        source = shader_input.GetConnectedSource()
+        if source:
+            texture = UsdShade.Shader(source[0].GetPrim())
+            mean = self._texture_mean(texture)
+            return mean if mean is not None else np.array(fallback, np.float32)
+        value = shader_input.Get(self.timecode)
+        return np.array(value if value is not None else fallback, np.float32)
+
+    def _texture_mean(self, texture: UsdShade.Shader) -> np.ndarray | None:
+        """Mean colour of a UsdUVTexture's file (linearized when it is 8-bit sRGB), times scale + bias."""
+        file_input = texture.GetInput("file")
+        asset = file_input.Get(self.timecode) if file_input else None
+        path = asset.resolvedPath if isinstance(asset, Sdf.AssetPath) else ""
+        if not path:
+            return None
+        if path not in self._textures:
+            color_space_input = texture.GetInput("sourceColorSpace")
+            color_space = color_space_input.Get() if color_space_input else "auto"
+            self._textures[path] = image_mean(path, srgb=color_space != "raw")
+        mean = self._textures[path]
+        if mean is None:
+            return None
+        scale = _vec_input(texture, "scale", (1, 1, 1, 1), self.timecode)[:3]
+        bias = _vec_input(texture, "bias", (0, 0, 0, 0), self.timecode)[:3]
+        return (mean * scale + bias).astype(np.float32)
+
+
+def _vec_input(shader: UsdShade.Shader, name: str, fallback, timecode) -> np.ndarray:
+    shader_input = shader.GetInput(name)
+    value = shader_input.Get(timecode) if shader_input else None
+    return np.array(value if value is not None else fallback, np.float64)
+
+
+def image_mean(path: str, *, srgb: bool) -> np.ndarray | None:
+    """Mean RGB of an image read through OpenImageIO; 8-bit sRGB data is linearized first."""
+    import OpenImageIO as oiio
+
+    image = oiio.ImageBuf(path)
+    if image.has_error:
+        return None
+    pixels = np.asarray(image.get_pixels(oiio.FLOAT), np.float64).reshape(-1, image.nchannels)
+    rgb = pixels[:, :3] if image.nchannels >= 3 else np.repeat(pixels[:, :1], 3, axis=1)
+    if srgb and image.spec().format == oiio.UINT8:
+        rgb = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    return rgb.mean(axis=0)
