@@ -7,6 +7,13 @@ The repository root is this package; ``usdbake.processors`` (pure compute),
 
 from importlib.metadata import PackageNotFoundError, version
 
+from .schemas import register as _register_schemas
+
+# Register our schema plugin as early as possible: USD reads plugin schemas
+# once, when the first stage is opened. In a DCC that opened stages before
+# importing usdbake, set PXR_PLUGINPATH_NAME to usdbake/schemas instead.
+SCHEMAS_REGISTERED = _register_schemas()
+
 try:
     __version__ = version("usdbake")
 except PackageNotFoundError:  # running from a source tree that was never installed

@@ -237,16 +237,25 @@ def register(cls: type[Processor]) -> type[Processor]:
 
 def registry() -> dict[str, type[Processor]]:
     """All processors: the built-in ones and those from the 'usdbake.processors' entry points."""
-    global _entry_points_loaded
     from . import BUILTIN_MODULES  # noqa: F401  (importing registers the built-ins)
 
     if not _entry_points_loaded:
-        _entry_points_loaded = True
-        for entry in entry_points(group=ENTRY_POINT_GROUP):
-            loaded = entry.load()
-            if isinstance(loaded, type) and issubclass(loaded, Processor):
-                register(loaded)
+        load_entry_points()
     return dict(_REGISTRY)
+
+
+def load_entry_points() -> list[str]:
+    """(Re)load third-party processors from the entry-point group; returns the names found."""
+    global _entry_points_loaded
+    _entry_points_loaded = True
+    names = []
+    for entry in entry_points(group=ENTRY_POINT_GROUP):
+        loaded = entry.load()
+        if not (isinstance(loaded, type) and issubclass(loaded, Processor)):
+            raise TypeError(f"entry point {entry.name!r} ({entry.value}) is not a usdbake Processor class")
+        register(loaded)
+        names.append(loaded.name)
+    return names
 
 
 def get(name: str) -> type[Processor]:

@@ -1,9 +1,5 @@
 """The USD boundary: stage -> Scene, output records -> bake layer, the runner, the CLI and the hook.
 
-Importing this package registers the usdbake schema plugin first, so our
-prim types are known before any stage is opened in this process.
+Only this package and usdbake.schemas import pxr. The schema plugin is
+registered by ``import usdbake`` (the package root), before any of this runs.
 """
-
-from ..schemas import register as _register_schemas
-
-_register_schemas()

@@ -1,0 +1,49 @@
+"""python -m benchmarks [NAME ...] [--quick] [--report-only]"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+import time
+
+from . import harness, report
+
+
+def available() -> dict[str, object]:
+    """bench_<name>.py modules in this folder, by NAME."""
+    modules = {}
+    for info in pkgutil.iter_modules([str(harness.ROOT)]):
+        if info.name.startswith("bench_"):
+            module = importlib.import_module(f"benchmarks.{info.name}")
+            modules[module.NAME] = module
+    return modules
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__)
+    parser.add_argument("names", nargs="*", help="benchmarks to run (default: all)")
+    parser.add_argument("--quick", action="store_true", help="small sweeps for CI (< 3 minutes in all)")
+    parser.add_argument("--report-only", action="store_true", help="only regenerate docs/benchmarks.md")
+    args = parser.parse_args(argv)
+    modules = available()
+    unknown = [n for n in args.names if n not in modules]
+    if unknown:
+        print(f"unknown benchmark(s): {', '.join(unknown)} (known: {', '.join(sorted(modules))})", file=sys.stderr)
+        return 2
+    if not args.report_only:
+        for name in args.names or sorted(modules):
+            started = time.perf_counter()
+            data = modules[name].run(quick=args.quick)
+            data["quick"] = args.quick
+            path = harness.save(data)
+            print(f"{name}: {time.perf_counter() - started:.1f} s -> {path.relative_to(harness.REPO)}")
+            for key, value in data["figures"].items():
+                print(f"  {key}: {value}")
+    print(f"wrote {report.write().relative_to(harness.REPO)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
