@@ -93,7 +93,7 @@ def _type_name(annotation) -> str:
 
 def _convert(name: str, value: Any, default: Any) -> Any:
     if not isinstance(value, str) or isinstance(default, str):
-        return value
+        return _check_type(name, value, default)
     text = value.strip()
     try:
         if isinstance(default, bool):
@@ -110,6 +110,24 @@ def _convert(name: str, value: Any, default: Any) -> Any:
     except ValueError:
         raise ParamError(f"{name}={value!r} is not a valid {type(default).__name__}") from None
     return value
+
+
+def _check_type(name: str, value: Any, default: Any) -> Any:
+    """Non-string values (TOML, Python) must have the field's type: True is not a sample count."""
+    is_bool = isinstance(value, (bool, np.bool_))
+    if isinstance(default, bool):
+        ok, converted = is_bool, bool(value) if is_bool else value
+    elif isinstance(default, int):
+        ok = isinstance(value, (int, np.integer)) and not is_bool
+        converted = int(value) if ok else value
+    elif isinstance(default, float):
+        ok = isinstance(value, (int, float, np.integer, np.floating)) and not is_bool
+        converted = float(value) if ok else value
+    else:
+        return value
+    if not ok:
+        raise ParamError(f"{name}={value!r} is not a valid {type(default).__name__}")
+    return converted
 
 
 # ---------------------------------------------------------------------------

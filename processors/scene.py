@@ -111,6 +111,9 @@ class Scene:
     instances: Instances = field(default_factory=Instances)
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3, np.float64))
     """(3,) float64 world position of the local frame the points are stored in."""
+    prim_to_world: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.float64))
+    """(M, 4, 4) float64 local-to-world matrix per prim (row-vector convention, as Gf), translation
+    relative to ``origin``: ``points[prim_points(m)] ~ [local, 1] @ prim_to_world[m]``."""
     up_axis: str = "Y"
     meters_per_unit: float = 1.0
     time_code: float | None = None
@@ -169,7 +172,7 @@ FACETS: dict[str, tuple[str, ...]] = {
     "geometry": (
         "points", "tri_vertices", "tri_prim", "tri_face", "tri_instance", "tri_double_sided",
         "point_prim", "prim_paths", "prim_point_start", "prim_writable", "prim_skip",
-        "origin", "up_axis", "meters_per_unit",
+        "origin", "up_axis", "meters_per_unit", "prim_to_world",
     ),
     "materials": ("tri_albedo", "tri_emission", "prim_surface"),
     "lights": (

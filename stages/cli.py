@@ -70,7 +70,11 @@ def make_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     import warp as wp
 
-    wp.config.quiet = True  # keep stdout clean for --json; our own progress goes to stderr
+    # Keep stdout clean for --json; our own progress goes to stderr. Warp >= 1.19 replaced
+    # config.quiet with config.log_level (info messages such as the init banner go to stdout).
+    wp.config.quiet = True
+    if hasattr(wp, "LOG_WARNING"):
+        wp.config.log_level = wp.LOG_WARNING
     console = Console(stderr=True, soft_wrap=True)
     try:
         args = make_parser().parse_args(argv)
@@ -137,7 +141,8 @@ def open_source(path: str):
 
 def _usd_reason(error: Exception) -> str:
     """The human part of a Tf error: the text after the last ' : ', without the quotes."""
-    return str(error).strip().splitlines()[-1].rsplit(" : ", 1)[-1].strip("'\" ")
+    # Whitespace is collapsed first: a parser message can end in a newline inside its quotes.
+    return " ".join(str(error).split()).rsplit(" : ", 1)[-1].strip("'\" ")
 
 
 # ---------------------------------------------------------------------------

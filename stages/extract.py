@@ -254,12 +254,20 @@ def _assemble(stage, builder: _Builder, light_prims, instances: _InstanceTable, 
         lights=_read_lights(light_prims, xforms, timecode, origin),
         instances=_instances(instances, origin),
         origin=origin,
+        prim_to_world=_prim_to_world(builder, origin),
         up_axis=str(UsdGeom.GetStageUpAxis(stage)),
         meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
         time_code=time,
         source=stage.GetRootLayer().identifier,
         warnings=tuple(builder.warnings),
     )
+
+
+def _prim_to_world(builder: _Builder, origin: np.ndarray) -> np.ndarray:
+    """(M, 4, 4) float64 world matrices per prim, translation relative to ``origin``."""
+    matrices = np.array([world for _, world, _, _ in builder.meshes], np.float64).reshape(-1, 4, 4)
+    matrices[:, 3, :3] -= origin
+    return matrices
 
 
 def _triangle_normals(points: np.ndarray, tri_vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

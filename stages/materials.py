@@ -21,7 +21,7 @@ class MaterialReader:
     def __init__(self, timecode: Usd.TimeCode):
         self.timecode = timecode
         self._materials: dict[str, tuple[np.ndarray | None, np.ndarray, str]] = {}
-        self._textures: dict[str, np.ndarray | None] = {}
+        self._textures: dict[tuple[str, bool], np.ndarray | None] = {}
 
     def face_shading(self, prim: Usd.Prim, face_count: int) -> tuple[np.ndarray, np.ndarray, str]:
         """(F, 3) albedo, (F, 3) emission and the prim-level surface shader path ('' if none)."""
@@ -90,11 +90,12 @@ class MaterialReader:
         path = asset.resolvedPath if isinstance(asset, Sdf.AssetPath) else ""
         if not path:
             return None
-        if path not in self._textures:
-            color_space_input = texture.GetInput("sourceColorSpace")
-            color_space = color_space_input.Get() if color_space_input else "auto"
-            self._textures[path] = image_mean(path, srgb=color_space != "raw")
-        mean = self._textures[path]
+        color_space_input = texture.GetInput("sourceColorSpace")
+        color_space = color_space_input.Get() if color_space_input else "auto"
+        key = (path, color_space != "raw")  # one file may be read raw by one texture, as sRGB by another
+        if key not in self._textures:
+            self._textures[key] = image_mean(path, srgb=key[1])
+        mean = self._textures[key]
         if mean is None:
             return None
         scale = _vec_input(texture, "scale", (1, 1, 1, 1), self.timecode)[:3]

@@ -50,7 +50,7 @@ def ear_clip(corners: np.ndarray) -> np.ndarray:
     n = len(corners)
     normal = newell_normals(corners[None])[0]
     axis = int(np.argmax(np.abs(normal)))
-    keep = [a for a in range(3) if a != axis]
+    keep = [(axis + 1) % 3, (axis + 2) % 3]  # cyclic, so (u, v, axis) is right-handed for every axis
     flat = corners[:, keep].astype(np.float64)
     if normal[axis] < 0:  # make the projected polygon counter-clockwise
         flat = flat[:, ::-1]

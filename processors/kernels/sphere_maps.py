@@ -1,0 +1,233 @@
+"""Sphere and hemisphere layouts with constant-time inverses, as Warp functions with numpy twins.
+
+Two maps back the displacement fields (Gaitatzes, Chrysanthou & Papaioannou,
+"Presampled visibility for ambient occlusion", WSCG 2008):
+
+**Positional samples: equal-area octahedral map** (Clarberg, "Fast equal-area
+mapping of the (hemi)sphere using SIMD", JGT 13(3), 2008; the form used in
+pbrt-v4). The unit square is folded onto an octahedron and each octant is
+warped so that area is preserved *exactly*: an N x N grid of cells over the
+square gives N^2 cells of exactly equal solid angle 4*pi/N^2 on the sphere.
+The positional samples are the cell centres; the inverse map sends any point
+of the sphere back to its cell in O(1) (one atan, one sqrt) -- the role
+Slater's subdivision plays in the paper. Uniformity: equal area by
+construction; the cells are not equal in shape (they shear along the
+octahedron's edges), which ``cell_spacing_ratio_np`` measures: the largest
+over the smallest nearest-neighbour distance between cell centres is 1.34
+for N = 33, 65 and 129 (N^2 = 4225 is the paper's 4226): the spacing does
+not degrade with resolution, unlike latitude-longitude grids whose ratio
+grows like N.
+The square's border is folded (``(1, v) ~ (1, -v)`` in [-1, 1]^2
+coordinates), so grid neighbours across the border are found with
+``octahedral_wrap``.
+
+**Directions: concentric map + Malley** (Shirley & Chiu, "A low distortion
+map between disk and square", JGT 2(3), 1997; Malley 1988): the square maps
+to the disk with area preserved, the disk lifts to the +Z hemisphere, so
+texel (a, b) of an M x M map holds an equal share of the cosine-weighted
+hemisphere: the map the paper found best (its Figure 5). The inverse projects
+a direction to the disk (drop z) and inverts the concentric map.
+
+All [0,1]^2 coordinates are (u, v) with u along the grid's columns (x) and v
+along its rows (y).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+# ---------------------------------------------------------------------------
+# Warp functions
+
+
+@wp.func
+def equal_area_square_to_sphere(u: float, v: float) -> wp.vec3:
+    """Clarberg's equal-area octahedral map, [0,1]^2 -> unit sphere (pbrt-v4 EqualAreaSquareToSphere)."""
+    a = 2.0 * u - 1.0
+    b = 2.0 * v - 1.0
+    ap = wp.abs(a)
+    bp = wp.abs(b)
+    signed_distance = 1.0 - (ap + bp)
+    r = 1.0 - wp.abs(signed_distance)
+    phi = wp.pi / 4.0
+    if r > 0.0:
+        phi = ((bp - ap) / r + 1.0) * wp.pi / 4.0
+    z = wp.where(signed_distance >= 0.0, 1.0 - r * r, -(1.0 - r * r))
+    cos_phi = wp.where(a >= 0.0, wp.cos(phi), -wp.cos(phi))
+    sin_phi = wp.where(b >= 0.0, wp.sin(phi), -wp.sin(phi))
+    s = r * wp.sqrt(wp.max(0.0, 2.0 - r * r))
+    return wp.vec3(cos_phi * s, sin_phi * s, z)
+
+
+@wp.func
+def equal_area_sphere_to_square(d: wp.vec3) -> wp.vec2:
+    """Inverse of equal_area_square_to_sphere: unit vector -> [0,1]^2 (O(1): one atan2, one sqrt)."""
+    x = wp.abs(d[0])
+    y = wp.abs(d[1])
+    z = wp.abs(d[2])
+    r = wp.sqrt(wp.max(0.0, 1.0 - z))
+    phi = float(0.0)
+    if x > 0.0 or y > 0.0:
+        phi = wp.atan2(y, x) * (2.0 / wp.pi)
+    v = phi * r
+    u = r - v
+    if d[2] < 0.0:
+        t = u
+        u = 1.0 - v
+        v = 1.0 - t
+    u = wp.where(d[0] >= 0.0, u, -u)
+    v = wp.where(d[1] >= 0.0, v, -v)
+    return wp.vec2(0.5 * (u + 1.0), 0.5 * (v + 1.0))
+
+
+@wp.func
+def octahedral_wrap(i: int, j: int, n: int) -> wp.vec2i:
+    """Cell (i, j) of an n x n octahedral grid, one step outside the grid folded back inside.
+
+    The square's border is folded onto itself ((1, v) ~ (1, -v) in [-1,1]^2), so the cell
+    beyond the right edge at row j is (n-1, n-1-j); the corners chain both folds.
+    """
+    ii = i
+    jj = j
+    if ii < 0:
+        ii = 0
+        jj = n - 1 - jj
+    elif ii >= n:
+        ii = n - 1
+        jj = n - 1 - jj
+    if jj < 0:
+        jj = 0
+        ii = n - 1 - ii
+    elif jj >= n:
+        jj = n - 1
+        ii = n - 1 - ii
+    return wp.vec2i(wp.clamp(ii, 0, n - 1), wp.clamp(jj, 0, n - 1))
+
+
+@wp.func
+def concentric_disk_to_square(x: float, y: float) -> wp.vec2:
+    """Inverse Shirley-Chiu concentric map: unit disk -> [0,1]^2."""
+    r = wp.sqrt(x * x + y * y)
+    if r <= 0.0:
+        return wp.vec2(0.5, 0.5)
+    phi = wp.atan2(y, x)
+    if phi < -wp.pi / 4.0:
+        phi = phi + 2.0 * wp.pi
+    a = float(0.0)
+    b = float(0.0)
+    quarter = wp.pi / 4.0
+    if phi < quarter:
+        a = r
+        b = phi * a / quarter
+    elif phi < 3.0 * quarter:
+        b = r
+        a = -(phi - wp.pi / 2.0) * b / quarter
+    elif phi < 5.0 * quarter:
+        a = -r
+        b = (phi - wp.pi) * a / quarter
+    else:
+        b = -r
+        a = -(phi - 1.5 * wp.pi) * b / quarter
+    return wp.vec2(wp.clamp(0.5 * (a + 1.0), 0.0, 1.0), wp.clamp(0.5 * (b + 1.0), 0.0, 1.0))
+
+
+@wp.func
+def malley_direction_to_square(d: wp.vec3) -> wp.vec2:
+    """Inverse of sampling.cosine_hemisphere (concentric + Malley): +Z-hemisphere unit vector -> [0,1]^2."""
+    x = d[0]
+    y = d[1]
+    r2 = x * x + y * y
+    if r2 > 1.0:  # rounding just outside the disk: pull back onto the rim
+        s = 1.0 / wp.sqrt(r2)
+        x = x * s
+        y = y * s
+    return concentric_disk_to_square(x, y)
+
+
+# ---------------------------------------------------------------------------
+# numpy twins (float64), for tests and for building tables on the host
+
+
+def equal_area_square_to_sphere_np(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """numpy twin of equal_area_square_to_sphere: (N,) x (N,) in [0,1] -> (N, 3) unit vectors."""
+    a = 2.0 * np.asarray(u, np.float64) - 1.0
+    b = 2.0 * np.asarray(v, np.float64) - 1.0
+    ap, bp = np.abs(a), np.abs(b)
+    signed_distance = 1.0 - (ap + bp)
+    r = 1.0 - np.abs(signed_distance)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        phi = np.where(r > 0, ((bp - ap) / np.where(r > 0, r, 1.0) + 1.0) * np.pi / 4, np.pi / 4)
+    z = np.where(signed_distance >= 0, 1.0 - r * r, -(1.0 - r * r))
+    cos_phi = np.where(a >= 0, np.cos(phi), -np.cos(phi))
+    sin_phi = np.where(b >= 0, np.sin(phi), -np.sin(phi))
+    s = r * np.sqrt(np.maximum(0.0, 2.0 - r * r))
+    return np.stack([cos_phi * s, sin_phi * s, z], axis=-1)
+
+
+def equal_area_sphere_to_square_np(d: np.ndarray) -> np.ndarray:
+    """numpy twin of equal_area_sphere_to_square: (N, 3) unit vectors -> (N, 2) in [0,1]."""
+    d = np.asarray(d, np.float64).reshape(-1, 3)
+    x, y, z = np.abs(d[:, 0]), np.abs(d[:, 1]), np.abs(d[:, 2])
+    r = np.sqrt(np.maximum(0.0, 1.0 - z))
+    phi = np.arctan2(y, x) * (2.0 / np.pi)
+    v = phi * r
+    u = r - v
+    lower = d[:, 2] < 0
+    u, v = np.where(lower, 1.0 - v, u), np.where(lower, 1.0 - u, v)
+    u = np.where(d[:, 0] >= 0, u, -u)
+    v = np.where(d[:, 1] >= 0, v, -v)
+    return np.stack([0.5 * (u + 1.0), 0.5 * (v + 1.0)], axis=-1)
+
+
+def octahedral_wrap_np(i: np.ndarray, j: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """numpy twin of octahedral_wrap (for cells at most one step outside the grid)."""
+    i, j = np.asarray(i).copy(), np.asarray(j).copy()
+    out = (i < 0) | (i >= n)
+    j = np.where(out, n - 1 - j, j)
+    i = np.clip(i, 0, n - 1)
+    out = (j < 0) | (j >= n)
+    i = np.where(out, n - 1 - i, i)
+    j = np.clip(j, 0, n - 1)
+    return np.clip(i, 0, n - 1), j
+
+
+def grid_cell_centers_np(n: int) -> np.ndarray:
+    """(n*n, 3) float64 unit vectors: the positional samples, sample k = (row k // n, column k % n)."""
+    centers = (np.arange(n) + 0.5) / n
+    u, v = np.meshgrid(centers, centers)  # u varies along columns, v along rows
+    return equal_area_square_to_sphere_np(u.ravel(), v.ravel())
+
+
+def concentric_disk_to_square_np(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """numpy twin of concentric_disk_to_square: (N,) x (N,) on the unit disk -> (N, 2) in [0,1]."""
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    r = np.hypot(x, y)
+    phi = np.arctan2(y, x)
+    phi = np.where(phi < -np.pi / 4, phi + 2 * np.pi, phi)
+    quarter = np.pi / 4
+    a = np.select([phi < quarter, phi < 3 * quarter, phi < 5 * quarter],
+                  [r, -(phi - np.pi / 2) * r / quarter, -r], -(phi - 1.5 * np.pi) * -r / quarter)
+    b = np.select([phi < quarter, phi < 3 * quarter, phi < 5 * quarter],
+                  [phi * r / quarter, r, (phi - np.pi) * -r / quarter], -r)
+    return np.clip(np.stack([0.5 * (a + 1), 0.5 * (b + 1)], axis=-1), 0.0, 1.0)
+
+
+def malley_direction_to_square_np(d: np.ndarray) -> np.ndarray:
+    """numpy twin of malley_direction_to_square: (N, 3) with z >= 0 -> (N, 2) in [0,1]."""
+    d = np.asarray(d, np.float64).reshape(-1, 3)
+    r2 = d[:, 0] ** 2 + d[:, 1] ** 2
+    scale = np.where(r2 > 1.0, 1.0 / np.sqrt(np.maximum(r2, 1e-300)), 1.0)
+    return concentric_disk_to_square_np(d[:, 0] * scale, d[:, 1] * scale)
+
+
+def cell_spacing_ratio_np(n: int) -> float:
+    """Largest / smallest nearest-neighbour angle between the n*n cell centres (1 = perfectly even)."""
+    from scipy.spatial import cKDTree
+
+    centers = grid_cell_centers_np(n)
+    distance, _ = cKDTree(centers).query(centers, k=2)
+    chord = distance[:, 1]
+    return float(chord.max() / chord.min())

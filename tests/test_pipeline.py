@@ -1,0 +1,282 @@
+"""The DAG runner: wiring, ordering, broken graphs, skip reasons, caching, failures, params.
+
+Fake processors (tests/fake_processors.py) need no tracer and no pxr, so
+these tests exercise the runner alone; they assert which steps ran and which
+were reused from the cache.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+import fake_processors as fakes
+from usdbake.processors import base
+from usdbake.processors.ambient_occlusion import AmbientOcclusion
+from usdbake.stages.pipeline import GraphError, Pipeline, ProcessorFailed, build_steps, step_key
+
+
+@pytest.fixture
+def register():
+    """Register fake processors for one test; remove them from the global registry afterwards."""
+    base.registry()  # load built-ins and entry points first, so teardown restores exactly this state
+    added = []
+
+    def _register(*classes):
+        for cls in classes:
+            base.register(cls)
+            added.append(cls.name)
+
+    fakes.CALLS.clear()
+    yield _register
+    for name in added:
+        base._REGISTRY.pop(name, None)
+    fakes.CALLS.clear()
+
+
+def names(steps):
+    return [step.name for step in steps]
+
+
+def actions(steps):
+    return {step.name: step.action for step in steps}
+
+
+# ---------------------------------------------------------------------------
+# Wiring
+
+
+def test_build_steps_adds_dependencies_in_topological_order(register):
+    register(fakes.FakeA, fakes.FakeB)
+    assert names(build_steps(["fake_b"])) == ["fake_a", "fake_b"]
+    # Asking for both, in either order, gives each once, producer first.
+    assert names(build_steps(["fake_b", "fake_a"])) == ["fake_a", "fake_b"]
+    assert names(build_steps(["fake_a", "fake_b"])) == ["fake_a", "fake_b"]
+
+
+def test_build_steps_default_is_ambient_occlusion():
+    assert names(build_steps(None)) == ["ambient_occlusion"]
+
+
+def test_params_for_unknown_processor_rejected():
+    with pytest.raises(base.ParamError, match="nope"):
+        build_steps(["ambient_occlusion"], {"nope": {"x": 1}})
+
+
+def test_unknown_processor_rejected():
+    with pytest.raises(base.ParamError, match="unknown processor 'nope'"):
+        build_steps(["nope"])
+
+
+def test_two_producers_of_one_product_is_a_graph_error(register):
+    register(fakes.FakeA, fakes.FakeB, fakes.FakeDuplicateA)
+    with pytest.raises(GraphError, match="'a'.*provided by both"):
+        build_steps(["fake_b"])
+
+
+def test_requirement_nobody_provides_is_a_graph_error(register):
+    register(fakes.FakeOrphan)
+    with pytest.raises(GraphError, match="nobody_makes_this"):
+        build_steps(["fake_orphan"])
+
+
+def test_cycle_is_a_graph_error(register):
+    register(fakes.FakeCycleC, fakes.FakeCycleD)
+    with pytest.raises(GraphError, match="cycle"):
+        build_steps(["fake_cycle_c"])
+
+
+def test_register_refuses_a_taken_name():
+    class Impostor(base.Processor):
+        name = "ambient_occlusion"
+
+    with pytest.raises(ValueError, match="taken"):
+        base.register(Impostor)
+    assert base.get("ambient_occlusion") is AmbientOcclusion
+
+
+# ---------------------------------------------------------------------------
+# Skips
+
+
+def test_not_applicable_skips_it_and_its_dependents(register, tmp_path):
+    register(fakes.FakeNotApplicable, fakes.FakeAfterNA)
+    pipeline = Pipeline.build(["fake_after_na"], cache_dir=tmp_path / "cache")
+    steps = {step.name: step for step in pipeline.run(fakes.make_scene())}
+    assert steps["fake_na"].action == "skip"
+    assert steps["fake_na"].reason == "not applicable: no lights in the scene"
+    assert steps["fake_after_na"].action == "skip"
+    assert steps["fake_after_na"].reason == "requires fake_na (skipped)"
+    assert fakes.CALLS == {}
+    assert pipeline.outputs() == []
+
+
+# ---------------------------------------------------------------------------
+# Caching
+
+
+def run(names_, tmp_path, scene=None, params=None, force=False):
+    pipeline = Pipeline.build(names_, params, cache_dir=tmp_path / "cache", force=force)
+    return pipeline.run(scene if scene is not None else fakes.make_scene())
+
+
+def test_second_run_is_cached_and_does_not_call_run(register, tmp_path):
+    register(fakes.FakeA, fakes.FakeB)
+    first = run(["fake_b"], tmp_path)
+    assert actions(first) == {"fake_a": "run", "fake_b": "run"}
+    assert fakes.CALLS == {"fake_a": 1, "fake_b": 1}
+
+    second = run(["fake_b"], tmp_path)
+    assert actions(second) == {"fake_a": "cached", "fake_b": "cached"}
+    assert all(step.reason.startswith("up to date") for step in second)
+    assert fakes.CALLS == {"fake_a": 1, "fake_b": 1}
+    # The cached result is the same data, products included.
+    np.testing.assert_array_equal(second[1].result.products["b"], first[1].result.products["b"])
+    assert [s.key for s in second] == [s.key for s in first]
+
+
+def test_changing_a_downstream_param_reruns_only_it(register, tmp_path):
+    register(fakes.FakeA, fakes.FakeB)
+    run(["fake_b"], tmp_path)
+    steps = run(["fake_b"], tmp_path, params={"fake_b": {"gain": 2.0}})
+    assert actions(steps) == {"fake_a": "cached", "fake_b": "run"}
+    assert fakes.CALLS == {"fake_a": 1, "fake_b": 2}
+    np.testing.assert_allclose(steps[1].result.products["b"], 2.0 * fakes.make_scene().points[:, 0])
+
+
+def test_changing_an_upstream_param_reruns_downstream_too(register, tmp_path):
+    register(fakes.FakeA, fakes.FakeB)
+    run(["fake_b"], tmp_path)
+    steps = run(["fake_b"], tmp_path, params={"fake_a": {"scale": 3.0}})
+    assert actions(steps) == {"fake_a": "run", "fake_b": "run"}
+
+
+def test_changing_geometry_reruns_what_reads_it_only(register, tmp_path):
+    register(fakes.FakeA, fakes.FakeB, fakes.FakeLights)
+    run(["fake_b", "fake_lights"], tmp_path)
+    moved = fakes.make_scene().points + np.float32(0.25)
+    steps = run(["fake_b", "fake_lights"], tmp_path, scene=fakes.make_scene(moved))
+    assert actions(steps) == {"fake_a": "run", "fake_b": "run", "fake_lights": "cached"}
+    assert fakes.CALLS == {"fake_a": 2, "fake_b": 2, "fake_lights": 1}
+
+
+def test_force_reruns_everything(register, tmp_path):
+    register(fakes.FakeA, fakes.FakeB)
+    run(["fake_b"], tmp_path)
+    steps = run(["fake_b"], tmp_path, force=True)
+    assert actions(steps) == {"fake_a": "run", "fake_b": "run"}
+    assert all(step.reason == "forced" for step in steps)
+    assert fakes.CALLS == {"fake_a": 2, "fake_b": 2}
+
+
+def test_unreadable_cache_entry_is_recomputed(register, tmp_path):
+    register(fakes.FakeA)
+    first = run(["fake_a"], tmp_path)
+    (tmp_path / "cache" / f"fake_a-{first[0].key}.pkl").write_bytes(b"not a pickle")
+    steps = run(["fake_a"], tmp_path)
+    assert actions(steps) == {"fake_a": "run"}
+    assert fakes.CALLS == {"fake_a": 2}
+
+
+def test_no_cache_dir_means_no_caching(register):
+    register(fakes.FakeA)
+    for _ in range(2):
+        steps = Pipeline.build(["fake_a"]).run(fakes.make_scene())
+        assert actions(steps) == {"fake_a": "run"}
+    assert fakes.CALLS == {"fake_a": 2}
+
+
+def test_fingerprint_sees_dtype_and_shape_not_only_bytes():
+    scene = fakes.make_scene()
+    assert scene.fingerprint(("geometry",)) == fakes.make_scene().fingerprint(("geometry",))
+
+    # Same bytes, another dtype: float32 points reinterpreted as int32.
+    as_int = fakes.make_scene(scene.points.view(np.int32))
+    assert as_int.points.tobytes() == scene.points.tobytes()
+    assert as_int.fingerprint(("geometry",)) != scene.fingerprint(("geometry",))
+
+    # Same bytes and dtype, another shape.
+    reshaped = fakes.make_scene(tri_face=np.zeros((1, 2), np.int32))
+    assert reshaped.tri_face.tobytes() == scene.tri_face.tobytes()
+    assert reshaped.fingerprint(("geometry",)) != scene.fingerprint(("geometry",))
+
+
+def test_step_key_depends_on_params_version_and_upstream():
+    scene = fakes.make_scene()
+    step, other = build_steps(["ambient_occlusion"])[0], build_steps(["ambient_occlusion"])[0]
+    assert step_key(step, scene, []) == step_key(other, scene, [])
+    other.params = AmbientOcclusion.Params(seed=1)
+    assert step_key(step, scene, []) != step_key(other, scene, [])
+    assert step_key(step, scene, []) != step_key(step, scene, ["upstream-key"])
+
+    class Bumped(AmbientOcclusion):
+        version = "999"
+
+    bumped = build_steps(["ambient_occlusion"])[0]
+    bumped.processor = Bumped()
+    assert step_key(step, scene, []) != step_key(bumped, scene, [])
+
+
+# ---------------------------------------------------------------------------
+# Failures
+
+
+def test_processor_that_raises_is_named_and_nothing_is_cached(register, tmp_path):
+    register(fakes.FakeA, fakes.FakeBoom)
+    pipeline = Pipeline.build(["fake_boom"], cache_dir=tmp_path / "cache")
+    with pytest.raises(ProcessorFailed, match="fake_boom.*RuntimeError: kaboom") as info:
+        pipeline.run(fakes.make_scene())
+    assert info.value.name == "fake_boom"
+    assert isinstance(info.value.error, RuntimeError)
+    assert not list((tmp_path / "cache").glob("fake_boom-*"))
+    failed = next(step for step in pipeline.steps if step.name == "fake_boom")
+    assert failed.result is None
+
+
+# ---------------------------------------------------------------------------
+# Params
+
+
+def test_params_defaults_and_string_conversion():
+    p = fakes.FakeB.Params.from_dict({"gain": "2.5", "steps": "8", "enabled": "false"})
+    assert (p.gain, p.steps, p.enabled) == (2.5, 8, False)
+    assert type(p.steps) is int and type(p.gain) is float
+    assert fakes.FakeB.Params.from_dict({"enabled": "TRUE"}).enabled is True
+    assert fakes.FakeB.Params.from_dict({}) == fakes.FakeB.Params()
+
+    ao = AmbientOcclusion.Params.from_dict({"samples": "16", "max_distance": "inf", "per_face": "true"})
+    assert ao.samples == 16 and math.isinf(ao.max_distance) and ao.per_face is True
+
+
+@pytest.mark.parametrize("values, match", [
+    ({"gain": -1.0}, "below the minimum"),
+    ({"gain": "1000"}, "above the maximum"),
+    ({"steps": "0"}, "below the minimum"),
+    ({"gain": "nan"}, "nan"),
+    ({"steps": "abc"}, "not a valid int"),
+    ({"steps": "2.5"}, "not a valid int"),
+    ({"enabled": "maybe"}, "not a valid bool"),
+    ({"nope": 1}, "unknown parameter 'nope'"),
+    # Non-string values (TOML, Python) must already have the field's type.
+    ({"steps": True}, "not a valid int"),
+    ({"steps": 2.5}, "not a valid int"),
+    ({"enabled": 1}, "not a valid bool"),
+    ({"gain": "fast"}, "not a valid float"),
+])
+def test_invalid_params_raise_param_error(values, match):
+    with pytest.raises(base.ParamError, match=match):
+        fakes.FakeB.Params.from_dict(values)
+
+
+def test_params_bounds_checked_at_construction():
+    with pytest.raises(base.ParamError, match="samples"):
+        AmbientOcclusion.Params(samples=0)
+    with pytest.raises(base.ParamError, match="max_distance"):
+        AmbientOcclusion.Params(max_distance=-1.0)
+
+
+def test_params_describe_rows_have_default_and_doc():
+    rows = {row["name"]: row for row in AmbientOcclusion.Params.describe()}
+    assert set(rows) == {"samples", "max_distance", "per_face", "connect_occlusion", "seed"}
+    assert rows["samples"]["default"] == 256 and rows["samples"]["low"] == 1
+    assert all(row["doc"] for row in rows.values())
