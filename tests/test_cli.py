@@ -196,9 +196,15 @@ def test_config_toml_selects_processors_and_params(capsys, stage_in, cache, tmp_
     assert code == 0 and json.loads(out)["steps"][0]["params"]["seed"] == 4
 
 
-def test_console_script_runs():
+def test_console_script_runs(stage_in, cache, tmp_path):
     script = Path(sys.executable).parent / "usdbake"
     assert script.exists(), f"console script missing: {script}"
     done = subprocess.run([str(script), "list", "--json"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "ambient_occlusion" in {row["name"] for row in json.loads(done.stdout)}
+
+    # In a fresh process Warp initializes during the bake: its banner must not reach stdout.
+    done = subprocess.run([str(script), "bake", stage_in, "-o", str(tmp_path / "out.usda"), "--cache", cache,
+                           "--json", *FAST], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["steps"][0]["action"] == "run"

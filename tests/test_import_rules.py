@@ -75,7 +75,7 @@ def test_resolver_sees_relative_and_aliased_imports(tmp_path):
     probe = tmp_path / "probe.py"
     probe.write_text("from ...stages import cli\nfrom ... import stages\nimport pxr.Usd\nfrom pxr import Sdf\n")
     names = {name for _, name in imported_names(probe, "usdbake.processors.kernels.probe")}
-    assert {"usdbake.stages", "usdbake.stages.cli", "usdbake.stages", "pxr.Usd", "pxr", "pxr.Sdf"} <= names
+    assert {"usdbake.stages", "usdbake.stages.cli", "pxr.Usd", "pxr", "pxr.Sdf"} <= names
     assert violations_in(probe, "usdbake.processors.kernels.probe", ["pxr"]) == 2
     assert violations_in(probe, "usdbake.processors.kernels.probe", ["usdbake.stages"]) == 2
 
