@@ -193,6 +193,8 @@ class Pipeline:
             if step.action == "skip":
                 continue
             started = time.perf_counter()
+            if on_progress:
+                on_progress(step.name, 0.0)
             result = self.cache.load(step.name, step.key) if step.action == "cached" else None
             if result is None:
                 step.action = "run"
