@@ -7,6 +7,7 @@ import importlib
 import pkgutil
 import sys
 import time
+from pathlib import Path
 
 from . import harness, report
 
@@ -26,7 +27,12 @@ def main(argv=None) -> int:
     parser.add_argument("names", nargs="*", help="benchmarks to run (default: all)")
     parser.add_argument("--quick", action="store_true", help="small sweeps for CI (< 3 minutes in all)")
     parser.add_argument("--report-only", action="store_true", help="only regenerate docs/benchmarks.md")
+    parser.add_argument("--results", metavar="DIR", help="write results and the report to DIR instead of "
+                        "benchmarks/results and docs/ (CI smoke runs use this so committed figures stay)")
     args = parser.parse_args(argv)
+    if args.results:
+        harness.RESULTS = Path(args.results)
+        report.DOCS = Path(args.results)
     modules = available()
     unknown = [n for n in args.names if n not in modules]
     if unknown:
@@ -38,10 +44,10 @@ def main(argv=None) -> int:
             data = modules[name].run(quick=args.quick)
             data["quick"] = args.quick
             path = harness.save(data)
-            print(f"{name}: {time.perf_counter() - started:.1f} s -> {path.relative_to(harness.REPO)}")
+            print(f"{name}: {time.perf_counter() - started:.1f} s -> {path}")
             for key, value in data["figures"].items():
                 print(f"  {key}: {value}")
-    print(f"wrote {report.write().relative_to(harness.REPO)}")
+    print(f"wrote {report.write()}")
     return 0
 
 

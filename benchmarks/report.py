@@ -8,7 +8,6 @@ from pathlib import Path
 from . import harness
 
 DOCS = harness.REPO / "docs"
-PLOTS = DOCS / "benchmarks"
 
 HEADER = """# Benchmarks
 
@@ -43,7 +42,8 @@ def plot(data: dict) -> Path | None:
         import matplotlib.pyplot as plt
     except ImportError:
         return None
-    PLOTS.mkdir(parents=True, exist_ok=True)
+    plots = DOCS / "benchmarks"
+    plots.mkdir(parents=True, exist_ok=True)
     figure, axes = plt.subplots(figsize=(5.5, 4))
     axes.loglog([p["seconds"] for p in points], [p["error"] for p in points], "o", color="0.6", label="settings")
     front = pareto_front(points)
@@ -60,7 +60,7 @@ def plot(data: dict) -> Path | None:
     axes.set_title(f"{data['name']}: {data.get('knob', '')}")
     axes.legend(fontsize=8)
     figure.tight_layout()
-    path = PLOTS / f"{data['name']}.png"
+    path = plots / f"{data['name']}.png"
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return path
