@@ -59,6 +59,10 @@ def make_parser() -> argparse.ArgumentParser:
     bake.add_argument("-o", "--output", help="output layer (default: IN.baked.usdc beside the input)")
     plan = commands.add_parser("plan", help="show what would run, what would skip and why")
     stage_options(plan)
+    bench = commands.add_parser("bench", help="run time-against-error benchmarks (from a source checkout)")
+    bench.add_argument("names", nargs="*", metavar="NAME", help="benchmarks to run (default: all)")
+    bench.add_argument("--quick", action="store_true", help="small sweeps (< 3 minutes in all)")
+    bench.add_argument("--results", metavar="DIR", help="write results and report to DIR, not the checkout")
     listing = commands.add_parser("list", help="list processors and their parameters")
     listing.add_argument("--json", action="store_true")
     inspect = commands.add_parser("inspect", help="show the baked data a layer holds")
@@ -119,7 +123,7 @@ def _default_cache() -> str:
 # Options -> (processors, params)
 
 
-def resolve_options(args) -> tuple[list[str], dict[str, dict]]:
+def resolve_options(args, default=DEFAULT_PROCESSORS) -> tuple[list[str], dict[str, dict]]:
     processors: list[str] = []
     params: dict[str, dict] = {}
     if args.config:
@@ -142,7 +146,7 @@ def resolve_options(args) -> tuple[list[str], dict[str, dict]]:
             raise UsageError(f"--set {item!r}: expected NAME.param=value")
         params.setdefault(name.strip(), {})[param_name.strip()] = value
     processors += args.processors or []
-    return processors or list(DEFAULT_PROCESSORS), params
+    return processors or list(default), params
 
 
 def open_source(path: str):
@@ -176,7 +180,7 @@ def _usd_reason(error: Exception) -> str:
 def cmd_plan(args, console: Console) -> int:
     from .extract import extract_scene
 
-    names, params = resolve_options(args)
+    names, params = resolve_options(args, default=sorted(base.registry()))  # plan: every processor
     pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force)
     _, stage = open_source(args.input)
     steps = pipeline.plan(extract_scene(stage, time=args.time))
@@ -317,7 +321,20 @@ def cmd_preview(args, console: Console) -> int:
     return EXIT_OK
 
 
-COMMANDS = {"bake": cmd_bake, "plan": cmd_plan, "list": cmd_list, "inspect": cmd_inspect,
+def cmd_bench(args, console: Console) -> int:
+    """Delegate to benchmarks/ beside the package (the package root is the repository root)."""
+    root = Path(__file__).resolve().parent.parent
+    if not (root / "benchmarks" / "__main__.py").exists():
+        raise UsageError("benchmarks/ is not part of this installation; run from a source checkout "
+                         "(pip install -e .) or use `python -m benchmarks` there")
+    sys.path.insert(0, str(root))
+    from benchmarks.__main__ import main as bench_main
+
+    argv = [*args.names, *(["--quick"] if args.quick else []), *(["--results", args.results] if args.results else [])]
+    return bench_main(argv)
+
+
+COMMANDS = {"bench": cmd_bench, "bake": cmd_bake, "plan": cmd_plan, "list": cmd_list, "inspect": cmd_inspect,
             "preview": cmd_preview}
 
 if __name__ == "__main__":
