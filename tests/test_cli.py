@@ -13,6 +13,7 @@ import pytest
 
 import fake_processors as fakes
 from usdbake.stages.cli import main
+from usdbake.processors import base
 
 FAST = ["--set", "ambient_occlusion.samples=16"]
 
@@ -119,16 +120,17 @@ def test_unknown_command(capsys):
 def test_plan_lists_the_action_and_changes_after_a_bake(capsys, stage_in, cache, tmp_path):
     code, out, _ = run_cli(capsys, "plan", stage_in, "--cache", cache, "--json", *FAST)
     assert code == 0
-    plan = json.loads(out)
-    assert [(row["processor"], row["action"]) for row in plan] == [("ambient_occlusion", "run")]
-    assert plan[0]["params"]["samples"] == 16
+    plan = {row["processor"]: row for row in json.loads(out)}
+    assert set(plan) == set(base.registry())  # without -p, plan reports every processor
+    assert plan["ambient_occlusion"]["action"] == "run"
+    assert plan["ambient_occlusion"]["params"]["samples"] == 16
     assert not Path(cache).exists() or not any(Path(cache).iterdir())  # planning runs nothing
 
     assert run_cli(capsys, "bake", stage_in, "-o", tmp_path / "out.usda", "--cache", cache, *FAST)[0] == 0
-    code, out, _ = run_cli(capsys, "plan", stage_in, "--cache", cache, "--json", *FAST)
+    code, out, _ = run_cli(capsys, "plan", stage_in, "-p", "ambient_occlusion", "--cache", cache, "--json", *FAST)
     assert [(row["processor"], row["action"]) for row in json.loads(out)] == [("ambient_occlusion", "cached")]
 
-    code, out, err = run_cli(capsys, "plan", stage_in, "--cache", cache, *FAST)
+    code, out, err = run_cli(capsys, "plan", stage_in, "-p", "ambient_occlusion", "--cache", cache, *FAST)
     assert code == 0 and out == ""
     assert "ambient_occlusion" in err and "up to date" in err
 
