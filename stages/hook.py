@@ -19,7 +19,7 @@ from pxr import Sdf, Usd
 from ..processors.base import Texture
 from .bake_layer import PROVENANCE_KEY, author, is_bake_layer
 from .extract import extract_scene
-from .pipeline import Pipeline, Step
+from .pipeline import Pipeline
 
 
 def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | None = None,
@@ -48,23 +48,20 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     finally:
         if muted:
             stage.UnmuteLayer(target.identifier)
-    steps = pipeline.run(scene, on_progress=on_progress)
+    pipeline.run(scene, on_progress=on_progress)
     if layer is None and target.identifier not in stage.GetSessionLayer().subLayerPaths:
         stage.GetSessionLayer().subLayerPaths.insert(0, target.identifier)
     outputs = pipeline.outputs()
     if texture_dir is None and any(isinstance(record, Texture) for record in outputs):
         texture_dir = _default_texture_dir(stage)  # only when needed: it may create a temp folder
     author(target, outputs, pipeline.provenance({"source": scene.source}), texture_dir=texture_dir)
-    _last_steps[id(target)] = steps
     return target
 
 
-_last_steps: dict[int, list[Step]] = {}
-
-
 def last_report(layer: Sdf.Layer) -> list[dict]:
-    """What the last bake into ``layer`` in this process did, one dict per processor."""
-    return [step.report() for step in _last_steps.get(id(layer), [])]
+    """What the last bake into ``layer`` did, one dict per processor, from the layer's provenance."""
+    provenance = dict(layer.customLayerData).get(PROVENANCE_KEY, {})
+    return [{"processor": name, **info} for name, info in provenance.get("processors", {}).items()]
 
 
 def _session_bake_layer(stage: Usd.Stage) -> Sdf.Layer:
