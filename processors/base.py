@@ -184,7 +184,16 @@ class Texture:
     """(H, W, C) array; float32 -> EXR, uint8 -> PNG."""
 
 
-Output = Primvar | Attribute | Prim | Texture
+@dataclass(frozen=True)
+class File:
+    """Raw bytes written next to the bake layer (formats OpenImageIO cannot write: .dds, .npz)."""
+
+    path: str
+    """File name relative to the bake layer."""
+    data: bytes
+
+
+Output = Primvar | Attribute | Prim | Texture | File
 
 
 @dataclass

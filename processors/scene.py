@@ -58,6 +58,14 @@ class Instances:
     """(I,) int32 index into prototype_paths."""
     instance_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.float64))
     """(I, 4, 4) float64 prototype-to-world matrices (row-vector convention, as Gf), translation relative to origin."""
+    instance_times: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float64))
+    """(F,) float64 authored time codes of the instancers' positions/orientations/scales (empty if none)."""
+    instance_transforms_at_times: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 4, 4), np.float64))
+    """(F, I, 4, 4) float64 instance_transforms at each of instance_times (same instances, same order)."""
+    instance_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    """(I,) int32 row of the instance in its instancer's authored arrays (protoIndices; masked rows are skipped)."""
+    instancer_instance_count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    """(N,) int32 authored instances per instancer (len(protoIndices)), masked ones included."""
 
     def __len__(self) -> int:
         return len(self.instance_prototype)
@@ -182,6 +190,8 @@ FACETS: dict[str, tuple[str, ...]] = {
     "instancers": (
         "instances.instancer_paths", "instances.prototype_paths", "instances.instance_instancer",
         "instances.instance_prototype", "instances.instance_transforms",
+        "instances.instance_times", "instances.instance_transforms_at_times",
+        "instances.instance_index", "instances.instancer_instance_count",
     ),
     "time": ("time_code",),
 }

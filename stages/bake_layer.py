@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf
 
-from ..processors.base import Attribute, Prim, Primvar, Texture
+from ..processors.base import Attribute, File, Prim, Primvar, Texture
 from .errors import UsageError
 
 PROVENANCE_KEY = "usdbake"
@@ -50,6 +50,8 @@ def author(layer: Sdf.Layer, outputs: list, provenance: dict, *, texture_dir: st
     for record in outputs:
         if isinstance(record, Texture):
             write_texture(record, texture_dir or str(Path(layer.realPath or ".").parent))
+        elif isinstance(record, File):
+            write_file(record, texture_dir or str(Path(layer.realPath or ".").parent))
     with Sdf.ChangeBlock():
         if is_bake_layer(layer):
             _clear_opinions(layer)
@@ -127,6 +129,14 @@ def write_texture(texture: Texture, directory: str) -> str:
         raise UsageError(f"{path}: OpenImageIO cannot write it ({oiio.geterror()})")
     output.write_image(pixels)
     output.close()
+    return str(path)
+
+
+def write_file(record: File, directory: str) -> str:
+    """Write a raw file record (bytes) to ``directory / record.path``."""
+    path = Path(directory) / record.path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(record.data)
     return str(path)
 
 

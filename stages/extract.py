@@ -154,6 +154,7 @@ class _InstanceTable:
         self.instancer_paths: list[str] = []
         self.prototype_paths: list[str] = []
         self.rows: list[tuple[int, int, np.ndarray]] = []
+        self.sources: list[tuple] = []  # (instancer prim, kept rows, protoIndices, first instance index)
 
     def prototype(self, path: str) -> int:
         if path not in self.prototype_paths:
@@ -188,6 +189,7 @@ def _add_point_instancer(prim, timecode, xforms, local_mesh, builder: _Builder, 
         if not proto_root:
             raise StageError(path, "prototypes", f"target {target} does not exist")
         proto_meshes[proto_index] = _prototype_meshes(proto_root, timecode, xforms, local_mesh)
+    instances.sources.append((prim, np.flatnonzero(np.asarray(mask, bool)), proto_indices, len(instances.rows)))
     for row, (proto_index, matrix) in enumerate(zip(proto_indices, matrices)):
         if not mask[row]:
             continue
@@ -283,12 +285,61 @@ def _triangle_normals(points: np.ndarray, tri_vertices: np.ndarray) -> tuple[np.
 def _instances(table: _InstanceTable, origin: np.ndarray) -> Instances:
     transforms = np.array([m for _, _, m in table.rows], np.float64).reshape(-1, 4, 4)
     transforms[:, 3, :3] -= origin
+    times, at_times = _instance_time_samples(table, origin)
     return Instances(
         instancer_paths=tuple(table.instancer_paths), prototype_paths=tuple(table.prototype_paths),
         instance_instancer=np.array([i for i, _, _ in table.rows], np.int32),
         instance_prototype=np.array([p for _, p, _ in table.rows], np.int32),
-        instance_transforms=transforms,
+        instance_transforms=transforms, instance_times=times, instance_transforms_at_times=at_times,
+        instance_index=np.concatenate([kept for _, kept, _, _ in table.sources] or [np.zeros(0)]).astype(np.int32),
+        instancer_instance_count=np.array([len(ids) for _, _, ids, _ in table.sources], np.int32),
     )
+
+
+MAX_INSTANCE_TIME_BYTES = 256 * 2**20
+"""Cap on Instances.instance_transforms_at_times (F x I x 128 bytes); later times are dropped beyond it."""
+
+
+def _instance_time_samples(table: _InstanceTable, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Instance transforms at every authored time sample of the instancers' positions/orientations/scales.
+
+    Times at which an instancer's protoIndices or mask give a different set of instances
+    than at the extraction time are left out (the instance rows must stay the same).
+    """
+    count = len(table.rows)
+    times: set[float] = set()
+    for prim, _, _, _ in table.sources:
+        instancer = UsdGeom.PointInstancer(prim)
+        for attr in (instancer.GetPositionsAttr(), instancer.GetOrientationsAttr(), instancer.GetScalesAttr(),
+                     prim.GetAttribute("orientationsf")):
+            if attr:
+                times.update(attr.GetTimeSamples())
+    times_kept, frames = [], []
+    budget = max(1, MAX_INSTANCE_TIME_BYTES // max(1, count * 128))
+    for t in sorted(times)[:budget]:
+        timecode = Usd.TimeCode(t)
+        frame = np.zeros((count, 4, 4), np.float64)
+        ok = True
+        for prim, kept, proto_indices, first in table.sources:
+            instancer = UsdGeom.PointInstancer(prim)
+            indices = np.asarray(instancer.GetProtoIndicesAttr().Get(timecode) or [], np.int64)
+            mask = np.asarray(instancer.ComputeMaskAtTime(timecode) or [True] * len(indices), bool)
+            matrices = instancer.ComputeInstanceTransformsAtTime(
+                timecode, timecode, UsdGeom.PointInstancer.IncludeProtoXform, UsdGeom.PointInstancer.IgnoreMask)
+            if (matrices is None or len(matrices) != len(proto_indices) or not np.array_equal(indices, proto_indices)
+                    or not np.array_equal(np.flatnonzero(mask), kept)):
+                ok = False
+                break
+            world = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(timecode), np.float64)
+            local = np.array(matrices, np.float64).reshape(-1, 4, 4)[kept]
+            frame[first:first + len(kept)] = local @ world
+        if ok:
+            frame[:, 3, :3] -= origin
+            times_kept.append(t)
+            frames.append(frame)
+    if not frames:
+        return np.zeros(0, np.float64), np.zeros((0, count, 4, 4), np.float64)
+    return np.array(times_kept, np.float64), np.stack(frames)
 
 
 def _read_lights(prims: list, xforms, timecode, origin: np.ndarray) -> Lights:

@@ -1,0 +1,424 @@
+"""Displacement fields: presampled visibility around rigid, repeated prototypes.
+
+Gaitatzes, Chrysanthou & Papaioannou, "Presampled visibility for ambient
+occlusion", Journal of WSCG 16 (2008), Algorithm 1. For each prototype that
+pays off (see the cost model below):
+
+- its bounding sphere (centre c, radius R, in prototype space);
+- n^2 positional samples p_k = c + R * s_k on that sphere, s_k the cell
+  centres of Clarberg's equal-area octahedral map (``kernels.sphere_maps``:
+  every sample covers exactly 4*pi/n^2 sr, with an O(1) inverse);
+- at each p_k an M x M map of inward directions in the concentric-map +
+  Malley layout (texel (a, b) -> ``cosine_hemisphere((a+.5)/M, (b+.5)/M)``
+  in the tangent frame of the inward normal -s_k), the layout the paper found
+  best (its Figure 5);
+- per ray, the distance t to the first hit on the prototype, normalised by the
+  sphere's diameter: ``uint8`` stores round(254 * t / 2R), 255 = no hit (max
+  error 2R/508); ``bit1`` stores only hit / no hit plus one mean hit distance
+  per positional sample (the paper's memory mode, its Figure 7).
+
+Rays are cast with a BVH of the prototype alone (the field depends on the
+prototype's geometry only, so it is reused across instances, frames and
+stages), and the prototype geometry is recovered from one of its instances
+in the Scene by the inverse of that instance's transform.
+
+Cost model: a field costs n^2 * M^2 build rays once; it pays off when the
+rays expected to meet the prototype's instances, ``instances *
+expected_rays_per_instance``, exceed that, and the prototype has at least
+``min_instances`` instances. ``force`` and ``forbid`` override it; every
+prototype left out is listed in the messages with the reason.
+
+USD written (bake layer), per prototype with a field:
+
+=============================== ======== =======================================================
+property                        type     value
+=============================== ======== =======================================================
+apiSchemas                      prepend  DisplacementFieldAPI (on the prototype prim)
+bake:field:file                 asset    ./displacement_fields/<prototype path>.png
+bake:field:center               point3f  sphere centre, prototype space
+bake:field:radius               float    sphere radius, prototype space
+bake:field:positionalSamples    int      n^2
+bake:field:directionMapSize     int2     (M, M)
+bake:field:encoding             token    uint8 | bit1
+bake:field:positionMapping      token    octahedralEqualArea
+bake:field:directionMapping     token    concentricMalley
+=============================== ======== =======================================================
+
+The texture (8-bit grey PNG, written with OpenImageIO) is an atlas of n x n
+tiles; sample k = (row k // n, column k % n) of the octahedral grid is the
+tile at the same row and column. ``uint8``: each tile is M x M codes, texel
+(row b, column a). ``bit1``: each tile is M rows of M/8 bytes, bit a % 8
+(least significant first) of byte a // 8 is texel a (1 = hit); below the
+tiles, n more rows hold the per-sample mean hit distance codes in their
+first n columns (255 = the sample sees no hit).
+
+Parameters
+----------
+========================== ===== ======= ===============================================================
+name                       type  default meaning
+========================== ===== ======= ===============================================================
+positional_samples         int   4225    samples on the bounding sphere, rounded to a square n^2 (paper: 1090-4226)
+direction_map_size         int   32      M: each sample's direction map is M x M (paper: 32-64)
+encoding                   str   uint8   uint8 (8-bit distance) or bit1 (hit bit + mean distance per sample)
+min_instances              int   2       prototypes with fewer instances get no field (unless forced)
+expected_rays_per_instance float 1e6     rays expected to meet one instance over the field's lifetime
+force                      str   ''      comma-separated prototype paths or names that always get a field
+forbid                     str   ''      comma-separated prototype paths or names that never get a field
+========================== ===== ======= ===============================================================
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from dataclasses import dataclass
+from dataclasses import field as dataclass_field
+
+import numpy as np
+import warp as wp
+
+from .base import Attribute, Context, ParamError, Params, Prim, Processor, Result, Texture, param, register
+from .kernels.sampling import cosine_hemisphere, tangent_frame
+from .kernels.sphere_maps import equal_area_square_to_sphere
+from .scene import Scene
+from .tracer import Tracer
+
+wp.set_module_options({"enable_backward": False})
+
+MISS_CODE = 255
+"""uint8 code of a ray that leaves the sphere without a hit."""
+MAX_HIT_CODE = 254
+"""Hit distances t / 2R in [0, 1] map to codes 0..254."""
+SPHERE_INFLATION = 1e-4
+"""The bounding sphere is grown by this fraction so no vertex lies on it (rays start strictly outside)."""
+SINGULAR_DETERMINANT = 1e-12
+"""|det| of an instance's 3x3 below this (relative to its scale cubed) means a flattened instance."""
+MAX_FIELD_TEXELS = 2 ** 28
+"""Rays (texels) per field: 256 MiB per 8-bit field, and kernel indices stay far inside int32."""
+POSITION_MAPPING = "octahedralEqualArea"
+DIRECTION_MAPPING = "concentricMalley"
+
+
+@dataclass(frozen=True)
+class DisplacementField:
+    """One prototype's field (the product handed to instance_ao)."""
+
+    prototype: str
+    """Prototype prim path."""
+    center: np.ndarray
+    """(3,) float64 bounding-sphere centre in prototype space."""
+    radius: float
+    """Bounding-sphere radius in prototype space."""
+    side: int
+    """n: the positional samples are an n x n equal-area octahedral grid (n^2 samples)."""
+    map_size: int
+    """M: direction maps are M x M."""
+    encoding: str
+    """'uint8' or 'bit1'."""
+    texels: np.ndarray
+    """uint8: (n*n, M, M) distance codes (255 = miss); bit1: (n*n, M*M/8) packed hit bits (LSB first)."""
+    mean_codes: np.ndarray
+    """(n*n,) uint8 mean hit distance code per sample (bit1; for uint8 also filled, unused)."""
+    triangles: int = 0
+    build_seconds: float = 0.0
+    prototype_points: np.ndarray = dataclass_field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    """(P, 3) float32 prototype-space vertices the field was built from (instance_ao traces self-occlusion)."""
+    prototype_triangles: np.ndarray = dataclass_field(default_factory=lambda: np.zeros((0, 3), np.int32))
+    """(T, 3) int32 triangles of prototype_points."""
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of field data (texels, plus the per-sample means in bit1 mode)."""
+        return int(self.texels.nbytes + (self.mean_codes.nbytes if self.encoding == "bit1" else 0))
+
+
+# ---------------------------------------------------------------------------
+# Kernels
+
+
+@wp.kernel
+def field_distances_kernel(
+    start: int,
+    mesh: wp.uint64,
+    side: int,
+    map_size: int,
+    radius: float,
+    distances: wp.array(dtype=float),
+):
+    """Algorithm 1: ray i = (sample k, texel (a, b)) from p_k inward; t / 2R of the first hit, or 2 (miss).
+
+    The prototype is given relative to the sphere centre, so p_k = R * s_k.
+    """
+    i = start + wp.tid()
+    texels = map_size * map_size
+    k = i // texels
+    t = i - k * texels
+    a = t % map_size
+    b = t // map_size
+    s = equal_area_square_to_sphere((float(k % side) + 0.5) / float(side), (float(k // side) + 0.5) / float(side))
+    frame = tangent_frame(-s)
+    direction = frame * cosine_hemisphere((float(a) + 0.5) / float(map_size), (float(b) + 0.5) / float(map_size))
+    diameter = 2.0 * radius
+    distances[i] = 2.0
+    q = wp.mesh_query_ray(mesh, s * radius, direction, diameter)
+    if q.result:
+        distances[i] = q.t / diameter
+
+
+# ---------------------------------------------------------------------------
+# Pure functions
+
+
+def side_for(positional_samples: int) -> int:
+    """n with n^2 nearest to ``positional_samples`` (at least 2)."""
+    return max(2, int(round(math.sqrt(positional_samples))))
+
+
+def bounding_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre (box centre) and radius (farthest point, grown by SPHERE_INFLATION) of (P, 3) points."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        return np.zeros(3), 0.0
+    center = (points.min(axis=0) + points.max(axis=0)) / 2
+    radius = float(np.sqrt(((points - center) ** 2).sum(axis=1).max()))
+    return center, radius * (1.0 + SPHERE_INFLATION)
+
+
+def prototype_geometry(scene: Scene, prototype: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """The prototype's triangles in prototype space, recovered from one of its instances.
+
+    Returns
+    -------
+    points : (P, 3) float64 prototype-space vertices
+    triangles : (T, 3) int32
+    instance : the instance used (-1 if no instance with a non-singular transform has triangles)
+    """
+    inst = scene.instances
+    for j in np.flatnonzero(inst.instance_prototype == prototype):
+        matrix = inst.instance_transforms[j]
+        scale = np.abs(matrix[:3, :3]).max()
+        if not np.isfinite(matrix).all() or abs(np.linalg.det(matrix[:3, :3])) <= SINGULAR_DETERMINANT * scale ** 3:
+            continue
+        tris = scene.tri_vertices[scene.tri_instance == j]
+        if len(tris) == 0:
+            continue
+        used, local = np.unique(tris, return_inverse=True)
+        world = np.c_[scene.points[used].astype(np.float64), np.ones(len(used))]
+        points = (world @ np.linalg.inv(matrix))[:, :3]
+        return points, local.reshape(-1, 3).astype(np.int32), int(j)
+    return np.zeros((0, 3)), np.zeros((0, 3), np.int32), -1
+
+
+def compute_field_distances(points: np.ndarray, triangles: np.ndarray, *, side: int, map_size: int,
+                            device: str = "cpu", threads: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Cast the field's rays: (n*n, M, M) float32 t / 2R of the first hit (2.0 = miss).
+
+    Parameters
+    ----------
+    points : (P, 3) float64 prototype-space vertices
+    triangles : (T, 3) int32
+    side, map_size : n and M
+
+    Returns
+    -------
+    distances, center (3,) float64, radius
+    """
+    center, radius = bounding_sphere(points)
+    if radius <= 0.0 or not np.isfinite(radius):
+        raise ValueError("prototype has no extent (all vertices coincide)")
+    tracer = Tracer((np.asarray(points, np.float64) - center).astype(np.float32), triangles, device=device,
+                    threads=threads)
+    count = side * side * map_size * map_size
+    distances = wp.zeros(count, dtype=float, device=tracer.device)
+    tracer.launch(field_distances_kernel, count, [tracer.mesh.id, side, map_size, float(radius), distances])
+    return distances.numpy().reshape(side * side, map_size, map_size), center, radius
+
+
+def encode_field(distances: np.ndarray, encoding: str) -> tuple[np.ndarray, np.ndarray]:
+    """(texels, mean_codes) from (K, M, M) normalised distances (>= 1.5 = miss); see DisplacementField."""
+    hit = distances <= 1.0
+    codes = np.where(hit, np.clip(np.rint(distances * MAX_HIT_CODE), 0, MAX_HIT_CODE), MISS_CODE).astype(np.uint8)
+    count = hit.reshape(len(hit), -1).sum(axis=1)
+    total = np.where(hit, distances, 0.0).reshape(len(hit), -1).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+    mean_codes = np.where(count > 0, np.clip(np.rint(np.nan_to_num(mean) * MAX_HIT_CODE), 0, MAX_HIT_CODE),
+                          MISS_CODE).astype(np.uint8)
+    if encoding == "uint8":
+        return codes, mean_codes
+    if encoding == "bit1":
+        return np.packbits(hit.reshape(len(hit), -1), axis=1, bitorder="little"), mean_codes
+    raise ValueError(f"unknown encoding {encoding!r}")
+
+
+def field_atlas(field: DisplacementField) -> np.ndarray:
+    """(H, W) uint8 atlas image of a field (layout in the module docstring)."""
+    n, m = field.side, field.map_size
+    if field.encoding == "uint8":
+        tiles = field.texels.reshape(n, n, m, m)
+        return tiles.transpose(0, 2, 1, 3).reshape(n * m, n * m)
+    width = m // 8
+    tiles = field.texels.reshape(n, n, m, width)
+    atlas = np.zeros((n * m + n, n * width), np.uint8)
+    atlas[:n * m] = tiles.transpose(0, 2, 1, 3).reshape(n * m, n * width)
+    atlas[n * m:, :n] = field.mean_codes.reshape(n, n)
+    return atlas
+
+
+def field_from_atlas(atlas: np.ndarray, *, side: int, map_size: int, encoding: str) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of field_atlas: (texels, mean_codes) as stored in DisplacementField (mean_codes empty for uint8)."""
+    atlas = np.asarray(atlas, np.uint8)
+    atlas = atlas[:, :, 0] if atlas.ndim == 3 else atlas
+    n, m = side, map_size
+    if encoding == "uint8":
+        texels = atlas.reshape(n, m, n, m).transpose(0, 2, 1, 3).reshape(n * n, m, m)
+        return np.ascontiguousarray(texels), np.zeros(0, np.uint8)
+    width = m // 8
+    texels = atlas[:n * m].reshape(n, m, n, width).transpose(0, 2, 1, 3).reshape(n * n, m * width)
+    return np.ascontiguousarray(texels), np.ascontiguousarray(atlas[n * m:, :n]).reshape(n * n)
+
+
+def build_field(points: np.ndarray, triangles: np.ndarray, *, prototype: str = "", positional_samples: int = 4225,
+                map_size: int = 32, encoding: str = "uint8", device: str = "cpu",
+                threads: int | None = None) -> DisplacementField:
+    """A prototype's displacement field from its prototype-space triangles (Algorithm 1)."""
+    side = side_for(positional_samples)
+    started = time.perf_counter()
+    distances, center, radius = compute_field_distances(points, triangles, side=side, map_size=map_size,
+                                                        device=device, threads=threads)
+    texels, mean_codes = encode_field(distances, encoding)
+    return DisplacementField(prototype=prototype, center=center, radius=radius, side=side, map_size=map_size,
+                             encoding=encoding, texels=texels, mean_codes=mean_codes, triangles=len(triangles),
+                             build_seconds=time.perf_counter() - started,
+                             prototype_points=np.asarray(points, np.float32).reshape(-1, 3),
+                             prototype_triangles=np.asarray(triangles, np.int32).reshape(-1, 3))
+
+
+def field_file_name(prototype: str) -> str:
+    """Texture path (relative to the bake layer) of a prototype's field: its prim path made file-safe."""
+    stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", prototype.strip("/")) or "prototype"
+    return f"displacement_fields/{stem}.png"
+
+
+def field_records(field: DisplacementField) -> list:
+    """Texture + applied DisplacementFieldAPI + its attributes for one field."""
+    path = field.prototype
+    file_name = field_file_name(path)
+    return [
+        Texture(file_name, field_atlas(field)[:, :, None]),
+        Prim(path, api_schemas=("DisplacementFieldAPI",)),
+        Attribute(path, "bake:field:file", f"./{file_name}", "asset"),
+        Attribute(path, "bake:field:center", np.asarray(field.center, np.float32), "point3f"),
+        Attribute(path, "bake:field:radius", float(field.radius), "float"),
+        Attribute(path, "bake:field:positionalSamples", int(field.side * field.side), "int"),
+        Attribute(path, "bake:field:directionMapSize", np.array([field.map_size] * 2, np.int32), "int2"),
+        Attribute(path, "bake:field:encoding", field.encoding, "token"),
+        Attribute(path, "bake:field:positionMapping", POSITION_MAPPING, "token"),
+        Attribute(path, "bake:field:directionMapping", DIRECTION_MAPPING, "token"),
+    ]
+
+
+def _matches(path: str, names: set[str]) -> bool:
+    return path in names or path.rsplit("/", 1)[-1] in names
+
+
+def _name_set(text: str) -> set[str]:
+    return {name.strip() for name in text.split(",") if name.strip()}
+
+
+def choose_prototypes(scene: Scene, p) -> tuple[list[int], list[str]]:
+    """Prototype indices that get a field, and one message per decision (the cost model)."""
+    inst = scene.instances
+    counts = np.bincount(inst.instance_prototype, minlength=len(inst.prototype_paths))
+    build_rays = side_for(p.positional_samples) ** 2 * p.direction_map_size ** 2
+    force, forbid = _name_set(p.force), _name_set(p.forbid)
+    chosen, messages = [], []
+    for index, path in enumerate(inst.prototype_paths):
+        expected = counts[index] * p.expected_rays_per_instance
+        if _matches(path, forbid):
+            messages.append(f"{path}: no field (forbidden)")
+        elif _matches(path, force):
+            chosen.append(index)
+            messages.append(f"{path}: field (forced)")
+        elif counts[index] < p.min_instances:
+            messages.append(f"{path}: no field ({counts[index]} instance(s) < min_instances={p.min_instances})")
+        elif expected < build_rays:
+            messages.append(f"{path}: no field ({counts[index]} instances x {p.expected_rays_per_instance:.3g} "
+                            f"expected rays = {expected:.3g} < {build_rays:.3g} build rays)")
+        else:
+            chosen.append(index)
+            messages.append(f"{path}: field ({counts[index]} instances x {p.expected_rays_per_instance:.3g} "
+                            f"expected rays = {expected:.3g} >= {build_rays:.3g} build rays)")
+    return chosen, messages
+
+
+# ---------------------------------------------------------------------------
+# Processor
+
+
+@register
+class DisplacementFields(Processor):
+    name = "displacement_fields"
+    version = "1"
+    summary = "Per-prototype presampled visibility (displacement fields) for instance_ao."
+    facets = ("geometry", "instancers")
+    provides = ("displacement_fields",)
+    uses_tracer = False  # each field has its own BVH over the prototype alone
+
+    @dataclass(frozen=True)
+    class Params(Params):
+        positional_samples: int = param(4225, "samples on the bounding sphere, rounded to a square n^2 "
+                                              "(equal-area octahedral grid; paper: 1090-4226)", low=4, high=66049)
+        direction_map_size: int = param(32, "M: each sample's direction map is M x M (paper: 32-64)",
+                                        low=4, high=256)
+        encoding: str = param("uint8", "uint8 (8-bit distance) or bit1 (hit bit + mean distance per sample)",
+                              choices=("uint8", "bit1"))
+        min_instances: int = param(2, "prototypes with fewer instances get no field (unless forced)", low=1)
+        expected_rays_per_instance: float = param(1e6, "rays expected to meet one instance over the field's "
+                                                       "lifetime (cost model)", low=0.0)
+        force: str = param("", "comma-separated prototype paths or names that always get a field")
+        forbid: str = param("", "comma-separated prototype paths or names that never get a field")
+
+        def __post_init__(self) -> None:
+            super().__post_init__()
+            texels = side_for(self.positional_samples) ** 2 * self.direction_map_size ** 2
+            if texels > MAX_FIELD_TEXELS:
+                raise ParamError(f"positional_samples={self.positional_samples} x direction_map_size="
+                                 f"{self.direction_map_size}^2 = {texels} rays per prototype is above the "
+                                 f"maximum {MAX_FIELD_TEXELS} ({MAX_FIELD_TEXELS // 2**20} MiB per 8-bit field)")
+            if self.encoding == "bit1" and self.direction_map_size % 8:
+                raise ParamError(f"direction_map_size={self.direction_map_size} must be a multiple of 8 "
+                                 f"with encoding=bit1 (8 texels per byte)")
+
+    def applies(self, scene: Scene) -> tuple[bool, str]:
+        if len(scene.instances) == 0:
+            return False, "no instanced prototypes"
+        return True, ""
+
+    def run(self, ctx: Context) -> Result:
+        scene, p = ctx.scene, ctx.params
+        chosen, messages = choose_prototypes(scene, p)
+        device = ctx.tracer.device if ctx.tracer is not None else "cpu"
+        result = Result(products={"displacement_fields": {}}, messages=messages)
+        rays = 0
+        for step, index in enumerate(chosen):
+            path = scene.instances.prototype_paths[index]
+            points, triangles, instance = prototype_geometry(scene, index)
+            if instance < 0:
+                result.messages.append(f"{path}: no field (no instance with triangles and an invertible transform)")
+                continue
+            try:
+                field = build_field(points, triangles, prototype=path, positional_samples=p.positional_samples,
+                                    map_size=p.direction_map_size, encoding=p.encoding, device=str(device))
+            except ValueError as error:
+                result.messages.append(f"{path}: no field ({error})")
+                continue
+            rays += field.side ** 2 * field.map_size ** 2
+            result.products["displacement_fields"][path] = field
+            result.outputs.extend(field_records(field))
+            result.stats[f"bytes:{path}"] = float(field.nbytes)
+            ctx.progress((step + 1) / max(1, len(chosen)))
+        result.stats["rays"] = float(rays)
+        result.stats["fields"] = float(len(result.products["displacement_fields"]))
+        return result

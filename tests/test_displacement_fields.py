@@ -1,0 +1,290 @@
+"""displacement_fields: analytic distances on a sphere prototype, encodings and atlas, cost model, records.
+
+Also holds the small synthetic-scene builders test_instance_ao.py reuses.
+"""
+
+import numpy as np
+import pytest
+
+from usdbake.processors import base
+from usdbake.processors.displacement_fields import (MAX_HIT_CODE, MISS_CODE, DisplacementFields, build_field,
+                                                    choose_prototypes, field_atlas, field_from_atlas,
+                                                    field_records, prototype_geometry, side_for)
+from usdbake.processors.kernels.sampling import cosine_hemisphere_np
+from usdbake.processors.kernels.sphere_maps import grid_cell_centers_np
+from usdbake.processors.scene import Instances, Scene
+
+# ---------------------------------------------------------------------------
+# Synthetic geometry and scenes (no USD)
+
+
+def icosphere(level: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit icosphere: (P, 3) float64 points, (T, 3) int32 outward-wound triangles (20 * 4^level)."""
+    t = (1 + 5 ** 0.5) / 2
+    points = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
+              (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
+    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
+             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11),
+             (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    points = [np.array(p, float) / np.linalg.norm(p) for p in points]
+    for _ in range(level):
+        cache, new_faces = {}, []
+
+        def middle(a, b):
+            key = (min(a, b), max(a, b))
+            if key not in cache:
+                m = points[a] + points[b]
+                points.append(m / np.linalg.norm(m))
+                cache[key] = len(points) - 1
+            return cache[key]
+
+        for a, b, c in faces:
+            ab, bc, ca = middle(a, b), middle(b, c), middle(c, a)
+            new_faces += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        faces = new_faces
+    return np.array(points), np.array(faces, np.int32)
+
+
+def grid(half: float, cells: int, height: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """A (cells x cells) ground grid at y = height facing +Y (points (P, 3), triangles (T, 3))."""
+    ticks = np.linspace(-half, half, cells + 1)
+    x, z = np.meshgrid(ticks, ticks)
+    points = np.c_[x.ravel(), np.full(x.size, height), z.ravel()]
+    k = np.arange(cells)
+    i, j = np.meshgrid(k, k)
+    a = (j * (cells + 1) + i).ravel()
+    quads = np.c_[a, a + cells + 1, a + cells + 2, a + 1]
+    return points, np.r_[quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]].astype(np.int32)
+
+
+def translate(x, y, z, scale=(1.0, 1.0, 1.0), rotate_y=0.0) -> np.ndarray:
+    """(4, 4) row-vector matrix: scale, then rotate about +Y, then translate."""
+    c, s = np.cos(rotate_y), np.sin(rotate_y)
+    m = np.diag([*scale, 1.0]) @ np.array([[c, 0, -s, 0], [0, 1, 0, 0], [s, 0, c, 0], [0, 0, 0, 1]])
+    m[3, :3] = (x, y, z)
+    return m
+
+
+def build_scene(receivers, prototypes, instances, *, times=None, transforms_at_times=None) -> Scene:
+    """A Scene as extraction flattens it.
+
+    receivers : [(path, points, triangles)] writable meshes
+    prototypes : [(path, points, triangles)] prototype-space meshes
+    instances : [(prototype index, (4, 4) row-vector prototype-to-world matrix)]
+    """
+    parts = [(path, np.asarray(p, np.float64), t, True, -1) for path, p, t in receivers]
+    for j, (proto, matrix) in enumerate(instances):
+        path, p, t = prototypes[proto]
+        parts.append((path, (np.c_[p, np.ones(len(p))] @ matrix)[:, :3], t, False, j))
+    start = np.cumsum([0] + [len(p) for _, p, _, _, _ in parts])
+    points = np.concatenate([p for _, p, _, _, _ in parts]).astype(np.float32)
+    tris = np.concatenate([t + start[m] for m, (_, _, t, _, _) in enumerate(parts)]).astype(np.int32)
+    tri_prim = np.concatenate([np.full(len(t), m, np.int32) for m, (_, _, t, _, _) in enumerate(parts)])
+    corners = points[tris].astype(np.float64)
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(cross, axis=1)
+    normals = np.where(length[:, None] > 0, cross / np.maximum(length, 1e-300)[:, None], 0).astype(np.float32)
+    count = len(tris)
+    inst = Instances(
+        instancer_paths=("/World/Scatter",) if instances else (),
+        prototype_paths=tuple(path for path, _, _ in prototypes) if instances else (),
+        instance_instancer=np.zeros(len(instances), np.int32),
+        instance_prototype=np.array([p for p, _ in instances], np.int32),
+        instance_transforms=np.array([m for _, m in instances], np.float64).reshape(-1, 4, 4),
+        instance_times=np.zeros(0) if times is None else np.asarray(times, np.float64),
+        instance_transforms_at_times=(np.zeros((0, len(instances), 4, 4)) if transforms_at_times is None
+                                      else np.asarray(transforms_at_times, np.float64)),
+    )
+    return Scene(
+        points=points, tri_vertices=tris, tri_normals=normals, tri_areas=(length / 2).astype(np.float32),
+        tri_albedo=np.full((count, 3), 0.5, np.float32), tri_emission=np.zeros((count, 3), np.float32),
+        tri_prim=tri_prim, tri_face=np.arange(count, dtype=np.int32), tri_instance=np.array(
+            [parts[m][4] for m in tri_prim], np.int32), tri_double_sided=np.zeros(count, bool),
+        point_prim=np.repeat(np.arange(len(parts), dtype=np.int32), np.diff(start)),
+        prim_paths=tuple(path for path, _, _, _, _ in parts), prim_point_start=start.astype(np.int64),
+        prim_face_count=np.array([len(t) for _, _, t, _, _ in parts], np.int32),
+        prim_writable=np.array([w for _, _, _, w, _ in parts], bool), prim_skip=np.zeros(len(parts), bool),
+        prim_surface=("",) * len(parts), instances=inst,
+    )
+
+
+def run_processor(cls, scene, params=None, products=None):
+    processor = cls()
+    return processor.run(base.Context(scene=scene, params=cls.Params.from_dict(params or {}), tracer=None,
+                                      products=products or {}))
+
+
+# ---------------------------------------------------------------------------
+# Field values
+
+
+SPHERE_LEVEL = 5
+"""Icosphere level of the sphere prototype: 20480 triangles, sagitta ~1.2e-4 of the radius."""
+
+
+def test_sphere_prototype_field_matches_analytic_distances():
+    """Distances t / 2R from every sample and texel against the exact ray-sphere distance.
+
+    The prototype is a unit sphere plus a small marker ball 3 units away, so the bounding
+    sphere (R ~ 2.03) is not the sphere itself: rays travel, hit at all depths or miss.
+    """
+    ball, ball_tris = icosphere(SPHERE_LEVEL)
+    marker, marker_tris = icosphere(1)
+    offset = np.array([0.5, -3.0, 1.0])  # off the origin
+    marker_center = np.array([3.0, 0.0, 0.0])
+    points = np.r_[ball, marker * 0.05 + marker_center] + offset
+    triangles = np.r_[ball_tris, marker_tris + len(ball)]
+    field = build_field(points, triangles, positional_samples=17 ** 2, map_size=16)
+    n, m = field.side, field.map_size
+    assert n == 17
+    radius = field.radius
+    np.testing.assert_allclose(field.center, offset + [1.025, 0, 0], atol=1e-9)
+    assert 2.025 <= radius <= 2.025 * (1 + 2e-4)
+    s = grid_cell_centers_np(n)
+    a, b = np.meshgrid((np.arange(m) + 0.5) / m, (np.arange(m) + 0.5) / m)  # texel (row b, column a)
+    local = cosine_hemisphere_np(a.ravel(), b.ravel())  # (M*M, 3)
+    codes = field.texels.reshape(n * n, m * m)
+    errors, hits, misses = [], 0, 0
+    for k in range(n * n):
+        d = local @ _duff_frame(-s[k]).T
+        origin = field.center + s[k] * radius - offset  # relative to the unit sphere's centre
+        bq = -(d @ origin)  # t of the closest approach to the centre
+        closest = np.linalg.norm(origin + bq[:, None] * d, axis=1)
+        to_marker = origin - marker_center
+        near_marker = np.linalg.norm(to_marker - (to_marker @ d.T)[:, None] * d, axis=1) < 0.1
+        # skip rays within a sagitta of tangency (the tessellation decides) and rays near the marker
+        clear = (np.abs(closest - 1.0) > 4e-3) & ~near_marker
+        hit = closest < 1.0
+        exact = bq - np.sqrt(np.maximum(1.0 - closest ** 2, 0.0))
+        stored = codes[k] != MISS_CODE
+        np.testing.assert_array_equal(stored[clear], hit[clear], err_msg=f"sample {k}")
+        both = clear & hit
+        errors.append(codes[k][both] / MAX_HIT_CODE * 2 * radius - exact[both])
+        hits += both.sum()
+        misses += (clear & ~hit).sum()
+    errors = np.concatenate(errors)
+    assert hits > 10000 and misses > 10000  # both outcomes are exercised (18k and 56k of 74k rays)
+    half_step = 2 * radius / (2 * MAX_HIT_CODE)
+    # quantization (half a code step) + the chord sagitta (~2e-4) seen at grazing incidence (>= 0.09)
+    assert np.abs(errors).max() <= half_step + 0.003
+    assert np.abs(errors).mean() <= 0.6 * half_step  # rounding errors spread evenly: mean ~ half_step / 2
+    assert errors.max() > 0.5 * half_step  # the distances do span the quantization steps
+
+
+def _duff_frame(n: np.ndarray) -> np.ndarray:
+    """numpy copy of sampling.tangent_frame: (3, 3) with columns t, s, n."""
+    sign = 1.0 if n[2] >= 0 else -1.0
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t = np.array([1 + sign * n[0] ** 2 * a, sign * b, -sign * n[0]])
+    s = np.array([b, sign + n[1] ** 2 * a, -n[1]])
+    return np.stack([t, s, n], axis=1)
+
+
+def test_uint8_and_bit1_fields_agree_on_hits_and_bit1_is_about_8x_smaller():
+    points, triangles = icosphere(3)
+    uint8 = build_field(points, triangles, positional_samples=81, map_size=16, encoding="uint8")
+    bit1 = build_field(points, triangles, positional_samples=81, map_size=16, encoding="bit1")
+    hits_uint8 = uint8.texels.reshape(81, -1) != MISS_CODE
+    hits_bit1 = np.unpackbits(bit1.texels, axis=1, bitorder="little").astype(bool)
+    np.testing.assert_array_equal(hits_uint8, hits_bit1)
+    # the per-sample mean is the mean of the 8-bit distances of the hits (one extra rounding)
+    mean = np.array([uint8.texels[k][uint8.texels[k] != MISS_CODE].mean() for k in range(81)])
+    np.testing.assert_allclose(bit1.mean_codes, mean, atol=1.0)
+    assert 7.0 <= uint8.nbytes / bit1.nbytes <= 8.0
+
+
+@pytest.mark.parametrize("encoding", ["uint8", "bit1"])
+def test_atlas_round_trip_through_a_png(tmp_path, encoding):
+    import OpenImageIO as oiio
+
+    from usdbake.stages.bake_layer import write_texture
+
+    points, triangles = icosphere(2)
+    field = build_field(points * 0.3, triangles, prototype="/World/Proto", positional_samples=25, map_size=8,
+                        encoding=encoding)
+    records = field_records(field)
+    texture = records[0]
+    assert isinstance(texture, base.Texture) and texture.pixels.dtype == np.uint8
+    path = write_texture(texture, str(tmp_path))
+    pixels = oiio.ImageBuf(path).get_pixels(oiio.UINT8)
+    np.testing.assert_array_equal(pixels[:, :, 0], field_atlas(field))
+    texels, means = field_from_atlas(pixels, side=5, map_size=8, encoding=encoding)
+    np.testing.assert_array_equal(texels, field.texels)
+    if encoding == "bit1":
+        np.testing.assert_array_equal(means, field.mean_codes)
+
+
+# ---------------------------------------------------------------------------
+# The processor: cost model, records, degenerate input
+
+
+def _props_scene(counts=(6, 1)):
+    ball, ball_tris = icosphere(2)
+    cube = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], float) - 0.5
+    cube_tris = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],
+                          [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]], np.int32)
+    floor, floor_tris = grid(5, 4)
+    prototypes = [("/World/Scatter/Prototypes/Ball", ball * 0.4, ball_tris),
+                  ("/World/Scatter/Prototypes/Box", cube, cube_tris)]
+    instances = [(0, translate(-3 + i, 0.4, 1)) for i in range(counts[0])]
+    instances += [(1, translate(-3 + i, 0.5, -2)) for i in range(counts[1])]
+    return build_scene([("/World/Floor", floor, floor_tris)], prototypes, instances)
+
+
+def test_prototype_geometry_is_recovered_in_prototype_space():
+    scene = _props_scene()
+    points, triangles, instance = prototype_geometry(scene, 0)
+    expected, _ = icosphere(2)
+    np.testing.assert_allclose(points, expected * 0.4, atol=1e-6)  # float32 scene points
+    assert len(triangles) == 320 and instance == 0
+
+
+def test_cost_model_force_forbid_and_min_instances():
+    scene = _props_scene(counts=(6, 1))
+    params = DisplacementFields.Params
+    chosen, messages = choose_prototypes(scene, params())
+    assert chosen == [0]
+    assert "1 instance(s) < min_instances=2" in messages[1]
+    chosen, messages = choose_prototypes(scene, params(force="Box", forbid="/World/Scatter/Prototypes/Ball"))
+    assert chosen == [1] and "forbidden" in messages[0] and "forced" in messages[1]
+    chosen, messages = choose_prototypes(scene, params(expected_rays_per_instance=1e3))
+    assert chosen == [] and "build rays" in messages[0]
+
+
+def test_applies_and_param_validation():
+    empty = build_scene([("/World/Floor", *grid(1, 1))], [], [])
+    assert DisplacementFields().applies(empty) == (False, "no instanced prototypes")
+    assert DisplacementFields().applies(_props_scene())[0]
+    with pytest.raises(base.ParamError, match="multiple of 8"):
+        DisplacementFields.Params(encoding="bit1", direction_map_size=12)
+    with pytest.raises(base.ParamError, match="encoding"):
+        DisplacementFields.Params(encoding="float")
+    assert side_for(4226) == 65 and side_for(1090) == 33
+    with pytest.raises(base.ParamError, match="rays per prototype is above the maximum"):
+        DisplacementFields.Params(positional_samples=66049, direction_map_size=256)
+
+
+def test_run_writes_texture_and_applied_schema_on_the_prototype():
+    result = run_processor(DisplacementFields, _props_scene(), {"positional_samples": 64, "direction_map_size": 8})
+    fields = result.products["displacement_fields"]
+    assert list(fields) == ["/World/Scatter/Prototypes/Ball"]
+    prims = [r for r in result.outputs if isinstance(r, base.Prim)]
+    assert prims == [base.Prim("/World/Scatter/Prototypes/Ball", api_schemas=("DisplacementFieldAPI",))]
+    attributes = {r.name: r for r in result.outputs if isinstance(r, base.Attribute)}
+    assert attributes["bake:field:file"].value == "./displacement_fields/World_Scatter_Prototypes_Ball.png"
+    assert attributes["bake:field:positionalSamples"].value == 64
+    assert attributes["bake:field:directionMapSize"].type_name == "int2"
+    assert attributes["bake:field:positionMapping"].value == "octahedralEqualArea"
+    assert attributes["bake:field:directionMapping"].value == "concentricMalley"
+    assert abs(attributes["bake:field:radius"].value - 0.4) < 1e-3
+    assert any("Box: no field" in message for message in result.messages)
+
+
+def test_degenerate_prototype_is_skipped_with_a_reason():
+    point = np.zeros((3, 3))
+    scene = build_scene([("/World/Floor", *grid(1, 1))], [("/World/P/Dot", point, np.array([[0, 1, 2]], np.int32))],
+                        [(0, translate(0, 0, 0)), (0, translate(1, 0, 0))])
+    result = run_processor(DisplacementFields, scene, {"positional_samples": 16, "direction_map_size": 8})
+    assert result.products["displacement_fields"] == {}
+    assert any("no extent" in message for message in result.messages)
