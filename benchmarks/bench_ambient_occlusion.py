@@ -23,7 +23,8 @@ DEFAULT_SAMPLES = 256
 def run(quick: bool = False) -> dict:
     from pxr import Usd
 
-    from usdbake.processors.ambient_occlusion import AmbientOcclusion, compute_vertex_ao, vertex_normals
+    from usdbake.processors.ambient_occlusion import AmbientOcclusion, compute_vertex_ao
+    from usdbake.processors.geometry import vertex_normals
     from usdbake.processors.tracer import Tracer
     from usdbake.stages.extract import extract_scene
 

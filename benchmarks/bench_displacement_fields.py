@@ -207,7 +207,8 @@ def _instance_vertices(scene) -> dict:
     from usdbake.processors import base
     from usdbake.processors.ambient_occlusion import AmbientOcclusion
     from usdbake.processors.displacement_fields import DisplacementFields
-    from usdbake.processors.instance_ao import InstanceAO, InstancePoints, vertex_normals
+    from usdbake.processors.geometry import vertex_normals
+    from usdbake.processors.instance_ao import InstanceAO, InstancePoints
     from usdbake.processors.tracer import Tracer
 
     fields = DisplacementFields().run(base.Context(scene=scene, params=DisplacementFields.Params(),

@@ -17,7 +17,7 @@ DESCRIPTION = ("Ray throughput of the shared Warp BVH (`Tracer.occluded`, any-hi
 
 def ao_rays(scene, count: int, epsilon: float, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
     """``count`` rays from random vertices along cosine-weighted directions around their normals."""
-    from usdbake.processors.ambient_occlusion import vertex_normals
+    from usdbake.processors.geometry import vertex_normals
     from usdbake.processors.kernels.sampling import cosine_hemisphere_np
 
     rng = np.random.default_rng(seed)  # fixed seed: the same rays for every backend and thread count

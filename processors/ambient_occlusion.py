@@ -43,6 +43,7 @@ import warp as wp
 
 from .base import Attribute, Context, Params, Prim, Primvar, Processor, Result, param, register
 from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame
+from .geometry import face_means, receiver_prims, strata_for, vertex_normals
 from .scene import Scene
 
 wp.set_module_options({"enable_backward": False})
@@ -120,24 +121,6 @@ def face_ao_kernel(
     ao[i] = float(visible) / float(strata * strata)
 
 
-def vertex_normals(points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.ndarray,
-                   tri_areas: np.ndarray) -> np.ndarray:
-    """(P, 3) float32 area-weighted vertex normals; zero where no non-degenerate triangle touches."""
-    accum = np.zeros((len(points), 3), np.float64)
-    weighted = tri_normals.astype(np.float64) * tri_areas[:, None]
-    for corner in range(3):
-        np.add.at(accum, tri_vertices[:, corner], weighted)
-    length = np.linalg.norm(accum, axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        normals = np.where(length > 0, accum / length, 0.0)
-    return normals.astype(np.float32)
-
-
-def strata_for(samples: int) -> int:
-    """Side of the stratification grid: the square nearest to ``samples`` (at least 1)."""
-    return max(1, int(round(math.sqrt(samples))))
-
-
 def compute_vertex_ao(tracer, positions: np.ndarray, normals: np.ndarray, *, samples: int,
                       max_distance: float = math.inf, seed: int = 0) -> np.ndarray:
     """AO at points with unit normals.
@@ -177,20 +160,6 @@ def compute_face_ao(tracer, points: np.ndarray, tri_vertices: np.ndarray, tri_no
     ])
     tracer.rays_cast += len(tri_vertices) * strata * strata
     return ao.numpy()
-
-
-def receiver_prims(scene: Scene) -> np.ndarray:
-    """Indices of prims that get AO: writable, not marked bake:skip, with triangles."""
-    has_triangles = np.bincount(scene.tri_prim, minlength=len(scene.prim_paths)) > 0
-    return np.flatnonzero(scene.prim_writable & ~scene.prim_skip & has_triangles)
-
-
-def face_means(values: np.ndarray, weights: np.ndarray, face: np.ndarray, face_count: int) -> np.ndarray:
-    """Weighted mean of per-triangle values over each authored face (faces without triangles get 1)."""
-    total = np.bincount(face, weights=values * weights, minlength=face_count)
-    weight = np.bincount(face, weights=weights, minlength=face_count)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(weight > 0, total / weight, 1.0).astype(np.float32)
 
 
 @register

@@ -86,6 +86,7 @@ from .base import Context, Params, Primvar, Processor, Result, param, register
 from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame
 from .kernels.sphere_maps import (equal_area_sphere_to_square, equal_area_square_to_sphere,
                                   malley_direction_to_square, octahedral_wrap)
+from .geometry import receiver_prims, strata_for, vertex_normals
 from .scene import Scene
 from .tracer import RAY_EPSILON_RELATIVE, Tracer
 
@@ -340,32 +341,6 @@ def field_query_kernel(
 
 # ---------------------------------------------------------------------------
 # Pure functions
-
-
-def vertex_normals(points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.ndarray,
-                   tri_areas: np.ndarray) -> np.ndarray:
-    """(P, 3) float32 area-weighted vertex normals, as ambient_occlusion computes them.
-
-    Duplicated on purpose: processors do not import each other (a shared geometry module would hold it).
-    """
-    accum = np.zeros((len(points), 3), np.float64)
-    weighted = tri_normals.astype(np.float64) * tri_areas[:, None]
-    for corner in range(3):
-        np.add.at(accum, tri_vertices[:, corner], weighted)
-    length = np.linalg.norm(accum, axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        normals = np.where(length > 0, accum / length, 0.0)
-    return normals.astype(np.float32)
-
-
-def receiver_prims(scene: Scene) -> np.ndarray:
-    """Indices of prims that get AO: writable, not marked bake:skip, with triangles."""
-    has_triangles = np.bincount(scene.tri_prim, minlength=len(scene.prim_paths)) > 0
-    return np.flatnonzero(scene.prim_writable & ~scene.prim_skip & has_triangles)
-
-
-def strata_for(samples: int) -> int:
-    return max(1, int(round(math.sqrt(samples))))
 
 
 def invertible(transforms: np.ndarray) -> np.ndarray:

@@ -12,7 +12,8 @@ import pytest
 from pxr import Gf, Usd, UsdGeom
 
 import usdbake
-from usdbake.processors.ambient_occlusion import compute_vertex_ao, vertex_normals
+from usdbake.processors.ambient_occlusion import compute_vertex_ao
+from usdbake.processors.geometry import vertex_normals
 from usdbake.processors.tracer import Tracer
 from usdbake.stages.errors import StageError
 from usdbake.stages.extract import extract_scene
