@@ -30,6 +30,8 @@ def main(argv=None) -> int:
     parser.add_argument("--results", metavar="DIR", help="write results and the report to DIR instead of "
                         "benchmarks/results and docs/ (CI smoke runs use this so committed figures stay)")
     args = parser.parse_args(argv)
+    if args.quick and not args.results:  # quick sweeps never overwrite the committed full results
+        args.results = str(harness.RESULTS / "quick")
     if args.results:
         harness.RESULTS = Path(args.results)
         report.DOCS = Path(args.results)
