@@ -165,7 +165,7 @@ def compute_face_ao(tracer, points: np.ndarray, tri_vertices: np.ndarray, tri_no
 @register
 class AmbientOcclusion(Processor):
     name = "ambient_occlusion"
-    version = "1"
+    version = "2"
     summary = "Per-vertex ambient occlusion by cosine-weighted hemisphere ray casts (the reference AO)."
     facets = ("geometry",)
     provides = ("ao",)

@@ -602,7 +602,7 @@ def parse_frames(text: str, available: np.ndarray) -> list[float] | None:
 @register
 class InstanceAO(Processor):
     name = "instance_ao"
-    version = "1"
+    version = "2"
     summary = "Per-vertex AO with instanced prototypes looked up in displacement fields (per frame, no BVH rebuild)."
     facets = ("geometry", "instancers")
     requires = ("displacement_fields",)

@@ -49,11 +49,17 @@ def tangent_frame(n: wp.vec3) -> wp.mat33:
 
 @wp.func
 def stratified_pair(index: int, strata: int, state: wp.uint32) -> wp.vec2:
-    """Jittered sample in cell ``index`` of a strata x strata grid over [0,1)^2."""
+    """Jittered sample in cell ``index`` of a strata x strata grid over [0,1)^2.
+
+    The jitter comes from a generator seeded by (state, index). Warp passes
+    ``state`` into a @wp.func by value, so drawing from it here would not
+    advance the caller's generator and every cell would get the same jitter.
+    """
+    local = wp.rand_init(wp.int32(state), index)
     sx = index % strata
     sy = index // strata
     inv = 1.0 / float(strata)
-    return wp.vec2((float(sx) + wp.randf(state)) * inv, (float(sy) + wp.randf(state)) * inv)
+    return wp.vec2((float(sx) + wp.randf(local)) * inv, (float(sy) + wp.randf(local)) * inv)
 
 
 def concentric_disk_np(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
