@@ -39,6 +39,37 @@ def default_threads() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+def launch_chunked(kernel, dim: int, inputs: list, *, device, threads: int, offset: int = 0,
+                   min_chunk: int = MIN_CHUNK) -> None:
+    """Launch ``kernel(start, *inputs)`` over items offset .. offset + dim - 1, chunked across CPU threads.
+
+    The kernel's first argument is the chunk's first item; it must compute its
+    item as ``start + wp.tid()`` and write only that item's outputs. Warp
+    releases the GIL during a CPU launch, so the chunks run in parallel.
+    ``min_chunk`` is the smallest chunk worth a thread (lower it for heavy items).
+    """
+    if dim <= 0:
+        return
+    device = wp.get_device(device)
+    if device.is_cuda or threads <= 1 or dim < 2 * min_chunk:
+        wp.launch(kernel, dim=dim, inputs=[offset, *inputs], device=device)
+        wp.synchronize_device(device)
+        return
+    # Compile/load once on this thread (concurrent first loads would race);
+    # the same explicit CPU block_dim keeps the threads on this build.
+    kernel.module.load(device, CPU_BLOCK_DIM)
+    chunks = min(threads * 4, max(1, dim // min_chunk))
+    bounds = np.linspace(0, dim, chunks + 1).astype(np.int64)
+
+    def run(chunk: int) -> None:
+        lo, hi = int(bounds[chunk]), int(bounds[chunk + 1])
+        if hi > lo:
+            wp.launch(kernel, dim=hi - lo, inputs=[offset + lo, *inputs], device=device, block_dim=CPU_BLOCK_DIM)
+
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        list(pool.map(run, range(chunks)))
+
+
 @dataclass(frozen=True)
 class Hits:
     """Closest-hit results, one row per ray."""
@@ -138,31 +169,8 @@ class Tracer:
     # -- launching ---------------------------------------------------------
 
     def launch(self, kernel, dim: int, inputs: list, *, threads: int | None = None) -> None:
-        """Launch ``kernel(start, *inputs)`` over ``dim`` items, chunked across CPU threads.
-
-        The kernel's first argument is the chunk's start index; it must compute
-        its item as ``start + wp.tid()`` and write only that item's outputs.
-        """
-        if dim <= 0:
-            return
-        threads = threads or self.threads
-        if self.device.is_cuda or threads == 1 or dim < 2 * MIN_CHUNK:
-            wp.launch(kernel, dim=dim, inputs=[0, *inputs], device=self.device)
-            wp.synchronize_device(self.device)
-            return
-        # Compile/load once on this thread (concurrent first loads would race);
-        # the same explicit CPU block_dim keeps the threads on this build.
-        kernel.module.load(self.device, CPU_BLOCK_DIM)
-        chunks = min(threads * 4, max(1, dim // MIN_CHUNK))
-        bounds = np.linspace(0, dim, chunks + 1).astype(np.int64)
-
-        def run(chunk: int) -> None:
-            lo, hi = int(bounds[chunk]), int(bounds[chunk + 1])
-            if hi > lo:
-                wp.launch(kernel, dim=hi - lo, inputs=[lo, *inputs], device=self.device, block_dim=CPU_BLOCK_DIM)
-
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            list(pool.map(run, range(chunks)))
+        """Launch ``kernel(start, *inputs)`` over ``dim`` items on this tracer's device (see launch_chunked)."""
+        launch_chunked(kernel, dim, inputs, device=self.device, threads=threads or self.threads)
 
     def array(self, values: np.ndarray, dtype) -> wp.array:
         return wp.array(np.ascontiguousarray(values), dtype=dtype, device=self.device)

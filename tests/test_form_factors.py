@@ -1,0 +1,337 @@
+"""form_factors: patches, form factors against closed forms, the multi-bounce operator, compression."""
+
+import math
+
+import numpy as np
+import pytest
+from usdbake.processors import form_factors as ff
+from usdbake.processors.base import File, Prim
+from usdbake.processors.scene import Lights, Scene
+from usdbake.processors.tracer import Tracer
+
+# ---------------------------------------------------------------------------
+# Scene helpers (also used by test_radiosity)
+
+
+def quad(origin, u, v, grid=1):
+    """grid x grid quads spanning origin + s u + t v (s, t in [0, 1]), normal along u x v."""
+    origin, u, v = (np.asarray(x, np.float64) for x in (origin, u, v))
+    s = np.linspace(0, 1, grid + 1)
+    points = (origin + s[:, None, None] * u + s[None, :, None] * v).reshape(-1, 3)
+    idx = np.arange((grid + 1) ** 2).reshape(grid + 1, grid + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    return points, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def box_parts(size=1.0, grid=1):
+    """Closed cube [0, size]^3, six faces with inward normals."""
+    s = size
+    faces = [quad([0, 0, 0], [s, 0, 0], [0, s, 0], grid), quad([0, 0, s], [0, s, 0], [s, 0, 0], grid),
+             quad([0, 0, 0], [0, s, 0], [0, 0, s], grid), quad([s, 0, 0], [0, 0, s], [0, s, 0], grid),
+             quad([0, 0, 0], [0, 0, s], [s, 0, 0], grid), quad([0, s, 0], [s, 0, 0], [0, 0, s], grid)]
+    return faces
+
+
+def make_scene(parts, *, albedo=(0.5, 0.5, 0.5), emission=None, lights=None, writable=None) -> Scene:
+    """A Scene from (points, triangles) parts, one prim per part; per-part albedo rows allowed."""
+    points, tris, prim, start = [], [], [], [0]
+    for k, (p, t) in enumerate(parts):
+        tris.append(np.asarray(t) + start[-1])
+        points.append(p)
+        prim.append(np.full(len(t), k))
+        start.append(start[-1] + len(p))
+    points = np.concatenate(points).astype(np.float32)
+    tris = np.concatenate(tris).astype(np.int32)
+    prim = np.concatenate(prim).astype(np.int32)
+    corner = points[tris].astype(np.float64)
+    cross = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    normals = np.where(area[:, None] > 0, cross / np.maximum(2 * area[:, None], 1e-30), 0.0)
+    count, parts_n = len(tris), len(parts)
+    albedo = np.asarray(albedo, np.float32)
+    tri_albedo = albedo[prim] if albedo.ndim == 2 else np.broadcast_to(albedo, (count, 3)).copy()
+    tri_emission = np.zeros((count, 3), np.float32) if emission is None else np.asarray(emission, np.float32)[prim]
+    return Scene(
+        points=points, tri_vertices=tris, tri_normals=normals.astype(np.float32), tri_areas=area.astype(np.float32),
+        tri_albedo=tri_albedo, tri_emission=tri_emission, tri_prim=prim, tri_face=np.arange(count, dtype=np.int32),
+        tri_instance=np.full(count, -1, np.int32), tri_double_sided=np.zeros(count, bool),
+        point_prim=np.repeat(np.arange(parts_n), np.diff(start)).astype(np.int32),
+        prim_paths=tuple(f"/World/part{k}" for k in range(parts_n)), prim_point_start=np.array(start, np.int64),
+        prim_face_count=np.bincount(prim, minlength=parts_n).astype(np.int32),
+        prim_writable=np.ones(parts_n, bool) if writable is None else np.asarray(writable, bool),
+        prim_skip=np.zeros(parts_n, bool), prim_surface=("",) * parts_n, lights=lights or Lights())
+
+
+def form_factors_of(scene, *, voxel, rays, seed=0):
+    tracer = Tracer.from_scene(scene)
+    patches = ff.build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
+                               scene.tri_albedo, scene.tri_emission, voxel_size=voxel)
+    return patches, ff.compute_form_factors(tracer, patches, scene.tri_normals, rays=rays, seed=seed)
+
+
+# ---------------------------------------------------------------------------
+# Closed forms (Howell's catalog of radiation configuration factors, C-11 and C-14)
+
+
+def parallel_rectangles(a, b, c):
+    """F between directly opposed parallel a x b rectangles at distance c."""
+    x, y = a / c, b / c
+    return 2 / (math.pi * x * y) * (
+        0.5 * math.log((1 + x * x) * (1 + y * y) / (1 + x * x + y * y))
+        + x * math.sqrt(1 + y * y) * math.atan(x / math.sqrt(1 + y * y))
+        + y * math.sqrt(1 + x * x) * math.atan(y / math.sqrt(1 + x * x)) - x * math.atan(x) - y * math.atan(y))
+
+
+def perpendicular_rectangles(h, w):
+    """F from a rectangle (w along the shared edge... normalized: H = h/l, W = w/l) to a perpendicular one."""
+    a = (1 + w * w) * (1 + h * h) / (1 + w * w + h * h)
+    b = (w * w * (1 + w * w + h * h) / ((1 + w * w) * (w * w + h * h))) ** (w * w)
+    c = (h * h * (1 + h * h + w * w) / ((1 + h * h) * (h * h + w * w))) ** (h * h)
+    return 1 / (math.pi * w) * (w * math.atan(1 / w) + h * math.atan(1 / h)
+                                - math.sqrt(h * h + w * w) * math.atan(1 / math.sqrt(h * h + w * w))
+                                + 0.25 * math.log(a * b * c))
+
+
+RAYS_CLOSED_FORM = 16384
+FF_TOLERANCE = 5 * math.sqrt(0.2 * 0.8 / RAYS_CLOSED_FORM)
+"""Five standard deviations of a binomial hit share near F = 0.2 with 16384 rays (~0.016); the
+stratification makes the real spread smaller."""
+
+
+def test_parallel_unit_squares_match_closed_form():
+    bottom = quad([0, 0, 0], [1, 0, 0], [0, 1, 0])  # normal +z
+    top = quad([0, 0, 1], [0, 1, 0], [1, 0, 0])  # normal -z
+    scene = make_scene([bottom, top])
+    patches, form = form_factors_of(scene, voxel=4.0, rays=RAYS_CLOSED_FORM)
+    assert patches.count == 2
+    expected = parallel_rectangles(1, 1, 1)
+    assert abs(expected - 0.19982) < 1e-4  # the catalog value
+    np.testing.assert_allclose([form[0, 1], form[1, 0]], expected, atol=FF_TOLERANCE)
+    assert form[0, 0] == 0 and form[1, 1] == 0
+
+
+def test_perpendicular_unit_squares_match_closed_form():
+    floor = quad([0, 0, 0], [1, 0, 0], [0, 1, 0])  # z = 0, normal +z
+    wall = quad([0, 0, 0], [0, 0, 1], [1, 0, 0])  # y = 0, normal +y, shares the edge along x
+    scene = make_scene([floor, wall])
+    _, form = form_factors_of(scene, voxel=4.0, rays=RAYS_CLOSED_FORM)
+    expected = perpendicular_rectangles(1.0, 1.0)
+    assert abs(expected - 0.20004) < 1e-4
+    np.testing.assert_allclose([form[0, 1], form[1, 0]], expected, atol=FF_TOLERANCE)
+
+
+def test_closed_box_rows_sum_to_one_and_reciprocity_holds():
+    scene = make_scene(box_parts(grid=2))
+    patches, form = form_factors_of(scene, voxel=0.34, rays=4096)
+    checks = ff.form_factor_checks(form, patches.patch_areas)
+    assert checks["row_sum_min"] > 0.999  # every ray from inside a closed box lands somewhere
+    assert checks["row_sum_max"] <= 1.0 + 1e-6
+    flux = form * patches.patch_areas[:, None]
+    # Reciprocity: A_i F_ij = A_j F_ji. Pairwise values are noisy; face-to-face sums are not.
+    face = np.abs(patches.patch_normals).argmax(1) * 2 + (patches.patch_normals.sum(1) < 0)
+    groups = np.zeros((6, 6))
+    np.add.at(groups, (face[:, None].repeat(len(face), 1), face[None, :].repeat(len(face), 0)), flux)
+    np.testing.assert_allclose(groups, groups.T, rtol=0.03, atol=1e-4)
+    more_rays = ff.form_factor_checks(form_factors_of(scene, voxel=0.34, rays=16384)[1], patches.patch_areas)
+    assert more_rays["reciprocity_error"] < checks["reciprocity_error"]  # MC noise shrinks with rays
+
+
+def test_patches_cover_the_surface_and_map_hits_to_fragments():
+    scene = make_scene(box_parts(size=2.0))
+    patches = ff.build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
+                               scene.tri_albedo, scene.tri_emission, voxel_size=0.5)
+    np.testing.assert_allclose(patches.patch_areas.sum(), 24.0, rtol=1e-5)
+    assert (patches.tri_subdivision > 1).all()  # 2.8-long triangles split at voxel 0.5
+    np.testing.assert_allclose(np.linalg.norm(patches.patch_normals, axis=1), 1.0, rtol=1e-5)
+    # Rays straight down onto the floor at fragment centres hit those fragments' patches.
+    tracer = Tracer.from_scene(scene)
+    floor_frag = np.flatnonzero(scene.tri_normals[patches.fragment_tri][:, 2] > 0.5)
+    centres = patches.fragment_vertices[floor_frag].mean(axis=1)
+    hits = tracer.closest_hit(centres + [0, 0, 1.0], np.tile([0, 0, -1.0], (len(centres), 1)))
+    import warp as wp
+    from usdbake.processors.kernels.patches import fragment_of_hit
+
+    @wp.kernel
+    def lookup(face: wp.array(dtype=int), uv: wp.array(dtype=wp.vec2), sub: wp.array(dtype=int),
+               first: wp.array(dtype=int), out: wp.array(dtype=int)):
+        i = wp.tid()
+        out[i] = fragment_of_hit(face[i], uv[i][0], uv[i][1], sub, first)
+
+    out = wp.zeros(len(centres), dtype=int)
+    wp.launch(lookup, len(centres), [wp.array(hits.hit_triangle, dtype=int), wp.array(hits.hit_uv, dtype=wp.vec2),
+                                     wp.array(patches.tri_subdivision, dtype=int),
+                                     wp.array(patches.tri_fragment_start, dtype=int), out])
+    np.testing.assert_array_equal(out.numpy(), floor_frag)
+
+
+def test_voxel_size_is_chosen_for_the_target_count():
+    scene = make_scene(box_parts(grid=3))
+    voxel = ff.choose_voxel_size(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas, 600)
+    count = ff.count_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas, voxel)
+    assert 400 < count < 900
+
+
+# ---------------------------------------------------------------------------
+# Multi-bounce operator
+
+
+def test_closed_box_bounce_energy_is_albedo_powers():
+    # Closed box, uniform albedo rho: each bounce returns rho times the power it received, so the
+    # indirect power is P0 (rho + rho^2 + rho^3) for k = 3 -- and never more than the incident power
+    # times rho / (1 - rho) (energy conservation).
+    rho = 0.6
+    scene = make_scene(box_parts(grid=2), albedo=(rho, rho, rho))
+    patches, form = form_factors_of(scene, voxel=0.34, rays=4096)
+    operator = ff.multibounce_operator(form, patches.patch_albedo, bounces=3)
+    rng = np.random.default_rng(5)  # fixed seed: an arbitrary non-negative direct light
+    e0 = rng.uniform(0, 1, (patches.count, 3)).astype(np.float32)
+    indirect = np.einsum("cij,jc->ic", operator, e0)
+    p0 = (patches.patch_areas[:, None] * e0).sum(0)
+    p_ind = (patches.patch_areas[:, None] * indirect).sum(0)
+    np.testing.assert_allclose(p_ind, p0 * (rho + rho ** 2 + rho ** 3), rtol=0.03)
+    infinite = ff.multibounce_operator(form, patches.patch_albedo, infinite=True)
+    p_inf = (patches.patch_areas[:, None] * np.einsum("cij,jc->ic", infinite, e0)).sum(0)
+    assert (p_inf <= p0 * rho / (1 - rho) * 1.03).all() and (p_inf > p_ind).all()
+
+
+def test_infinite_closed_form_equals_a_long_series():
+    rng = np.random.default_rng(6)  # fixed seed: a random sub-stochastic matrix
+    form = rng.uniform(0, 1, (30, 30)).astype(np.float32)
+    form /= form.sum(1, keepdims=True) * 1.1
+    albedo = rng.uniform(0.2, 0.8, (30, 3)).astype(np.float32)
+    np.testing.assert_allclose(ff.multibounce_operator(form, albedo, infinite=True),
+                               ff.multibounce_operator(form, albedo, bounces=80), rtol=1e-4, atol=1e-6)
+
+
+# ---------------------------------------------------------------------------
+# Compression
+
+
+@pytest.fixture(scope="module")
+def box_operator():
+    albedo = np.array([[0.7, 0.5, 0.3]] * 6, np.float32)
+    albedo[2] = [0.2, 0.7, 0.3]
+    scene = make_scene(box_parts(grid=2), albedo=albedo)
+    patches, form = form_factors_of(scene, voxel=0.1, rays=256)
+    return patches, ff.multibounce_operator(form, patches.patch_albedo, bounces=3)
+
+
+def test_compression_keeps_top_entries_exact_and_is_small(box_operator):
+    patches, operator = box_operator
+    n = patches.count
+    compressed = ff.compress_operator(operator)
+    assert compressed.stats["memory_ratio"] <= 1 / 8
+    stored = np.moveaxis(operator, 0, -1)[np.ix_(compressed.permutation, compressed.permutation)]
+    rows = np.repeat(np.arange(n), np.diff(compressed.sparse_indptr))
+    np.testing.assert_array_equal(compressed.sparse_values, stored[rows, compressed.sparse_indices])
+    assert abs(len(rows) - 0.04 * n * n) <= 1
+    # Every exact entry is at least as large as every coded one.
+    mask = np.zeros((n, n), bool)
+    mask[rows, compressed.sparse_indices] = True
+    assert stored.max(-1)[mask].min() >= stored.max(-1)[~mask].max()
+    assert sorted(compressed.permutation) == list(range(n))
+
+
+RELIGHT_TOLERANCE = 0.03
+"""Relative RMS of compressed vs dense indirect light on a small, noisy (256-ray) box: BC1 per-entry
+errors of ~10 % average out over the ~1000 columns of a row; the benchmark reports the figure."""
+
+
+@pytest.mark.parametrize("quantization", ["log", "linear"])
+def test_compressed_relight_matches_dense_and_permutation_is_consistent(box_operator, quantization):
+    from usdbake.processors import radiosity as rad
+
+    patches, operator = box_operator
+    rng = np.random.default_rng(7)  # fixed seed: arbitrary light
+    e0 = np.zeros((patches.count, 3), np.float32)
+    e0[patches.patch_normals[:, 2] < -0.5] = rng.uniform(0.5, 1.5, 3)  # ceiling lit
+    dense = np.einsum("cij,jc->ic", operator, e0)
+    results = {}
+    for passes in (0, 2):
+        compressed = ff.compress_operator(operator, reorder_passes=passes, quantization=quantization)
+        relit = rad.relight(compressed, e0)
+        # The Warp kernel (decode on the fly) equals the numpy decode of the same data.
+        decoded = np.einsum("cij,jc->ic", ff.decompress_operator(compressed), e0)
+        np.testing.assert_allclose(relit, decoded, rtol=1e-4, atol=1e-7)
+        relighter = rad.Relighter(compressed)
+        relighter.apply(e0)
+        sums = relighter.y.numpy().copy()
+        relighter.apply_stored(texel_loop=True)
+        np.testing.assert_allclose(sums, relighter.y.numpy(), rtol=1e-4, atol=1e-7)
+        error = np.sqrt(np.mean((relit - dense) ** 2) / np.mean(dense ** 2))
+        assert error < RELIGHT_TOLERANCE, (passes, error)
+        results[passes] = relit
+    # With and without reordering the answer is the same light in patch order.
+    np.testing.assert_allclose(results[0], results[2], rtol=0, atol=RELIGHT_TOLERANCE * 2 * np.abs(dense).max())
+
+
+def test_reordering_lowers_the_summed_error(box_operator):
+    _, operator = box_operator
+    none = ff.compress_operator(operator, reorder_passes=0, row_correction=False).stats
+    two = ff.compress_operator(operator, reorder_passes=2, row_correction=False).stats
+    assert two["error_sum"] < none["error_sum"]
+
+
+def test_greedy_order_groups_similar_rows():
+    rng = np.random.default_rng(8)  # fixed seed: two row families, shuffled
+    base = np.stack([np.zeros(16), np.full(16, 100.0)])
+    labels = rng.permutation(np.repeat([0, 1], 10))
+    rows = base[labels] + rng.uniform(0, 1, (20, 16))
+    order = ff.greedy_order(rows)
+    assert sorted(order) == list(range(20))
+    assert np.count_nonzero(np.diff(labels[order])) == 1  # one switch between the families
+
+
+# ---------------------------------------------------------------------------
+# Processor
+
+
+def test_processor_outputs_patch_prim_and_files(tmp_path):
+    from usdbake.processors.base import Context
+
+    scene = make_scene(box_parts(grid=2))
+    proc = ff.FormFactors()
+    params = ff.FormFactors.Params(target_patches=150, rays=64)
+    result = proc.run(Context(scene=scene, params=params, tracer=Tracer.from_scene(scene)))
+    product = result.products["form_factors"]
+    assert 100 < product.patches.count < 220
+    prims = [r for r in result.outputs if isinstance(r, Prim)]
+    assert any(r.type_name == "RadiosityPatches" and r.path == ff.PATCHES_PRIM for r in prims)
+    files = {r.path: r.data for r in result.outputs if isinstance(r, File)}
+    dds_name = next(name for name in files if name.endswith(".dds"))
+    from usdbake.processors import dds
+
+    blocks, width, height = dds.read_dds_bc1(files[dds_name])
+    np.testing.assert_array_equal(blocks, product.operator.blocks)
+    assert width == height == product.operator.padded
+    names = {r.name for r in result.outputs if getattr(r, "prim", None) == ff.PATCHES_PRIM}
+    assert {"centroids", "normals", "areas", "albedo", "trianglePatch", "matrixFile", "sparseFile", "bounces",
+            "quantizationScale", "quantizationOffset", "permutation"} <= names
+    assert result.stats["row_sum_min"] > 0.99
+
+
+def test_bad_params_are_rejected():
+    from usdbake.processors.base import ParamError
+
+    with pytest.raises(ParamError):
+        ff.FormFactors.Params(exact_fraction=1.5)
+    with pytest.raises(ParamError):
+        ff.FormFactors.Params(quantization="cubic")
+    with pytest.raises(ParamError):
+        ff.FormFactors.Params(reorder_passes=3)
+
+
+def test_degenerate_triangles_do_not_break_patches():
+    parts = box_parts()
+    degenerate = (np.array([[0.5, 0.5, 0.5]] * 3), np.array([[0, 1, 2]]))
+    scene = make_scene([*parts, degenerate])
+    patches, form = form_factors_of(scene, voxel=0.5, rays=64)
+    assert np.isfinite(form).all() and np.isfinite(patches.patch_centroids).all()
+    assert patches.tri_patch[-1] == -1
+
+
+def test_too_fine_voxels_are_refused_with_a_message():
+    scene = make_scene(box_parts(size=100.0))
+    with pytest.raises(ValueError, match="voxel_size=0.01"):
+        ff.build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas, scene.tri_albedo,
+                         scene.tri_emission, voxel_size=0.01)
