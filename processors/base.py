@@ -237,7 +237,12 @@ class Processor:
     Params: ClassVar[type[Params]] = Params
     summary: ClassVar[str] = ""
 
+    def __init__(self, params: Params | None = None):
+        self.params = params if params is not None else self.Params()
+        """This step's params, so applies() can decide with them (e.g. a cost model)."""
+
     def applies(self, scene: Scene) -> tuple[bool, str]:
+        """(True, why it runs or "") or (False, why it does not apply)."""
         return True, ""
 
     def run(self, ctx: Context) -> Result:  # pragma: no cover - abstract

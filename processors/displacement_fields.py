@@ -394,7 +394,11 @@ class DisplacementFields(Processor):
     def applies(self, scene: Scene) -> tuple[bool, str]:
         if len(scene.instances) == 0:
             return False, "no instanced prototypes"
-        return True, ""
+        chosen, _ = choose_prototypes(scene, self.params)
+        if not chosen:
+            return False, "no prototype pays off (cost model: instances x expected rays < build rays)"
+        names = ", ".join(scene.instances.prototype_paths[index].rsplit("/", 1)[-1] for index in chosen)
+        return True, f"pays off for {names} (cost model)"
 
     def run(self, ctx: Context) -> Result:
         scene, p = ctx.scene, ctx.params

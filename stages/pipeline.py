@@ -102,7 +102,8 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
     steps = []
     for name in order:
         cls = registry[name]
-        steps.append(Step(name, cls(), cls.Params.from_dict(params.get(name, {}))))
+        step_params = cls.Params.from_dict(params.get(name, {}))
+        steps.append(Step(name, cls(step_params), step_params))
     return steps
 
 
@@ -179,7 +180,7 @@ class Pipeline:
                     self.cache.path(step.name, step.key).exists():
                 step.action, step.reason = "cached", "up to date: fingerprint unchanged"
             else:
-                step.action, step.reason = "run", "forced" if self.force else ""
+                step.action, step.reason = "run", "forced" if self.force else why
             if step.action == "skip":
                 skipped.add(step.name)
         return self.steps

@@ -1,0 +1,79 @@
+"""Skip what a scene doesn't need, made visible: one test per reason the plan gives."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pxr import Gf, Usd, UsdGeom, UsdLux
+
+from usdbake.stages.extract import extract_scene
+from usdbake.stages.pipeline import Pipeline
+
+SAMPLES = Path(__file__).resolve().parents[1] / "samples"
+
+
+def quad_stage(*, light: bool) -> Usd.Stage:
+    stage = Usd.Stage.CreateInMemory()
+    mesh = UsdGeom.Mesh.Define(stage, "/World/floor")
+    mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 0, -1), (0, 0, -1)])
+    mesh.CreateFaceVertexCountsAttr([4])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    if light:
+        UsdLux.DistantLight.Define(stage, "/World/sun")
+    return stage
+
+
+def instancer_stage(instances: int) -> Usd.Stage:
+    """Only a PointInstancer: every triangle is an instance, nothing is writable."""
+    stage = Usd.Stage.CreateInMemory()
+    instancer = UsdGeom.PointInstancer.Define(stage, "/World/scatter")
+    proto = UsdGeom.Mesh.Define(stage, "/World/scatter/protos/tri")
+    proto.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (0, 1, 0)])
+    proto.CreateFaceVertexCountsAttr([3])
+    proto.CreateFaceVertexIndicesAttr([0, 1, 2])
+    instancer.CreatePrototypesRel().SetTargets([proto.GetPath()])
+    instancer.CreateProtoIndicesAttr([0] * instances)
+    instancer.CreatePositionsAttr([Gf.Vec3f(2.0 * i, 0, 0) for i in range(instances)])
+    return stage
+
+
+def plan(stage: Usd.Stage, names, params=None, cache_dir=None) -> dict:
+    pipeline = Pipeline.build(names, params, cache_dir=cache_dir)
+    return {step.name: (step.action, step.reason) for step in pipeline.plan(extract_scene(stage))}
+
+
+def test_no_writable_meshes():
+    assert plan(instancer_stage(3), ["ambient_occlusion"])["ambient_occlusion"] == (
+        "skip", "not applicable: no writable meshes (all instanced, bake:skip or empty)")
+
+
+def test_no_instanced_prototypes_and_dependents_follow():
+    steps = plan(quad_stage(light=True), ["instance_ao"])
+    assert steps["displacement_fields"] == ("skip", "not applicable: no instanced prototypes")
+    assert steps["instance_ao"] == ("skip", "requires displacement_fields (skipped)")
+
+
+def test_no_lights():
+    action, reason = plan(quad_stage(light=False), ["radiosity"])["radiosity"]
+    assert action == "skip" and reason == "not applicable: no lights or emissive surfaces"
+    assert plan(quad_stage(light=True), ["radiosity"])["radiosity"][0] == "run"
+
+
+def test_fields_pay_off_by_the_cost_model():
+    stage = Usd.Stage.Open(str(SAMPLES / "instanced_props.usda"))
+    action, reason = plan(stage, ["displacement_fields"])["displacement_fields"]
+    assert action == "run" and reason.startswith("pays off for Vase")
+    action, reason = plan(stage, ["displacement_fields"],
+                          {"displacement_fields": {"min_instances": 1000}})["displacement_fields"]
+    assert action == "skip" and "no prototype pays off" in reason
+
+
+def test_up_to_date(tmp_path):
+    stage, names = quad_stage(light=True), ["ambient_occlusion"]
+    params = {"ambient_occlusion": {"samples": 4}}
+    pipeline = Pipeline.build(names, params, cache_dir=tmp_path)
+    pipeline.run(extract_scene(stage))
+    assert plan(stage, names, params, cache_dir=tmp_path)["ambient_occlusion"] == (
+        "cached", "up to date: fingerprint unchanged")
+    assert plan(stage, names, {"ambient_occlusion": {"samples": 9}}, cache_dir=tmp_path)["ambient_occlusion"][0] \
+        == "run"
