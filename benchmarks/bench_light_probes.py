@@ -1,0 +1,139 @@
+"""Light probes on atrium.usda: interpolated irradiance against direct capture at 16x rays."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import harness
+
+NAME = "light_probes"
+DESCRIPTION = (
+    "Light probe cloud on `atrium.usda`. Error = relative RMS of the irradiance interpolated from the cloud "
+    "(tetrahedral walk, leak rule) at random free-space points, for 26 normals each (luminance), against a "
+    "direct capture at those points with 16x the default rays (4096, different seed), cached; divided by "
+    "the mean reference irradiance (`median`: the median over points of the per-point RMS). "
+    "Knobs: probe budget (default 1024) and capture rays (default 256); "
+    "seconds = the whole processor (placement, capture, tetrahedra, edge rays). The noise floor is the "
+    "error of a direct capture at the points at default rays.")
+DEFAULT_PROBES = 1024
+DEFAULT_RAYS = 256
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+POINT_CLEARANCE = 0.3
+"""Test points keep 0.3 m from surfaces (where a character or a prop would be lit by the probes)."""
+
+
+def run(quick: bool = False) -> dict:
+    from pxr import Usd
+
+    from usdbake.processors import light_probes as lp
+    from usdbake.processors.base import Context
+    from usdbake.processors.kernels.sh import sh_basis_np
+    from usdbake.processors.tracer import Tracer
+    from usdbake.stages.extract import extract_scene
+
+    sample = harness.SAMPLES / "atrium.usda"
+    scene = extract_scene(Usd.Stage.Open(str(sample)))
+    tracer = Tracer.from_scene(scene)
+    lighting = lp.Lighting(tracer, scene)
+    count = 150 if quick else 600
+    points = _free_points(lp, tracer, lighting, scene, count)
+    basis = sh_basis_np(lp.PROBE_DIRECTIONS)  # (26, 9)
+
+    def luminance(sh):  # (N, 9, 3) irradiance SH -> (N, 26) luminance at the 26 normals
+        return np.einsum("dk,nkc,c->nd", basis, np.asarray(sh, np.float64), LUMINANCE)
+
+    reference_rays = 16 * DEFAULT_RAYS
+    reference = harness.cached_reference(
+        "light_probes_atrium", {"rays": reference_rays, "seed": 99, "points": len(points), "quick": quick,
+                                "version": lp.LightProbes.version, "clearance": POINT_CLEARANCE},
+        lambda: {"sh": lp.compute_probe_sh(tracer, scene, points, rays=reference_rays, seed=99,
+                                           lighting=lighting)})["sh"]
+    e_ref = luminance(reference)
+    scale = float(np.abs(e_ref).mean())
+
+    def error(sh) -> float:
+        return float(np.sqrt(np.mean((luminance(sh) - e_ref) ** 2)) / scale)
+
+    def median_error(sh) -> float:  # per point: RMS over its 26 normals / the mean reference irradiance
+        return float(np.median(np.sqrt(np.mean((luminance(sh) - e_ref) ** 2, axis=1)) / scale))
+
+    processor = lp.LightProbes()
+
+    def bake(**params):
+        started = time.perf_counter()
+        result = processor.run(Context(scene, processor.Params(**params), tracer))
+        seconds = time.perf_counter() - started
+        cloud = result.products["light_probes"]
+        return cloud, seconds, result.stats
+
+    bake(probes=16, rays=4, placement_rays=4, iterations=1)  # compile outside the timing
+    rows = []
+    budgets = [64, 1024] if quick else [64, 128, 256, 512, 1024, 2048, 4096]
+    for probes in budgets:
+        cloud, seconds, stats = bake(probes=probes)
+        rows.append({"label": f"probes={probes}", "knob": "probes", "probes_budget": probes,
+                     "probes": int(stats["probes"]), "rays": DEFAULT_RAYS, "seconds": seconds,
+                     "error": error(lp.interpolate_sh(cloud, points)),
+                     "median": median_error(lp.interpolate_sh(cloud, points)), "default": probes == DEFAULT_PROBES})
+    for rays in ([64] if quick else [64, 1024]):
+        cloud, seconds, stats = bake(rays=rays)
+        rows.append({"label": f"rays={rays}", "knob": "rays", "probes_budget": DEFAULT_PROBES,
+                     "probes": int(stats["probes"]), "rays": rays, "seconds": seconds,
+                     "error": error(lp.interpolate_sh(cloud, points)),
+                     "median": median_error(lp.interpolate_sh(cloud, points)), "default": False})
+
+    default = next(r for r in rows if r["default"])
+    floor = error(lp.compute_probe_sh(tracer, scene, points, rays=DEFAULT_RAYS, seed=7, lighting=lighting))
+    grid_cloud, grid_seconds, grid_stats = bake(iterations=0)
+    leaky_cloud, _, _ = bake(leak_fix=False)
+    figures = {
+        "test_points": len(points),
+        "probes_at_default": default["probes"],
+        "relative_rms_at_default": round(default["error"], 4),
+        "median_point_error_at_default": round(default["median"], 4),
+        "processor_seconds_default": round(default["seconds"], 3),
+        "direct_capture_noise_floor": round(floor, 4),
+        "relative_rms_grid_only_same_budget": round(error(lp.interpolate_sh(grid_cloud, points)), 4),
+        "median_point_error_grid_only": round(median_error(lp.interpolate_sh(grid_cloud, points)), 4),
+        "probes_grid_only": int(grid_stats["probes"]),
+        "relative_rms_without_leak_fix": round(error(lp.interpolate_sh(leaky_cloud, points)), 4),
+        "median_point_error_without_leak_fix": round(median_error(lp.interpolate_sh(leaky_cloud, points)), 4),
+    }
+    if not quick:
+        figures["bake_wall_seconds_default"] = round(_bake_wall_seconds(sample), 3)
+    table = harness.markdown_table(rows, ["label", "probes", "rays", "seconds", "error", "median"])
+    return harness.result(NAME, description=DESCRIPTION,
+                          settings={"reference_rays": reference_rays, "test_points": len(points),
+                                    "point_clearance": POINT_CLEARANCE},
+                          points=rows, figures=figures, table=table, knob="probe budget / capture rays",
+                          error_label="relative RMS irradiance vs 16x-ray capture")
+
+
+def _free_points(lp, tracer, lighting, scene, count: int) -> np.ndarray:
+    """``count`` random points in the placement box, outside geometry and POINT_CLEARANCE from it."""
+    rng = np.random.default_rng(2024)  # fixed seed: the same test points every run
+    lo, hi = lp.placement_box(scene)
+    found = []
+    while sum(len(f) for f in found) < count:
+        candidates = (lo + rng.random((4 * count, 3)) * (hi - lo)).astype(np.float32)
+        inside, nearest = lp.classify_points(tracer, lighting, candidates)
+        found.append(candidates[~inside & (nearest >= POINT_CLEARANCE)])
+    return np.concatenate(found)[:count]
+
+
+def _bake_wall_seconds(sample: Path) -> float:
+    """Wall time of `usdbake bake -p light_probes` at defaults (fresh cache, so it really runs)."""
+    with tempfile.TemporaryDirectory() as folder:
+        command = [sys.executable, "-m", "usdbake.stages.cli", "bake", str(sample), "-o",
+                   str(Path(folder) / "atrium.probes.usdc"), "-p", "light_probes",
+                   "--cache", str(Path(folder) / "cache")]
+        started = time.perf_counter()
+        subprocess.run(command, check=True, capture_output=True, env={**os.environ})
+        return time.perf_counter() - started

@@ -1,0 +1,768 @@
+"""Light probe cloud: automatic placement, L2 SH irradiance capture, tetrahedral interpolation.
+
+Sukys, "Light probe cloud generation for games", MSc thesis, Chalmers 2014
+(placement: section 3.1, spawn and merge 3.1.1, gradient ascent 3.1.2;
+tetrahedral grid and barycentric traversal 3.2.1; leaks 3.2.2), after Cupisz,
+"Light probe interpolation using tetrahedral tessellations", GDC 2012.
+
+**Placement.**
+
+1. Candidates: the corners of a grid of at most ``probes / 2`` points over
+   the scene bounds shrunk by the clearance (so the probes' hull reaches the
+   walls, floor and ceiling), jittered by a quarter cell (seeded). A
+   candidate is *inside geometry* when, of 26 fixed rays (axes, face and
+   cube diagonals), more hit single-sided triangles from the back than from
+   the front (double-sided triangles do not vote); it is dropped then, and
+   also when its nearest hit is closer than the clearance
+   (``CLEARANCE_FRACTION`` = 0.1 of ``min_spacing``).
+2. Capture (below) at ``placement_rays`` per probe.
+3. ``iterations`` rounds of
+
+   - *gradient ascent* on the lighting-variation measure ``V`` (the
+     irradiance-gradient idea of Chajdas et al. 2011 used by Sukys, made
+     scale-free): for a Delaunay edge (i, j), the contrast ``c_ij`` is the
+     mean over 26 normals of ``|E_i - E_j| / (E_i + E_j)`` (luminance of the
+     SH irradiance, Sukys' 26-direction sampling), and ``V_i = max_j c_ij /
+     |x_i - x_j|``. Each probe moves along the least-squares gradient of V
+     over its neighbours by half its mean edge length, halved every round. A
+     move is rejected when the segment crosses geometry, the new spot is
+     inside geometry or too close to it, or the probe sees no light there
+     (Sukys' "second order" revert);
+   - *spawn*: a probe at the midpoint of each edge with contrast >
+     ``contrast`` and length > 2 ``min_spacing`` (blocked edges included:
+     their midpoint may be a space between two blockers, e.g. a gallery
+     between two slabs), if the midpoint is valid, most contrasted first, up
+     to three quarters of the budget ``probes``;
+   - *merge*: probes closer than ``min_spacing`` are thinned greedily, the
+     probe with the higher V survives.
+4. With ``leak_fix``, *wall probes* (Sukys 3.2.2): where a tetrahedron edge
+   meets geometry, a probe on each side of the blocker, two clearances before
+   the hit, when that is at least ``min_spacing / 2`` from the edge's own
+   end (his guard against dense clusters), thinned to ``min_spacing / 2``,
+   up to the budget.
+
+**Capture.** From each probe, ``rays`` stratified uniform sphere directions
+(strata^2, jittered, seeded per ray). A ray that escapes returns the dome
+light radiance (sum of the dome lights, textures ignored; 0 if none). A ray
+that hits the front of a triangle (either side if double-sided) returns its
+outgoing radiance ``L_e + albedo / pi * E_direct``, one bounce:
+``E_direct`` at the hit with one shadow-ray sample per light: distant lights
+(UsdLux: an unnormalized light's intensity is the radiance of its disc, so a
+surface facing it gets ``E = L Omega`` with ``Omega = 2 pi (1 - cos(angle /
+2))``, 6.7e-5 sr for the sun's 0.53 degrees; a zero angle reads the intensity
+as the irradiance; ``normalize`` is not visible in the Scene, see the docs),
+dome (one cosine-weighted ray, ``E = pi L V``), sphere (a direction in the
+subtended cone, ``E = L Omega cos V``), rect and disk (a point on the
+emitter, ``E = L A cos cos' / d^2 V``), and, only when the stage has no UsdLux lights,
+emissive triangles (one picked by power). A hit on the back of a single-sided
+triangle returns 0 (the inside of geometry is dark). Lights that are not
+geometry (distant, sphere, rect, disk) are added to each probe as visible
+point sources: ``L_lm += E Y_lm(w)`` towards the light's centre (a
+shadow-ray per light). The radiance SH (projection, ``kernels/sh.py``) is
+convolved with the clamped cosine (pi, 2 pi/3, pi/4):
+
+    shCoefficients = irradiance SH, E(n) = sum_k c_k Y_k(n)   (W/m^2)
+
+which is what ``usdbake preview --probes`` evaluates at each sphere normal.
+
+**Leak fixing** (Sukys 3.2.2, Cupisz): every tetrahedron edge is tested with
+two rays, probe a -> b and b -> a; an edge is blocked when either meets
+geometry. Blocked edges are stored as a 6-bit mask per tetrahedron
+(``bake:tetBlockedEdges``, bit e = edge ``tetrahedra.TET_EDGES[e]``). At
+interpolation time the tetrahedron's unblocked edges split its four probes
+into sides; the side with the largest total barycentric weight is the
+query's and the other sides contribute nothing; within that side, a probe cut
+from the side's heaviest probe by a blocked edge is dropped too; the weights
+left are renormalized (``tetrahedra.leak_weights``). The side is decided by
+weights, not by the wall's position, so near a blocker the switch happens
+where the two sides weigh the same; the wall probes of step 4 put that close
+to the wall.
+
+Outside the hull of the probes the barycentrics of the boundary tetrahedron
+the walk stops in are clamped to >= 0 and renormalized.
+
+USD written (bake layer): a ``LightProbeCloud`` prim at
+``/usdbake/LightProbes`` (``/usdbake`` is a Scope; a root prim, so the cloud
+does not depend on the transform of the stage's default prim; positions are
+world space):
+
+====================== =========== ============================================
+property               type        value
+====================== =========== ============================================
+probePositions         point3f[]   probe positions (world space)
+shCoefficients         float3[]    irradiance SH, 9 per probe, probe-major (RGB)
+tetrahedra             int[]       4 probe indices per tetrahedron
+tetNeighbors           int[]       4 per tetrahedron, opposite each vertex; -1 none
+shOrder                int         2
+shBasis                token       realOrthonormal
+bake:tetBlockedEdges   uchar[]     6-bit blocked-edge mask per tetrahedron
+bake:shQuantity        token       irradiance (uniform)
+====================== =========== ============================================
+
+Product ``light_probes``: a ``ProbeCloud`` (positions in the scene frame).
+
+Parameters
+----------
+================ ===== ======= =============================================================
+name             type  default meaning
+================ ===== ======= =============================================================
+probes           int   1024    probe budget (the initial grid has at most half of it, a
+                               quarter is kept for the probes beside blockers)
+min_spacing      float 0       probes closer than this (stage units) merge; 0 = auto (half the
+                               initial grid spacing)
+iterations       int   3       rounds of gradient ascent + spawn + merge (0: the grid only)
+contrast         float 0.25    edge contrast above which a probe is spawned at the midpoint
+rays             int   256     capture rays per probe (rounded to a square)
+placement_rays   int   64      capture rays per probe while placing
+leak_fix         bool  True    wall probes, ray-cast tetrahedron edges, stop interpolation across
+                               blockers
+seed             int   0       random seed (results are identical across thread counts)
+================ ===== ======= =============================================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+from scipy.spatial import cKDTree
+
+from . import tetrahedra
+from .base import Attribute, Context, Params, Prim, Processor, Result, param, register
+from .geometry import strata_for
+from .kernels.lighting import Lighting, direct_at, distant_solid_angle, has_light
+from .kernels.sampling import stratified_pair
+from .kernels.sh import (COSINE_LOBE, project_kernel, sh_basis, sh_basis_np,
+                         uniform_sphere)
+from .scene import Scene
+
+wp.set_module_options({"enable_backward": False})
+
+CLOUD_PRIM = "/usdbake/LightProbes"
+
+CLEARANCE_FRACTION = 0.1
+"""A probe must be at least this fraction of ``min_spacing`` away from any surface: a probe on a
+surface sees half its sphere black and makes tetrahedra cut by the surface."""
+
+CONTRAST_FLOOR_RELATIVE = 1e-3
+"""Irradiance luminance below this fraction of the scene's largest probe luminance counts as
+dark when contrasts are formed (E_i + E_j + floor), so noise in black areas is not variation."""
+
+BOUNDS_MIN_RELATIVE = 0.05
+"""Each axis of the placement box is at least this fraction of the diagonal (flat scenes)."""
+
+
+def _directions_26() -> np.ndarray:
+    d = np.array([(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if (x, y, z) != (0, 0, 0)],
+                 np.float64)
+    return (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+
+
+PROBE_DIRECTIONS = _directions_26()
+"""(26, 3) the inside-test rays and Sukys' 26 sampling directions of an SH (axes + pair sums)."""
+
+
+# ---------------------------------------------------------------------------
+# Warp
+
+
+@wp.kernel
+def capture_kernel(
+    start: int,
+    mesh: wp.uint64,
+    probe_positions: wp.array(dtype=wp.vec3),
+    strata: int,
+    seed: int,
+    epsilon: float,
+    min_d2: float,
+    points: wp.array(dtype=wp.vec3),
+    tri_vertices: wp.array(dtype=wp.vec3i),
+    tri_normals: wp.array(dtype=wp.vec3),
+    tri_albedo: wp.array(dtype=wp.vec3),
+    tri_emission: wp.array(dtype=wp.vec3),
+    tri_double_sided: wp.array(dtype=int),
+    dome_radiance: wp.vec3,
+    light_kind: wp.array(dtype=int), light_radiance: wp.array(dtype=wp.vec3),
+    light_position: wp.array(dtype=wp.vec3), light_direction: wp.array(dtype=wp.vec3),
+    light_size: wp.array(dtype=wp.vec2),
+    emitter_vertices: wp.array(dtype=wp.vec3), emitter_normal: wp.array(dtype=wp.vec3),
+    emitter_radiance: wp.array(dtype=wp.vec3), emitter_area: wp.array(dtype=float),
+    emitter_two_sided: wp.array(dtype=int), emitter_cdf: wp.array(dtype=float),
+    directions: wp.array(dtype=wp.vec3),
+    radiance: wp.array(dtype=wp.vec3),
+):
+    """Ray i = probe * strata^2 + k: incident radiance L(w) at the probe from stratified direction k."""
+    i = start + wp.tid()
+    samples = strata * strata
+    probe = i // samples
+    k = i - probe * samples
+    state = wp.rand_init(seed, i)
+    u = stratified_pair(k, strata, state)
+    d = uniform_sphere(u[0], u[1])
+    directions[i] = d
+    origin = probe_positions[probe]
+    q = wp.mesh_query_ray(mesh, origin, d, 3.0e38)
+    value = wp.vec3(0.0, 0.0, 0.0)
+    if not q.result:
+        value = dome_radiance
+    else:
+        tri = q.face
+        n = tri_normals[tri]
+        front = wp.dot(n, d) < 0.0
+        two_sided = tri_double_sided[tri] != 0
+        if (front or two_sided) and wp.length(n) > 0.5:
+            if not front:
+                n = -n
+            x = origin + d * q.t
+            e = direct_at(mesh, x, n, light_kind, light_radiance, light_position, light_direction, light_size,
+                          emitter_vertices, emitter_normal, emitter_radiance, emitter_area, emitter_two_sided,
+                          emitter_cdf, epsilon, min_d2, state)
+            value = tri_emission[tri] + wp.cw_mul(tri_albedo[tri], e) / wp.pi
+    radiance[i] = value
+
+
+@wp.kernel
+def probe_lights_kernel(
+    start: int,
+    mesh: wp.uint64,
+    probe_positions: wp.array(dtype=wp.vec3),
+    min_d2: float,
+    light_kind: wp.array(dtype=int), light_radiance: wp.array(dtype=wp.vec3),
+    light_position: wp.array(dtype=wp.vec3), light_direction: wp.array(dtype=wp.vec3),
+    light_size: wp.array(dtype=wp.vec2),
+    out: wp.array2d(dtype=float),
+):
+    """Radiance SH of the non-geometric lights seen from probe i, as point sources:
+    L_k += E Y_k(w) with E the irradiance normal to w and one shadow ray to the light's centre."""
+    i = start + wp.tid()
+    p = probe_positions[i]
+    for l in range(light_kind.shape[0]):
+        kind = light_kind[l]
+        if kind == 1:
+            continue
+        axis = light_direction[l]
+        size = light_size[l]
+        w = -axis
+        max_t = float(3.0e38)
+        e = float(0.0)
+        if kind == 0:
+            e = distant_solid_angle(size[0])
+        else:
+            to_c = light_position[l] - p
+            d = wp.length(to_c)
+            if d <= 0.0:
+                continue
+            w = to_c / d
+            d2 = wp.max(d * d, min_d2)
+            if kind == 2:
+                r = size[0]
+                if d <= r:
+                    continue
+                e = 2.0 * wp.pi * (1.0 - wp.sqrt(wp.max(0.0, 1.0 - r * r / (d * d))))
+                max_t = d - r
+            else:
+                area = size[0] * size[1]
+                if kind == 4:
+                    area = wp.pi * size[0] * size[0]
+                e = area * wp.max(0.0, -wp.dot(axis, w)) / d2
+                max_t = d
+        if e > 0.0:
+            if wp.mesh_query_ray_anyhit(mesh, p, w, max_t * 0.9999):
+                e = 0.0
+        if e > 0.0:
+            y = sh_basis(w)
+            c = light_radiance[l] * e
+            for k in range(9):
+                out[i, 3 * k + 0] = out[i, 3 * k + 0] + y[k] * c[0]
+                out[i, 3 * k + 1] = out[i, 3 * k + 1] + y[k] * c[1]
+                out[i, 3 * k + 2] = out[i, 3 * k + 2] + y[k] * c[2]
+
+
+@wp.kernel
+def inside_kernel(
+    start: int,
+    mesh: wp.uint64,
+    positions: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    tri_normals: wp.array(dtype=wp.vec3),
+    tri_double_sided: wp.array(dtype=int),
+    back_minus_front: wp.array(dtype=int),
+    nearest: wp.array(dtype=float),
+):
+    """Back-face votes minus front-face votes of the fixed rays, and the nearest hit distance."""
+    i = start + wp.tid()
+    p = positions[i]
+    votes = int(0)
+    near = float(3.0e38)
+    for k in range(directions.shape[0]):
+        d = directions[k]
+        q = wp.mesh_query_ray(mesh, p, d, 3.0e38)
+        if q.result:
+            near = wp.min(near, q.t)
+            if tri_double_sided[q.face] == 0:
+                if wp.dot(tri_normals[q.face], d) > 0.0:
+                    votes += 1
+                else:
+                    votes -= 1
+    back_minus_front[i] = votes
+    nearest[i] = near
+
+
+# ---------------------------------------------------------------------------
+# Capture
+
+
+def compute_probe_sh(tracer, scene: Scene, positions: np.ndarray, *, rays: int, seed: int = 0,
+                     lighting: Lighting | None = None) -> np.ndarray:
+    """Irradiance SH (P, 9, 3) float32 (W/m^2) at probe positions (P, 3) in the scene frame.
+
+    Radiance by one-bounce ray casting (module docstring), projected on L2 SH, plus the
+    non-geometric lights as visible point sources, convolved with the clamped cosine.
+    """
+    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+    count = len(positions)
+    if count == 0:
+        return np.zeros((0, 9, 3), np.float32)
+    lighting = lighting or Lighting(tracer, scene)
+    strata = strata_for(rays)
+    samples = strata * strata
+    probes_wp = tracer.array(positions, wp.vec3)
+    directions = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
+    radiance = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
+    tracer.launch(capture_kernel, count * samples, [
+        tracer.mesh.id, probes_wp, strata, int(seed), tracer.epsilon, lighting.min_d2, *lighting.geometry,
+        lighting.dome, *lighting.lights, *lighting.emitters, directions, radiance,
+    ])
+    coefficients = wp.zeros((count, 27), dtype=float, device=tracer.device)
+    tracer.launch(project_kernel, count, [directions, radiance, samples, coefficients])
+    tracer.launch(probe_lights_kernel, count, [tracer.mesh.id, probes_wp, lighting.min_d2, *lighting.lights,
+                                               coefficients])
+    tracer.rays_cast += count * samples * (1 + lighting.shadow_rays) + count * len(scene.lights)
+    radiance_sh = np.nan_to_num(coefficients.numpy().reshape(count, 9, 3).astype(np.float64),
+                                nan=0.0, posinf=0.0, neginf=0.0)
+    return (radiance_sh * COSINE_LOBE[None, :, None]).astype(np.float32)
+
+
+def classify_points(tracer, lighting: Lighting, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(inside (N,) bool, nearest hit distance (N,) float32) by the 26-ray back-face vote."""
+    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+    n = len(positions)
+    votes = wp.zeros(n, dtype=int, device=tracer.device)
+    nearest = wp.zeros(n, dtype=float, device=tracer.device)
+    if n:
+        tracer.launch(inside_kernel, n, [tracer.mesh.id, tracer.array(positions, wp.vec3),
+                                         tracer.array(PROBE_DIRECTIONS, wp.vec3), lighting.tri_normals,
+                                         lighting.tri_double_sided, votes, nearest])
+        tracer.rays_cast += n * len(PROBE_DIRECTIONS)
+    return votes.numpy() > 0, nearest.numpy()
+
+
+# ---------------------------------------------------------------------------
+# Placement
+
+
+def placement_box(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) float64: the scene bounds, each axis at least BOUNDS_MIN_RELATIVE diagonals wide."""
+    lo, hi = (np.asarray(b, np.float64) for b in scene.bounds)
+    centre = 0.5 * (lo + hi)
+    half = np.maximum(0.5 * (hi - lo), 0.5 * BOUNDS_MIN_RELATIVE * scene.diagonal)
+    return centre - half, centre + half
+
+
+def grid_spacing(lo: np.ndarray, hi: np.ndarray, count: int) -> float:
+    """Spacing of a grid of cell corners over [lo, hi] with at most ``count`` points (at least 2 per axis)."""
+    extent = np.maximum(hi - lo, 1e-30)
+    spacing = float((np.prod(extent) / max(count, 1)) ** (1.0 / 3.0))
+    for _ in range(200):
+        if np.prod(np.maximum(1, np.round(extent / spacing)) + 1) <= max(count, 8):
+            break
+        spacing *= 1.05
+    return spacing
+
+
+def candidate_grid(lo: np.ndarray, hi: np.ndarray, spacing: float, margin: float,
+                   rng: np.random.Generator) -> np.ndarray:
+    """Cell corners of a grid over [lo + margin, hi - margin] (so the probes' hull reaches the
+    bounds), jittered by +-1/4 cell and kept inside that box."""
+    inner_lo = lo + np.minimum(margin, 0.25 * (hi - lo))
+    inner_hi = hi - np.minimum(margin, 0.25 * (hi - lo))
+    extent = np.maximum(inner_hi - inner_lo, 1e-30)
+    cells = np.maximum(1, np.round(extent / spacing)).astype(int)
+    axes = [np.linspace(inner_lo[a], inner_hi[a], cells[a] + 1) for a in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    jitter = rng.uniform(-0.25, 0.25, grid.shape) * (extent / cells)
+    return np.clip(grid + jitter, inner_lo, inner_hi)
+
+
+def sample_irradiance(sh: np.ndarray) -> np.ndarray:
+    """(P, 26) luminance of irradiance SH (P, 9, 3) at Sukys' 26 directions (clamped at 0)."""
+    basis = sh_basis_np(PROBE_DIRECTIONS)  # (26, 9)
+    e = np.einsum("dk,pkc->pdc", basis, np.asarray(sh, np.float64))
+    return np.maximum(e @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
+
+
+def edge_contrast(samples: np.ndarray, edges: np.ndarray, floor: float) -> np.ndarray:
+    """(E,) mean over directions of |E_a - E_b| / (E_a + E_b + floor), in [0, 1)."""
+    a, b = samples[edges[:, 0]], samples[edges[:, 1]]
+    return (np.abs(a - b) / (a + b + floor)).mean(axis=1)
+
+
+def variation(positions: np.ndarray, samples: np.ndarray, edges: np.ndarray,
+              floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """V (P,) = max over incident edges of contrast / length, and the per-edge contrast."""
+    contrast = edge_contrast(samples, edges, floor)
+    length = np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1)
+    rate = contrast / np.maximum(length, 1e-30)
+    v = np.zeros(len(positions))
+    np.maximum.at(v, edges[:, 0], rate)
+    np.maximum.at(v, edges[:, 1], rate)
+    return v, contrast
+
+
+def variation_gradient(positions: np.ndarray, v: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares gradient of V per probe from its edge neighbours (P, 3), and mean edge length (P,)."""
+    p = len(positions)
+    a_mat = np.zeros((p, 3, 3))
+    rhs = np.zeros((p, 3))
+    length_sum = np.zeros(p)
+    degree = np.zeros(p)
+    for i, j in ((0, 1), (1, 0)):
+        src, dst = edges[:, i], edges[:, j]
+        dx = positions[dst] - positions[src]
+        d2 = np.maximum((dx * dx).sum(axis=1), 1e-30)
+        w = 1.0 / d2
+        np.add.at(a_mat, src, w[:, None, None] * dx[:, :, None] * dx[:, None, :])
+        np.add.at(rhs, src, (w * (v[dst] - v[src]))[:, None] * dx)
+        np.add.at(length_sum, src, np.sqrt(d2))
+        np.add.at(degree, src, 1.0)
+    a_mat += 1e-9 * np.eye(3)[None] * np.maximum(np.trace(a_mat, axis1=1, axis2=2), 1e-30)[:, None, None]
+    gradient = np.linalg.solve(a_mat, rhs[:, :, None])[:, :, 0]
+    return gradient, length_sum / np.maximum(degree, 1.0)
+
+
+def segment_blocked(tracer, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N,) bool: geometry lies on the segment a -> b or b -> a (two rays, as Sukys for thick walls)."""
+    a = np.asarray(a, np.float32).reshape(-1, 3)
+    b = np.asarray(b, np.float32).reshape(-1, 3)
+    if len(a) == 0:
+        return np.zeros(0, bool)
+    d = (b - a).astype(np.float64)
+    length = np.linalg.norm(d, axis=1)
+    unit = np.where(length[:, None] > 0, d / np.maximum(length, 1e-30)[:, None], 0.0).astype(np.float32)
+    blocked = np.zeros(len(a), bool)
+    for origin, direction in ((a, unit), (b, -unit)):
+        # Tracer.occluded takes one max_t per launch and edges differ in length: closest hit, then compare.
+        hits = tracer.closest_hit(origin, direction)
+        blocked |= hits.hit_t < length
+    return blocked & (length > 0)
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where the probes went, and what the placement did (counts for the stats)."""
+
+    positions: np.ndarray
+    """(P, 3) float32 probe positions (scene frame)."""
+    min_spacing: float
+    """Merge radius used (stage units)."""
+    candidates: int
+    """Grid candidates before the inside / clearance test."""
+    dropped_inside: int
+    """Candidates inside geometry, too close to it, or out of the box."""
+    moved: int
+    """Accepted gradient-ascent moves, summed over rounds."""
+    spawned: int
+    merged: int
+    wall_probes: int = 0
+    """Probes added beside blockers (leak fixing)."""
+
+
+def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0, iterations: int = 3,
+                 contrast: float = 0.25, placement_rays: int = 64, seed: int = 0,
+                 leak_probes: bool = True, lighting: Lighting | None = None,
+                 progress=lambda f: None) -> Placement:
+    """Probe positions in the empty space of the scene (module docstring, Sukys 3.1)."""
+    reserve = probes // 4 if leak_probes else 0  # room kept for the probes beside blockers
+    lighting = lighting or Lighting(tracer, scene)
+    rng = np.random.default_rng(seed)  # seeded: the placement is reproducible
+    lo, hi = placement_box(scene)
+    spacing = grid_spacing(lo, hi, max(8, probes // 2))
+    spacing_min = float(min_spacing) if min_spacing > 0 else 0.5 * spacing
+    clearance = CLEARANCE_FRACTION * spacing_min
+    grid = candidate_grid(lo, hi, spacing, clearance * 1.01, rng)
+
+    def valid(points: np.ndarray) -> np.ndarray:
+        inside, nearest = classify_points(tracer, lighting, points)
+        in_box = ((points >= lo) & (points <= hi)).all(axis=1)
+        return ~inside & (nearest >= clearance) & in_box
+
+    keep = valid(grid)
+    positions = grid[keep].astype(np.float64)
+    dropped = int((~keep).sum())
+    stats = {"moved": 0, "spawned": 0, "merged": 0}
+    sh = compute_probe_sh(tracer, scene, positions, rays=placement_rays, seed=seed + 1, lighting=lighting)
+    capture_seed = seed + 2
+    for round_ in range(iterations):
+        progress(0.1 + 0.5 * round_ / max(iterations, 1))
+        try:
+            tetra = tetrahedra.tetrahedralize(positions)
+        except tetrahedra.DegenerateProbesError:
+            break
+        edges, _ = tetrahedra.edge_list(tetra.tet_vertices)
+        samples = sample_irradiance(sh)
+        floor = CONTRAST_FLOOR_RELATIVE * max(float(samples.max(initial=0.0)), 1e-30)
+        v, _ = variation(positions, samples, edges, floor)
+
+        # Gradient ascent on V, with the "second order" revert.
+        gradient, mean_edge = variation_gradient(positions, v, edges)
+        norm = np.linalg.norm(gradient, axis=1)
+        movers = np.flatnonzero((norm > 0) & (v > 0))
+        if len(movers):
+            step = (0.5 * mean_edge[movers] * 0.5 ** round_)[:, None] * gradient[movers] / norm[movers, None]
+            target = positions[movers] + step
+            ok = valid(target) & ~segment_blocked(tracer, positions[movers], target)
+            movers, target = movers[ok], target[ok]
+            if len(movers):
+                new_sh = compute_probe_sh(tracer, scene, target, rays=placement_rays, seed=capture_seed,
+                                          lighting=lighting)
+                capture_seed += 1
+                lit = np.abs(new_sh).max(axis=(1, 2)) > 0
+                positions[movers[lit]] = target[lit]
+                sh[movers[lit]] = new_sh[lit]
+                stats["moved"] += int(lit.sum())
+
+        # Spawn at the midpoints of contrasted, long edges.
+        try:
+            tetra = tetrahedra.tetrahedralize(positions)
+        except tetrahedra.DegenerateProbesError:
+            break
+        edges, _ = tetrahedra.edge_list(tetra.tet_vertices)
+        samples = sample_irradiance(sh)
+        v, edge_c = variation(positions, samples, edges, floor)
+        length = np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1)
+        room = probes - reserve - len(positions)
+        wanted = np.flatnonzero((edge_c > contrast) & (length > 2.0 * spacing_min))
+        if room > 0 and len(wanted):
+            wanted = wanted[np.argsort(-edge_c[wanted], kind="stable")][: 2 * room]
+            mid = 0.5 * (positions[edges[wanted, 0]] + positions[edges[wanted, 1]])
+            mid = mid[valid(mid)][:room]  # blocked edges too: their midpoint may lie in a space between blockers
+            if len(mid):
+                new_sh = compute_probe_sh(tracer, scene, mid, rays=placement_rays, seed=capture_seed,
+                                          lighting=lighting)
+                capture_seed += 1
+                positions = np.concatenate([positions, mid])
+                sh = np.concatenate([sh, new_sh])
+                v = np.concatenate([v, np.full(len(mid), np.inf)])  # new probes survive the merge
+                stats["spawned"] += len(mid)
+
+        # Merge: greedy thinning, higher variation first.
+        order = np.argsort(-v, kind="stable")
+        survivors = thin(positions, order, spacing_min)
+        stats["merged"] += len(positions) - len(survivors)
+        positions, sh = positions[survivors], sh[survivors]
+
+    added = 0
+    if leak_probes and len(positions) >= 4:
+        extra = wall_probes(tracer, positions, valid, spacing_min, clearance, probes - len(positions))
+        positions = np.concatenate([positions, extra])
+        added = len(extra)
+    if len(positions) > probes:
+        positions = positions[:probes]
+    return Placement(positions.astype(np.float32), spacing_min, len(grid), dropped, stats["moved"],
+                     stats["spawned"], stats["merged"], added)
+
+
+def wall_probes(tracer, positions: np.ndarray, valid, min_spacing: float, clearance: float,
+                room: int) -> np.ndarray:
+    """Sukys 3.2.2: where a tetrahedron edge meets geometry, a probe on each side of the blocker,
+    2 clearances before the hit, if that is at least min_spacing / 2 from the edge's own end; valid
+    spots only, thinned to min_spacing / 2 against all probes, at most ``room``."""
+    if room <= 0:
+        return np.zeros((0, 3))
+    try:
+        tetra = tetrahedra.tetrahedralize(positions)
+    except tetrahedra.DegenerateProbesError:
+        return np.zeros((0, 3))
+    edges, _ = tetrahedra.edge_list(tetra.tet_vertices)
+    a, b = positions[edges[:, 0]], positions[edges[:, 1]]
+    d = b - a
+    length = np.linalg.norm(d, axis=1)
+    unit = d / np.maximum(length, 1e-30)[:, None]
+    offset = 2.0 * clearance
+    found = []
+    for origin, direction in ((a, unit), (b, -unit)):
+        t = tracer.closest_hit(origin.astype(np.float32), direction.astype(np.float32)).hit_t.astype(np.float64)
+        ok = (t < length) & (t - offset >= 0.5 * min_spacing)
+        found.append(origin[ok] + direction[ok] * (t[ok] - offset)[:, None])
+    candidates = np.concatenate(found)
+    if len(candidates) == 0:
+        return candidates
+    candidates = candidates[valid(candidates)]
+    everything = np.concatenate([positions, candidates])
+    survivors = thin(everything, np.arange(len(everything)), 0.5 * min_spacing)  # existing probes first
+    return everything[survivors[survivors >= len(positions)]][:room]
+
+
+def thin(positions: np.ndarray, order: np.ndarray, radius: float) -> np.ndarray:
+    """Indices (sorted) kept by greedy thinning in ``order``: none closer than ``radius`` to a kept one."""
+    if len(positions) == 0:
+        return np.zeros(0, np.int64)
+    tree = cKDTree(positions)
+    removed = np.zeros(len(positions), bool)
+    kept = []
+    for i in order:
+        if removed[i]:
+            continue
+        kept.append(i)
+        for j in tree.query_ball_point(positions[i], radius):
+            if j != i:
+                removed[j] = True
+    return np.sort(np.asarray(kept, np.int64))
+
+
+# ---------------------------------------------------------------------------
+# The cloud and its interpolation
+
+
+@dataclass(frozen=True)
+class ProbeCloud:
+    """Tetrahedralized probes with irradiance SH (struct of arrays, scene frame)."""
+
+    probe_positions: np.ndarray
+    """(P, 3) float32."""
+    probe_sh: np.ndarray
+    """(P, 9, 3) float32 irradiance SH, real orthonormal basis (kernels/sh.py), W/m^2."""
+    tet_vertices: np.ndarray
+    """(T, 4) int32."""
+    tet_neighbors: np.ndarray
+    """(T, 4) int32, -1 on the hull."""
+    tet_blocked: np.ndarray
+    """(T,) uint8 6-bit blocked-edge masks (tetrahedra.TET_EDGES); zeros without leak fixing."""
+    tetra: tetrahedra.Tetrahedralization
+
+
+def build_cloud(positions: np.ndarray, sh: np.ndarray, tracer=None, *, leak_fix: bool = True) -> ProbeCloud:
+    """Tetrahedralize probes and (with a tracer and leak_fix) ray-cast the edges for blockers."""
+    positions = np.asarray(positions, np.float32).reshape(-1, 3)
+    tetra = tetrahedra.tetrahedralize(positions)
+    blocked = np.zeros(tetra.num_tets, np.uint8)
+    if leak_fix and tracer is not None and tetra.num_tets:
+        edges, index = tetrahedra.edge_list(tetra.tet_vertices)
+        edge_blocked = segment_blocked(tracer, positions[edges[:, 0]], positions[edges[:, 1]])
+        blocked = tetrahedra.edge_masks(index, edge_blocked)
+    return ProbeCloud(positions, np.asarray(sh, np.float32).reshape(-1, 9, 3), tetra.tet_vertices,
+                      tetra.tet_neighbors, blocked, tetra)
+
+
+def cloud_from_arrays(positions, sh, tet_vertices, tet_neighbors, tet_blocked=None) -> ProbeCloud:
+    """A ProbeCloud from stored arrays (e.g. the attributes of a LightProbeCloud prim)."""
+    positions = np.asarray(positions, np.float32).reshape(-1, 3)
+    tetra = tetrahedra.from_arrays(positions, tet_vertices, tet_neighbors)
+    blocked = np.zeros(tetra.num_tets, np.uint8) if tet_blocked is None else np.asarray(tet_blocked, np.uint8)
+    return ProbeCloud(positions, np.asarray(sh, np.float32).reshape(-1, 9, 3), tetra.tet_vertices,
+                      tetra.tet_neighbors, blocked, tetra)
+
+
+def interpolation_weights(cloud: ProbeCloud, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 4) probe indices and (N, 4) weights at points (N, 3): walk, clamp outside, leak rule."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    tet, bary, _ = tetrahedra.locate(cloud.tetra, points)
+    weights = tetrahedra.clamp_weights(bary)
+    if cloud.tet_blocked is not None and np.any(cloud.tet_blocked):
+        weights = tetrahedra.leak_weights(weights, cloud.tet_blocked[tet])
+    return cloud.tet_vertices[tet].astype(np.int64), weights
+
+
+def interpolate_sh(cloud: ProbeCloud, points: np.ndarray) -> np.ndarray:
+    """(N, 9, 3) float32 irradiance SH at points (N, 3) in the scene frame."""
+    probes, weights = interpolation_weights(cloud, points)
+    return np.einsum("nv,nvkc->nkc", weights, cloud.probe_sh[probes].astype(np.float64)).astype(np.float32)
+
+
+def irradiance_at(cloud: ProbeCloud, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(N, 3) float32 irradiance E(n) = sum_k c_k Y_k(n) (W/m^2) at points with unit normals."""
+    sh = interpolate_sh(cloud, points).astype(np.float64)
+    basis = sh_basis_np(np.asarray(normals, np.float64).reshape(-1, 3))
+    return np.einsum("nk,nkc->nc", basis, sh).astype(np.float32)
+
+
+# ---------------------------------------------------------------------------
+# The processor
+
+
+def cloud_records(cloud: ProbeCloud, origin: np.ndarray) -> list:
+    """Prim and attribute records of a LightProbeCloud at CLOUD_PRIM (world-space positions)."""
+    path = CLOUD_PRIM
+    world = (cloud.probe_positions.astype(np.float64) + np.asarray(origin, np.float64)).astype(np.float32)
+    return [
+        Prim("/usdbake", "Scope"), Prim(path, "LightProbeCloud"),
+        Attribute(path, "probePositions", world, "point3f[]"),
+        Attribute(path, "shCoefficients", cloud.probe_sh.reshape(-1, 3), "float3[]"),
+        Attribute(path, "tetrahedra", cloud.tet_vertices.reshape(-1).astype(np.int32), "int[]"),
+        Attribute(path, "tetNeighbors", cloud.tet_neighbors.reshape(-1).astype(np.int32), "int[]"),
+        Attribute(path, "shOrder", 2, "int"),
+        Attribute(path, "shBasis", "realOrthonormal", "token"),
+        Attribute(path, "bake:tetBlockedEdges", cloud.tet_blocked.astype(np.uint8), "uchar[]"),
+        Attribute(path, "bake:shQuantity", "irradiance", "token", uniform=True),
+    ]
+
+
+@register
+class LightProbes(Processor):
+    name = "light_probes"
+    version = "1"
+    summary = "Light probe cloud: placement by gradient ascent + spawn/merge, L2 SH irradiance, tetrahedra."
+    facets = ("geometry", "materials", "lights")
+    provides = ("light_probes",)
+
+    @dataclass(frozen=True)
+    class Params(Params):
+        probes: int = param(1024, "probe budget (grid: at most half; a quarter kept for wall probes)",
+                            low=4, high=1_000_000)
+        min_spacing: float = param(0.0, "probes closer than this (stage units) merge; 0 = half the grid spacing",
+                                   low=0.0)
+        iterations: int = param(3, "rounds of gradient ascent + spawn + merge (0: the grid only)", low=0, high=100)
+        contrast: float = param(0.25, "edge contrast above which a probe is spawned at the midpoint",
+                                low=0.0, high=1.0)
+        rays: int = param(256, "capture rays per probe (rounded to a square)", low=1, high=1_000_000)
+        placement_rays: int = param(64, "capture rays per probe while placing", low=1, high=1_000_000)
+        leak_fix: bool = param(True, "wall probes, ray-cast tetrahedron edges, stop interpolation across blockers")
+        seed: int = param(0, "random seed (identical results across thread counts)", low=0, high=2**31 - 1)
+
+    def applies(self, scene: Scene) -> tuple[bool, str]:
+        if scene.num_triangles == 0 or scene.diagonal <= 0:
+            return False, "no empty space (the stage has no geometry to place probes around)"
+        if not has_light(scene):
+            return False, "no lights (no UsdLux light with radiance and no emissive triangle)"
+        return True, ""
+
+    def run(self, ctx: Context) -> Result:
+        scene, p, tracer = ctx.scene, ctx.params, ctx.tracer
+        ctx.progress(0.0)
+        lighting = Lighting(tracer, scene)
+        rays_before = tracer.rays_cast
+        placement = place_probes(tracer, scene, probes=p.probes, min_spacing=p.min_spacing,
+                                 iterations=p.iterations, contrast=p.contrast, placement_rays=p.placement_rays,
+                                 seed=p.seed, leak_probes=p.leak_fix, lighting=lighting, progress=ctx.progress)
+        if len(placement.positions) < 4:
+            raise ValueError(f"light_probes: only {len(placement.positions)} probe positions in empty space "
+                             f"({placement.dropped_inside} of {placement.candidates} candidates were inside or "
+                             "next to geometry); raise probes or lower min_spacing")
+        ctx.progress(0.6)
+        sh = compute_probe_sh(tracer, scene, placement.positions, rays=p.rays, seed=p.seed + 1_000_003,
+                              lighting=lighting)
+        ctx.progress(0.9)
+        try:
+            cloud = build_cloud(placement.positions, sh, tracer, leak_fix=p.leak_fix)
+        except tetrahedra.DegenerateProbesError as error:
+            raise ValueError(f"light_probes: {error}") from None
+        ctx.progress(1.0)
+        blocked_edges = int(np.unpackbits(cloud.tet_blocked[:, None], axis=1).sum())
+        stats = {"probes": float(len(cloud.probe_positions)), "tetrahedra": float(len(cloud.tet_vertices)),
+                 "candidates": float(placement.candidates), "dropped_inside": float(placement.dropped_inside),
+                 "moved": float(placement.moved), "spawned": float(placement.spawned),
+                 "merged": float(placement.merged), "wall_probes": float(placement.wall_probes),
+                 "blocked_tet_edges": float(blocked_edges),
+                 "min_spacing": float(placement.min_spacing), "rays": float(tracer.rays_cast - rays_before)}
+        return Result(products={"light_probes": cloud}, outputs=cloud_records(cloud, scene.origin), stats=stats)
