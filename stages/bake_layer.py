@@ -63,9 +63,22 @@ def author(layer: Sdf.Layer, outputs: list, provenance: dict, *, texture_dir: st
                 _author_primvar(layer, record)
             elif isinstance(record, Attribute):
                 _author_attribute(layer, record)
+        _cover_time_samples(layer, outputs)
         data = dict(layer.customLayerData)
         data[PROVENANCE_KEY] = _sanitize(provenance)
         layer.customLayerData = data
+
+
+def _cover_time_samples(layer: Sdf.Layer, outputs: list) -> None:
+    """Widen the layer's start/endTimeCode to every authored time sample, so the timeline plays them."""
+    times = [r.time for r in outputs if isinstance(r, (Primvar, Attribute)) and r.time is not None]
+    if not times:
+        return
+    if layer.HasStartTimeCode():
+        times.append(layer.startTimeCode)
+    if layer.HasEndTimeCode():
+        times.append(layer.endTimeCode)
+    layer.startTimeCode, layer.endTimeCode = float(min(times)), float(max(times))
 
 
 def _clear_opinions(layer: Sdf.Layer) -> None:

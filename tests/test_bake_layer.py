@@ -206,3 +206,20 @@ def test_connect_occlusion_wires_a_primvar_reader_into_the_preview_surface(tmp_p
     # The input layer still has no occlusion input: the wiring lives in the bake layer only.
     source = Usd.Stage.Open(stage_in)
     assert not UsdShade.Shader(source.GetPrimAtPath("/World/Looks/Grey/Surface")).GetInput("occlusion")
+
+
+def test_time_samples_widen_the_layer_time_range():
+    """Time-sampled outputs (daylight over a day, instance AO per frame) set start/endTimeCode."""
+    import numpy as np
+    from pxr import Sdf
+
+    from usdbake.processors.base import Primvar
+    from usdbake.stages.bake_layer import author
+
+    layer = Sdf.Layer.CreateAnonymous()
+    layer.startTimeCode, layer.endTimeCode = 1.0, 3.0  # copied from the source stage
+    outputs = [Primvar("/World/m", "bake:daylight", np.ones((2, 3), np.float32), "color3f", "uniform", time=t)
+               for t in (0.0, 1.0, 24.0)]
+    author(layer, outputs, {"version": "test"})
+    assert (layer.startTimeCode, layer.endTimeCode) == (0.0, 24.0)
+    assert layer.GetNumTimeSamplesForPath("/World/m.primvars:bake:daylight") == 3

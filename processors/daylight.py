@@ -1,0 +1,317 @@
+"""Daylight relighting from precomputed sky visibility (Bosch, Besuievsky & Martin, Sec. 5).
+
+For each requested local time the sun position comes from ``processors.solar``
+(NOAA algorithm), the sky radiance per patch from a sky model
+(``processors.kernels.sky``: Preetham 1999 with turbidity, CIE overcast, or
+uniform), averaged over a 3 x 3 grid inside each patch. The outgoing radiance
+of refined face i is the paper's Eq. 1 with a Lambertian BRDF rho_i / pi::
+
+    L_i = rho_i / pi * ( sum_j Lhat_j V_ij dw_j  +  E_sun max(0, n_i . s) S_i )
+
+with V_ij and the refined mesh from the ``sky_visibility`` product, E_sun the
+sun's direct normal irradiance (Preetham's transmittances) and S_i the sun's
+visibility: the share of ``sun_samples`` rays from random points of the face
+toward random points of the 0.53 degree solar disk that escape. The sky part
+is one (F, N) x (N, 3) float32 matrix product (``relight``), no ray casts;
+only the sun term casts rays. Units: visible-equivalent W/(m^2 sr) (luminance
+in cd/m^2 divided by 179 lm/W, as Radiance); ``bake:daylight`` times 179 is
+luminance, and rho_i can be divided out to get irradiance.
+
+Times: ``times`` is an ISO 8601 instant (``2026-06-21T12:00``), a
+comma-separated list, or an interval ``start/end/step``
+(``2026-06-21T06:00/18:00/PT30M``, end inclusive), in local standard time
+``timezone`` hours east of UTC. One time writes default values; several write
+time samples at time codes 0, 1, 2, ... (sample k at time code k), so
+scrubbing frames 0..N-1 in usdview plays the day.
+
+USD written (bake layer), on each prim refined by ``sky_visibility``:
+
+==================== ========= ============= ================================================
+property             type      interpolation meaning
+==================== ========= ============= ================================================
+primvars:bake:daylight color3f[] uniform     L_i per refined face (time-sampled for several times)
+primvars:displayColor  color3f[] uniform     ``display_color``: L_i * k / (1 + L_i * k), one k
+                                             for all times (``exposure``, or 1 / the 90th
+                                             percentile of the luminance)
+==================== ========= ============= ================================================
+
+Parameters
+----------
+================ ====== ================= ===================================================
+name             type   default           meaning
+================ ====== ================= ===================================================
+times            str    2026-06-21T12:00  instant, list, or start/end/step (ISO 8601), local time
+latitude         float  41.98             degrees north
+longitude        float  2.82              degrees east
+timezone         float  1.0               hours east of UTC of the local standard time
+north            float  0.0               angle of north from the stage's default north (deg, CCW)
+sky              str    preetham          preetham, overcast or uniform
+turbidity        float  3.0               Preetham turbidity (2 clear .. 10 hazy)
+uniform_radiance float  1000.0            radiance of the uniform sky, W/(m^2 sr)
+sun              bool   True              add the direct sun (not for overcast/uniform skies)
+sun_samples      int    4                 rays per face toward the solar disk
+display_color    bool   False             also write a tone-mapped primvars:displayColor
+exposure         float  0.0               tone-mapping scale k for displayColor (0: automatic)
+seed             int    0                 random seed of the sun rays
+================ ====== ================= ===================================================
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from .base import (
+    Context,
+    ParamError,
+    Params,
+    Primvar,
+    Processor,
+    Result,
+    param,
+    register,
+)
+from .kernels.sampling import tangent_frame
+from .kernels.sky import (
+    SUN_ANGULAR_DIAMETER,
+    enu_to_world,
+    patch_radiance,
+    sun_normal_irradiance,
+)
+from .scene import Scene
+from .solar import parse_times, sun_position
+
+wp.set_module_options({"enable_backward": False})
+
+RELIGHT_CHUNK = 16384
+"""Rows per chunk when V is uint8: the float32 copy of a chunk (16 MB at 256 patches) stays small."""
+
+
+@wp.kernel
+def sun_visibility_kernel(
+    start: int,
+    mesh: wp.uint64,
+    corners: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    sun: wp.vec3,
+    cos_half_angle: float,
+    samples: int,
+    epsilon: float,
+    seed: int,
+    visible: wp.array(dtype=float),
+):
+    """Share of rays from random points of face i toward random points of the solar disk that escape."""
+    i = start + wp.tid()
+    n = normals[i]
+    a = corners[3 * i]
+    b = corners[3 * i + 1]
+    c = corners[3 * i + 2]
+    frame = tangent_frame(sun)
+    state = wp.rand_init(seed, i)
+    hits = int(0)
+    for k in range(samples):
+        cos_t = 1.0 - wp.randf(state) * (1.0 - cos_half_angle)
+        sin_t = wp.sqrt(wp.max(0.0, 1.0 - cos_t * cos_t))
+        phi = 2.0 * wp.pi * wp.randf(state)
+        d = frame * wp.vec3(sin_t * wp.cos(phi), sin_t * wp.sin(phi), cos_t)
+        r1 = wp.sqrt(wp.randf(state))
+        r2 = wp.randf(state)
+        x = a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2)
+        if wp.dot(n, d) > 0.0:
+            if not wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, d, 3.0e38):
+                hits += 1
+    visible[i] = float(hits) / float(samples)
+
+
+def relight(visibility: np.ndarray, sky_weights: np.ndarray, *, scale: float = 1.0,
+            albedo: np.ndarray | None = None, sun: np.ndarray | None = None, patch_major: bool = False,
+            chunk: int = RELIGHT_CHUNK) -> np.ndarray:
+    """Paper Eq. 1 as one matrix product: (F, 3) float32 radiance (or irradiance without ``albedo``).
+
+    Parameters
+    ----------
+    visibility : (F, N) float32 V_ij, or uint8 quantized V (then multiplied by ``scale``); with
+        ``patch_major`` the transpose, (N, F) float32 -- the fastest layout (one (3, N) x (N, F) BLAS
+        product streaming V once; see ``SkyVisibility.visibility_patch_major``)
+    sky_weights : (N, 3) Lhat_j * dw_j, RGB (W/m^2 per patch)
+    albedo : (F, 3), optional; the result is then albedo / pi * irradiance (Lambertian radiance)
+    sun : (F, 3), optional direct sun irradiance added before the albedo
+
+    Linear in ``sky_weights`` and ``sun``. uint8 V is converted in chunks of ``chunk`` rows.
+    """
+    weights = np.ascontiguousarray(sky_weights, np.float32).reshape(-1, 3) * np.float32(scale)
+    n_patch = visibility.shape[0] if patch_major else visibility.shape[-1]
+    if visibility.ndim != 2 or n_patch != len(weights):
+        raise ValueError(f"visibility {visibility.shape} does not match sky_weights {weights.shape}")
+    if patch_major:
+        out = np.ascontiguousarray((weights.T @ visibility).T)
+    elif visibility.dtype == np.float32:
+        out = visibility @ weights
+    else:
+        out = np.empty((len(visibility), 3), np.float32)
+        for lo in range(0, len(visibility), chunk):
+            out[lo:lo + chunk] = visibility[lo:lo + chunk].astype(np.float32) @ weights
+    if sun is not None:
+        out += np.asarray(sun, np.float32)
+    if albedo is not None:
+        out *= np.asarray(albedo, np.float32) * np.float32(1.0 / np.pi)
+    return out
+
+
+def compute_sun_visibility(tracer, corners: np.ndarray, normals: np.ndarray, sun: np.ndarray, *,
+                           samples: int = 4, seed: int = 0) -> np.ndarray:
+    """(F,) float32 share of the solar disk visible from each face (0 for faces turned away)."""
+    corners = np.ascontiguousarray(corners, np.float32).reshape(-1, 3, 3)
+    normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
+    sun = np.asarray(sun, np.float64)
+    sun = (sun / np.linalg.norm(sun)).astype(np.float32)
+    result = np.zeros(len(corners), np.float32)
+    facing = np.flatnonzero(normals @ sun > -math.sin(math.radians(SUN_ANGULAR_DIAMETER / 2)))
+    if len(facing) == 0:
+        return result
+    visible = wp.zeros(len(facing), dtype=float, device=tracer.device)
+    cos_half = math.cos(math.radians(SUN_ANGULAR_DIAMETER / 2))
+    tracer.launch(sun_visibility_kernel, len(facing), [
+        tracer.mesh.id, tracer.array(corners[facing].reshape(-1, 3), wp.vec3), tracer.array(normals[facing], wp.vec3),
+        wp.vec3(*sun.tolist()), cos_half, int(samples), tracer.epsilon, int(seed), visible])
+    tracer.rays_cast += len(facing) * samples
+    result[facing] = visible.numpy()
+    return result
+
+
+@dataclass(frozen=True)
+class Daylight:
+    """Product ``daylight``: radiance per refined face and time."""
+
+    times: np.ndarray
+    """(K,) datetime64[us] local times."""
+    face_radiance: np.ndarray
+    """(K, F, 3) float32 outgoing radiance, W/(m^2 sr)."""
+    sun_zenith: np.ndarray
+    """(K,) degrees."""
+    sun_azimuth: np.ndarray
+    """(K,) degrees from north towards east."""
+
+
+def sky_weights(product, model: str, sun_layout: np.ndarray, *, turbidity: float, radiance: float) -> np.ndarray:
+    """(N, 3) Lhat_j * dw_j for the product's patches; ``sun_layout`` is the sun in the layout's ENU frame."""
+    values = patch_radiance(product.patches, model, sun_layout, turbidity=turbidity, radiance=radiance)
+    return (values * product.patches.patch_solid_angles[:, None]).astype(np.float32)
+
+
+def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitude: float, longitude: float,
+                     timezone: float, north: float = 0.0, sky: str = "preetham", turbidity: float = 3.0,
+                     uniform_radiance: float = 1000.0, sun: bool = True, sun_samples: int = 4, seed: int = 0,
+                     progress=lambda f: None) -> tuple[Daylight, dict]:
+    """Radiance of every refined face at every time (see the module docstring)."""
+    position = sun_position(times, latitude, longitude, timezone)
+    turn = enu_to_world("Z", north)  # rotation about up: site ENU -> layout ENU
+    corners = product.face_points[product.face_vertices].astype(np.float32)
+    albedo = scene.tri_albedo[product.face_source]
+    visibility = product.visibility_patch_major()
+    out = np.zeros((len(times), product.num_faces, 3), np.float32)
+    relight_seconds = []
+    sun_rays = 0
+    for k, sun_site in enumerate(position.enu()):
+        sun_layout = turn @ sun_site
+        weights = sky_weights(product, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance)
+        direct = None
+        if sun and sky == "preetham" and sun_site[2] > 0:
+            sun_world = product.to_world @ sun_layout
+            day = int((times[k].astype("datetime64[D]") - times[k].astype("datetime64[Y]")).astype(int)) + 1
+            e_normal = sun_normal_irradiance(sun_site, turbidity, day)
+            cos_i = np.maximum(product.face_normals @ sun_world.astype(np.float32), 0.0)
+            seen = compute_sun_visibility(tracer, corners, product.face_normals, sun_world, samples=sun_samples,
+                                          seed=seed + k)
+            sun_rays += int((cos_i > 0).sum()) * sun_samples
+            direct = (cos_i * seen)[:, None] * e_normal[None, :].astype(np.float32)
+        started = _time.perf_counter()
+        out[k] = relight(visibility, weights, albedo=albedo, sun=direct, patch_major=True)
+        relight_seconds.append(_time.perf_counter() - started)
+        progress((k + 1) / len(times))
+    stats = {"times": float(len(times)), "faces": float(product.num_faces),
+             "relight_ms": 1000.0 * float(np.median(relight_seconds)) if relight_seconds else 0.0,
+             "sun_rays": float(sun_rays)}
+    return Daylight(times, out, position.zenith, position.azimuth), stats
+
+
+def tone_map(radiance: np.ndarray, exposure: float = 0.0) -> tuple[np.ndarray, float]:
+    """Reinhard x / (1 + x) of radiance * k; k = exposure, or 1 / the 90th percentile of the luminance."""
+    k = float(exposure)
+    if k <= 0:
+        luminance = radiance @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+        positive = luminance[luminance > 0]
+        k = 1.0 / float(np.percentile(positive, 90)) if len(positive) else 1.0
+    x = radiance * np.float32(k)
+    return (x / (1.0 + x)).astype(np.float32), k
+
+
+@register
+class DaylightProcessor(Processor):
+    name = "daylight"
+    version = "1"
+    summary = "Sky (Preetham/CIE overcast/uniform) + sun relighting of the sky_visibility mesh, time-sampled."
+    facets = ("geometry", "materials")
+    requires = ("sky_visibility",)
+    provides = ("daylight",)
+
+    @dataclass(frozen=True)
+    class Params(Params):
+        times: str = param("2026-06-21T12:00", "ISO 8601 local time, list, or start/end/step "
+                           "(e.g. 2026-06-21T06:00/18:00/PT30M)")
+        latitude: float = param(41.98, "degrees north", low=-90.0, high=90.0)
+        longitude: float = param(2.82, "degrees east", low=-180.0, high=180.0)
+        timezone: float = param(1.0, "hours east of UTC of the local standard time", low=-12.0, high=14.0)
+        north: float = param(0.0, "angle of north from the stage's default north (degrees, counter-clockwise)",
+                             low=-360.0, high=360.0)
+        sky: str = param("preetham", "sky model", choices=("preetham", "overcast", "uniform"))
+        turbidity: float = param(3.0, "Preetham turbidity (2 clear .. 10 hazy)", low=1.7, high=10.0)
+        uniform_radiance: float = param(1000.0, "radiance of the uniform sky, W/(m^2 sr)", low=0.0)
+        sun: bool = param(True, "add the direct sun (Preetham sky only)")
+        sun_samples: int = param(4, "rays per face toward the solar disk", low=1, high=4096)
+        display_color: bool = param(False, "also write a tone-mapped primvars:displayColor")
+        exposure: float = param(0.0, "tone-mapping scale for displayColor (0: automatic)", low=0.0)
+        seed: int = param(0, "random seed of the sun rays", low=0)
+
+        def __post_init__(self) -> None:
+            super().__post_init__()
+            try:
+                parse_times(self.times)
+            except ValueError as error:
+                raise ParamError(f"times={self.times!r}: {error}") from None
+
+    def run(self, ctx: Context) -> Result:
+        scene, p = ctx.scene, ctx.params
+        product = ctx.products["sky_visibility"]
+        try:
+            times = parse_times(p.times)
+        except ValueError as error:
+            raise ParamError(f"times={p.times!r}: {error}") from None
+        daylight, stats = compute_daylight(
+            ctx.tracer, scene, product, times, latitude=p.latitude, longitude=p.longitude, timezone=p.timezone,
+            north=p.north, sky=p.sky, turbidity=p.turbidity, uniform_radiance=p.uniform_radiance, sun=p.sun,
+            sun_samples=p.sun_samples, seed=p.seed, progress=ctx.progress)
+        result = Result(products={"daylight": daylight}, stats=stats)
+        sampled = len(times) > 1
+        mapped, k = tone_map(daylight.face_radiance.reshape(-1, 3), p.exposure) if p.display_color else (None, 0)
+        if mapped is not None:
+            mapped = mapped.reshape(daylight.face_radiance.shape)
+        for prim in product.prims:
+            path = scene.prim_paths[prim]
+            faces = np.flatnonzero(product.face_prim == prim)
+            for index in range(len(times)):
+                code = float(index) if sampled else None
+                result.outputs.append(Primvar(path, "bake:daylight", daylight.face_radiance[index, faces],
+                                              "color3f", "uniform", time=code))
+                if mapped is not None:
+                    result.outputs.append(Primvar(path, "displayColor", mapped[index, faces], "color3f", "uniform",
+                                                  time=code))
+        if sampled:
+            result.messages.append(f"time codes 0..{len(times) - 1} are {times[0]} .. {times[-1]} (local time)")
+        if p.display_color:
+            result.stats["display_exposure"] = k
+        return result

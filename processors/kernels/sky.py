@@ -1,0 +1,340 @@
+"""Sky dome patch layouts and sky radiance models (numpy), plus the Warp patch sampler.
+
+Frames
+------
+Layouts and sky models live in the local ENU frame of the site: x = east,
+y = north, z = up (Radiance's convention). ``enu_to_world(up_axis, north)``
+maps them into the stage: for a Z-up stage east = +X, north = +Y; for a Y-up
+stage east = +X, north = -Z, up = +Y (right-handed in both cases). ``north``
+(degrees) turns north counter-clockwise about the up axis (seen from above).
+
+Patch layouts
+-------------
+Every layout is a set of altitude rings split in azimuth plus a zenith cap.
+Azimuth is measured from north towards east; the first patch of every ring
+is centred on north. Patches are ordered from the horizon ring upwards, and
+around each ring eastwards, the zenith cap last:
+
+- ``reinhart`` MF:n -- Radiance's ``reinhartb.cal`` / ``genskyvec`` order.
+  Ring height 90 / (7 n + 0.5) degrees, rings of n * (30, 30, 24, 24, 18, 12,
+  6) patches (each Tregenza band split into n rings), one zenith cap of half
+  a ring height: 145 (n = 1, ``tregenza``), 577 (n = 2), 2305 (n = 4)
+  patches. Our patch j is Radiance's bin j + 1 (Radiance's bin 0 is the
+  ground); directions and solid angles equal Radiance's ``Dx, Dy, Dz`` and
+  ``Romega`` for x1 = x2 = 0.5.
+- ``uniform`` N -- equal solid angle 2 pi / N for every patch (the layout of
+  Bosch et al., Fig. 3): a zenith cap of one patch, rings of roughly square
+  patches whose z boundaries are placed so each patch spans exactly 2 pi / N.
+
+Sky models (radiance in W/(m^2 sr), "visible-equivalent" RGB: luminance / 179 lm/W, as Radiance)
+----------
+- ``preetham``: Preetham, Shirley & Smits 1999, "A practical analytic model
+  for daylight" (SIGGRAPH 99), doi:10.1145/311535.311545: Perez functions for
+  Y, x, y with turbidity-linear coefficients, zenith luminance and
+  chromaticity (their Appendix A.2), xyY -> XYZ -> linear sRGB (D65).
+- ``overcast``: CIE standard overcast sky, L(theta) = Lz (1 + 2 cos theta) / 3,
+  Lz = 8.6 sin(sun altitude) + 0.123 kcd/m^2 (Radiance ``gensky -c``).
+- ``uniform``: constant radiance.
+- Sun: direct normal irradiance from the extraterrestrial illuminance
+  (133.8 klx) attenuated by Preetham's Rayleigh and aerosol (Angstrom,
+  beta = 0.04608 T - 0.04586, alpha = 1.3) transmittances at three
+  wavelengths (680, 550, 440 nm), air mass after Kasten (1966) as in
+  Preetham's appendix; ozone, water vapour and mixed-gas absorption are
+  left out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+LUMINOUS_EFFICACY = 179.0
+"""lm/W: Radiance's white efficacy, turns cd/m^2 into visible-equivalent W/(m^2 sr)."""
+
+EXTRATERRESTRIAL_ILLUMINANCE = 133_800.0
+"""lux at mean Earth-Sun distance (Darula, Hooper & Kittler 2005)."""
+
+SUN_ANGULAR_DIAMETER = 0.53
+"""degrees."""
+
+RGB_WAVELENGTHS_UM = np.array([0.680, 0.550, 0.440])
+"""Wavelengths (micrometres) standing for the R, G, B channels in the sun's transmittance."""
+
+XYZ_TO_SRGB = np.array([[3.2404542, -1.5371385, -0.4985314],
+                        [-0.9692660, 1.8760108, 0.0415560],
+                        [0.0556434, -0.2040259, 1.0572252]])
+SRGB_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+
+# ---------------------------------------------------------------------------
+# Patch layouts
+
+
+@dataclass(frozen=True)
+class SkyPatches:
+    """A patch layout in the ENU frame (x east, y north, z up)."""
+
+    layout: str
+    subdivision: int
+    patch_directions: np.ndarray
+    """(N, 3) float64 unit centre directions (ENU)."""
+    patch_solid_angles: np.ndarray
+    """(N,) float64 steradians, summing to 2 pi."""
+    patch_bounds: np.ndarray
+    """(N, 4) float64 (z_lo, z_hi, azimuth_lo, azimuth_hi): z = sin(altitude), azimuth in radians from north
+    towards east; the patch is the set of directions with z in [z_lo, z_hi] and azimuth in [lo, hi]."""
+    patch_radius: np.ndarray
+    """(N,) float64 largest angle (radians) between the centre and any point of the patch."""
+
+    def __len__(self) -> int:
+        return len(self.patch_solid_angles)
+
+
+def _rings_to_patches(layout: str, subdivision: int, alt_edges: np.ndarray, counts: list[int],
+                      z_edges: np.ndarray | None = None) -> SkyPatches:
+    """Build a layout from ring altitude edges (radians, horizon first) and patch counts per ring."""
+    if z_edges is None:
+        z_edges = np.sin(alt_edges)
+    rows = []
+    for ring, count in enumerate(counts):
+        z_lo, z_hi = z_edges[ring], z_edges[ring + 1]
+        width = 2 * np.pi / count
+        for col in range(count):
+            rows.append((z_lo, z_hi, (col - 0.5) * width, (col + 0.5) * width))
+    bounds = np.array(rows, np.float64)
+    z_lo, z_hi, az_lo, az_hi = bounds.T
+    solid = (z_hi - z_lo) * (az_hi - az_lo)
+    cap = z_hi >= 1.0 - 1e-12
+    # Centre: mid altitude (as Radiance: (row + 0.5) * ring height) and mid azimuth; the cap centre is the zenith.
+    alt_mid = 0.5 * (np.arcsin(np.clip(z_lo, -1, 1)) + np.arcsin(np.clip(z_hi, -1, 1)))
+    alt_mid = np.where(cap & (np.abs(az_hi - az_lo - 2 * np.pi) < 1e-9), np.pi / 2, alt_mid)
+    az_mid = 0.5 * (az_lo + az_hi)
+    directions = altaz_to_enu(alt_mid, az_mid)
+    radius = _patch_radius(bounds, directions)
+    return SkyPatches(layout, subdivision, directions, solid, bounds, radius)
+
+
+def _patch_radius(bounds: np.ndarray, directions: np.ndarray, steps: int = 9) -> np.ndarray:
+    """Largest angle between a patch centre and its boundary (sampled), plus a small margin."""
+    t = np.linspace(0.0, 1.0, steps)
+    z_lo, z_hi, az_lo, az_hi = (bounds[:, k:k + 1] for k in range(4))
+    az = az_lo + t * (az_hi - az_lo)
+    z = z_lo + t * (z_hi - z_lo)
+    edges = [
+        (np.broadcast_to(z_lo, az.shape), az), (np.broadcast_to(z_hi, az.shape), az),
+        (z, np.broadcast_to(az_lo, z.shape)), (z, np.broadcast_to(az_hi, z.shape)),
+    ]
+    worst = np.zeros(len(bounds))
+    for zz, aa in edges:
+        points = altaz_to_enu(np.arcsin(np.clip(zz, -1, 1)), aa)
+        cos = np.einsum("nkc,nc->nk", points, directions)
+        worst = np.maximum(worst, np.arccos(np.clip(cos, -1, 1)).max(axis=1))
+    return worst * 1.02 + 1e-6
+
+
+def altaz_to_enu(altitude, azimuth) -> np.ndarray:
+    """Unit ENU vectors from altitude and azimuth (radians, azimuth from north towards east)."""
+    altitude = np.asarray(altitude, np.float64)
+    azimuth = np.asarray(azimuth, np.float64)
+    c = np.cos(altitude)
+    return np.stack([np.sin(azimuth) * c, np.cos(azimuth) * c, np.sin(altitude)], axis=-1)
+
+
+def reinhart_patches(subdivision: int = 1) -> SkyPatches:
+    """Radiance's Reinhart MF:n layout (n = 1 is Tregenza's 145 patches), in reinhartb.cal order."""
+    if subdivision < 1:
+        raise ValueError(f"subdivision={subdivision} must be >= 1")
+    mf = int(subdivision)
+    ring_height = np.radians(90.0 / (7 * mf + 0.5))
+    tregenza = (30, 30, 24, 24, 18, 12, 6)
+    counts = [mf * tregenza[row // mf] for row in range(7 * mf)] + [1]
+    alt_edges = np.append(np.arange(7 * mf + 1) * ring_height, np.pi / 2)
+    z_edges = np.sin(alt_edges)
+    z_edges[-1] = 1.0
+    return _rings_to_patches("tregenza" if mf == 1 else "reinhart", mf, alt_edges, counts, z_edges)
+
+
+def tregenza_patches() -> SkyPatches:
+    return reinhart_patches(1)
+
+
+def uniform_patches(count: int = 256) -> SkyPatches:
+    """``count`` patches of equal solid angle 2 pi / count: a zenith cap and rings of near-square patches."""
+    if count < 1:
+        raise ValueError(f"count={count} must be >= 1")
+    if count == 1:
+        return _rings_to_patches("uniform", count, np.array([0.0, np.pi / 2]), [1], np.array([0.0, 1.0]))
+    side = math.sqrt(2 * np.pi / count)
+    cap_angle = math.acos(1.0 - 1.0 / count)  # one patch of solid angle 2 pi / count
+    rings = max(1, int(round((np.pi / 2 - cap_angle) / side)))
+    theta = np.linspace(np.pi / 2, cap_angle, rings + 1)  # zenith angles, horizon first
+    areas = np.cos(theta[1:]) - np.cos(theta[:-1])        # ring areas / 2 pi
+    ideal = areas / areas.sum() * (count - 1)
+    counts = np.floor(ideal).astype(int)
+    for k in np.argsort(ideal - counts)[::-1][: count - 1 - counts.sum()]:  # largest remainders
+        counts[k] += 1
+    counts = np.maximum(counts, 1)
+    while counts.sum() > count - 1:  # only when a tiny count forced 1s
+        counts[np.argmax(counts)] -= 1
+    cumulative = np.concatenate([[0], np.cumsum(counts)])
+    z_edges = np.append(cumulative / count, 1.0)  # ring k spans exactly counts[k] * 2 pi / count
+    z_edges[-2] = 1.0 - 1.0 / count
+    alt_edges = np.arcsin(np.clip(z_edges, 0, 1))
+    return _rings_to_patches("uniform", count, alt_edges, list(counts) + [1], z_edges)
+
+
+def patch_layout(layout: str, *, count: int = 256, subdivision: int = 2) -> SkyPatches:
+    """The named layout: 'uniform' (``count`` patches), 'tregenza' (145) or 'reinhart' (MF ``subdivision``)."""
+    if layout == "uniform":
+        return uniform_patches(count)
+    if layout == "tregenza":
+        return reinhart_patches(1)
+    if layout == "reinhart":
+        return reinhart_patches(subdivision)
+    raise ValueError(f"unknown patch layout {layout!r} (uniform, tregenza, reinhart)")
+
+
+def enu_to_world(up_axis: str, north: float = 0.0) -> np.ndarray:
+    """(3, 3) float64 matrix M with world = M @ enu for the stage's up axis; ``north`` in degrees."""
+    a = math.radians(north)
+    turn = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    if up_axis == "Z":
+        base = np.eye(3)
+    elif up_axis == "Y":
+        base = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    else:
+        raise ValueError(f"up axis {up_axis!r} is not 'Y' or 'Z'")
+    return base @ turn
+
+
+def patch_samples(patches: SkyPatches, per_side: int = 3) -> np.ndarray:
+    """(N, per_side^2, 3) ENU directions on a per_side x per_side grid in (z, azimuth), equal solid angle each."""
+    t = (np.arange(per_side) + 0.5) / per_side
+    z_lo, z_hi, az_lo, az_hi = patches.patch_bounds.T
+    z = z_lo[:, None, None] + t[None, :, None] * (z_hi - z_lo)[:, None, None]
+    az = az_lo[:, None, None] + t[None, None, :] * (az_hi - az_lo)[:, None, None]
+    z, az = np.broadcast_arrays(z, az)
+    directions = altaz_to_enu(np.arcsin(np.clip(z, -1, 1)), az)
+    return directions.reshape(len(patches), per_side * per_side, 3)
+
+
+@wp.func
+def sample_patch(bounds: wp.vec4, enu_to_world: wp.mat33, u1: float, u2: float) -> wp.vec3:
+    """Uniform (equal solid angle) direction inside a patch: z and azimuth uniform within its bounds."""
+    z = bounds[0] + u1 * (bounds[1] - bounds[0])
+    azimuth = bounds[2] + u2 * (bounds[3] - bounds[2])
+    r = wp.sqrt(wp.max(0.0, 1.0 - z * z))
+    return enu_to_world * wp.vec3(r * wp.sin(azimuth), r * wp.cos(azimuth), z)
+
+
+# ---------------------------------------------------------------------------
+# Sky models (ENU directions; sun given as an ENU unit vector)
+
+
+def _perez(cos_theta, gamma, coeffs):
+    a, b, c, d, e = coeffs
+    cos_theta = np.maximum(cos_theta, 0.01)  # the horizon limit; Perez diverges at cos = 0
+    return (1 + a * np.exp(b / cos_theta)) * (1 + c * np.exp(d * gamma) + e * np.cos(gamma) ** 2)
+
+
+def _xyy_to_rgb(x, y, big_y) -> np.ndarray:
+    y = np.maximum(y, 1e-6)
+    xyz = np.stack([x / y * big_y, big_y, (1 - x - y) / y * big_y], axis=-1)
+    return np.maximum(xyz @ XYZ_TO_SRGB.T, 0.0)
+
+
+def preetham_radiance(directions: np.ndarray, sun: np.ndarray, turbidity: float = 3.0) -> np.ndarray:
+    """(..., 3) sky radiance (W/(m^2 sr), luminance / 179) of Preetham et al. 1999 for ENU directions.
+
+    The sky is black when the sun is below the horizon (the model is not defined there).
+    """
+    t = float(turbidity)
+    directions = np.asarray(directions, np.float64)
+    sun = np.asarray(sun, np.float64) / np.linalg.norm(sun)
+    if sun[2] <= 0.0:
+        return np.zeros(directions.shape[:-1] + (3,))
+    theta_s = math.acos(min(1.0, sun[2]))
+    coeff_y = (0.1787 * t - 1.4630, -0.3554 * t + 0.4275, -0.0227 * t + 5.3251, 0.1206 * t - 2.5771,
+               -0.0670 * t + 0.3703)
+    coeff_x = (-0.0193 * t - 0.2592, -0.0665 * t + 0.0008, -0.0004 * t + 0.2125, -0.0641 * t - 0.8989,
+               -0.0033 * t + 0.0452)
+    coeff_yc = (-0.0167 * t - 0.2608, -0.0950 * t + 0.0092, -0.0079 * t + 0.2102, -0.0441 * t - 1.6537,
+                -0.0109 * t + 0.0529)
+    chi = (4.0 / 9.0 - t / 120.0) * (np.pi - 2 * theta_s)
+    zenith_y = max(0.0, (4.0453 * t - 4.9710) * math.tan(chi) - 0.2155 * t + 2.4192) * 1000.0  # cd/m^2
+    t_vec = np.array([t * t, t, 1.0])
+    th = np.array([theta_s ** 3, theta_s ** 2, theta_s, 1.0])
+    zenith_x = t_vec @ np.array([[0.00166, -0.00375, 0.00209, 0.0], [-0.02903, 0.06377, -0.03202, 0.00394],
+                                 [0.11693, -0.21196, 0.06052, 0.25886]]) @ th
+    zenith_yc = t_vec @ np.array([[0.00275, -0.00610, 0.00317, 0.0], [-0.04214, 0.08970, -0.04153, 0.00516],
+                                  [0.15346, -0.26756, 0.06670, 0.26688]]) @ th
+    cos_theta = directions[..., 2]
+    gamma = np.arccos(np.clip(directions @ sun, -1.0, 1.0))
+
+    def relative(coeffs):
+        return _perez(cos_theta, gamma, coeffs) / _perez(np.float64(1.0), theta_s, coeffs)
+
+    big_y = zenith_y * relative(coeff_y)
+    x = zenith_x * relative(coeff_x)
+    y = zenith_yc * relative(coeff_yc)
+    rgb = _xyy_to_rgb(x, y, big_y) / LUMINOUS_EFFICACY
+    return np.where((cos_theta >= 0.0)[..., None], rgb, 0.0)
+
+
+def overcast_radiance(directions: np.ndarray, sun: np.ndarray) -> np.ndarray:
+    """(..., 3) CIE overcast sky radiance, grey, zenith 8.6 sin(sun altitude) + 0.123 kcd/m^2 (gensky -c)."""
+    directions = np.asarray(directions, np.float64)
+    sun = np.asarray(sun, np.float64) / np.linalg.norm(sun)
+    zenith = (8.6 * max(sun[2], 0.0) + 0.123) * 1000.0 / LUMINOUS_EFFICACY
+    value = zenith * (1 + 2 * np.maximum(directions[..., 2], 0.0)) / 3.0
+    return np.repeat(value[..., None], 3, axis=-1)
+
+
+def uniform_radiance(directions: np.ndarray, radiance: float = 1.0) -> np.ndarray:
+    directions = np.asarray(directions, np.float64)
+    return np.full(directions.shape[:-1] + (3,), float(radiance))
+
+
+def air_mass(cos_zenith: float) -> float:
+    """Relative optical air mass, Kasten (1966), finite at the horizon."""
+    zenith_deg = math.degrees(math.acos(min(1.0, max(-1.0, cos_zenith))))
+    if zenith_deg >= 93.885:
+        return math.inf
+    return 1.0 / (max(cos_zenith, 0.0) + 0.15 * (93.885 - zenith_deg) ** -1.253)
+
+
+def sun_normal_irradiance(sun: np.ndarray, turbidity: float = 3.0, day_of_year: int = 172) -> np.ndarray:
+    """(3,) direct normal irradiance of the sun (W/m^2, illuminance / 179), RGB; zero below the horizon.
+
+    Extraterrestrial illuminance (with the Earth-Sun distance correction) times Preetham's Rayleigh and
+    aerosol transmittances at the RGB wavelengths.
+    """
+    sun = np.asarray(sun, np.float64) / np.linalg.norm(sun)
+    if sun[2] <= 0.0:
+        return np.zeros(3)
+    m = air_mass(sun[2])
+    beta = max(0.0, 0.04608 * turbidity - 0.04586)
+    lam = RGB_WAVELENGTHS_UM
+    transmittance = np.exp(-0.008735 * lam ** -4.08 * m) * np.exp(-beta * lam ** -1.3 * m)
+    distance = 1.0 + 0.033 * math.cos(2 * np.pi * day_of_year / 365.0)
+    return EXTRATERRESTRIAL_ILLUMINANCE * distance / LUMINOUS_EFFICACY * transmittance
+
+
+def patch_radiance(patches: SkyPatches, model: str, sun: np.ndarray, *, turbidity: float = 3.0,
+                   radiance: float = 1.0, per_side: int = 3) -> np.ndarray:
+    """(N, 3) mean radiance of each patch (model averaged over a per_side^2 grid of equal solid angle)."""
+    directions = patch_samples(patches, per_side)
+    if model == "preetham":
+        values = preetham_radiance(directions, sun, turbidity)
+    elif model == "overcast":
+        values = overcast_radiance(directions, sun)
+    elif model == "uniform":
+        values = uniform_radiance(directions, radiance)
+    else:
+        raise ValueError(f"unknown sky model {model!r} (preetham, overcast, uniform)")
+    return values.mean(axis=1)

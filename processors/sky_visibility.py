@@ -1,0 +1,516 @@
+"""Sky visibility factors with adaptive, crack-free mesh refinement (Bosch, Besuievsky & Martin).
+
+Bosch C., Besuievsky G., Martin I., "A hardware accelerated adaptive mesh
+subdivision for interactive daylight illumination" -- here with Warp BVH ray
+casts instead of occlusion queries. The sky dome is split into patches
+(``processors.kernels.sky``); the visibility factor of triangle i for patch j
+is (paper, Sec. 4.1)::
+
+    V_ij = 1 / (A_i dw_j) * integral_{A_i} integral_{patch j} vis(x, w) max(0, n_i . w) dw dA
+
+estimated with ``samples`` rays per (triangle, patch) pair: stratified,
+equal-solid-angle directions inside the patch, each from a uniform random
+point on the triangle. Patches wholly below the triangle's horizon are not
+traced (V = 0). The sky irradiance of a face under a sky of patch radiances
+L_j is then sum_j L_j V_ij dw_j (paper, Eq. 1), pi L for an open upward face
+under a uniform sky L.
+
+Adaptive subdivision (paper, Sec. 4.2): a triangle is split into four when
+its visibility is partial, its area is above ``min_area`` (relative to the
+scene diagonal squared) and it is less than ``max_level`` four-way splits
+below its source triangle; only the new triangles are traced again, until
+nothing is split. Partial visibility is measured per triangle as::
+
+    partial_i = 2 / pi * sum_j min(Vvis_ij, Vocc_ij) dw_j
+
+where Vvis and Vocc are the cosine-weighted visible and occluded parts of
+V_ij: the share of the face's open-sky irradiance that changes across the
+face (0 when every patch is wholly visible or wholly hidden, 1 when half of
+the face is in shadow from the whole sky). A triangle is refined when
+``partial_i > tolerance``, so faces that see no sky are never refined. The
+refinement is conforming (``processors.refine``: longest-edge closure, no
+T-junctions; watertight input stays watertight).
+
+USD written (bake layer), on each writable mesh prim (not ``bake:skip``, not instanced):
+
+================================ ========== ============= =============================================
+property                         type       interpolation meaning
+================================ ========== ============= =============================================
+points                           point3f[]                the refined mesh, in the prim's local space
+faceVertexCounts                 int[]                    all 3
+faceVertexIndices                int[]                    refined triangles
+orientation                      token                    ``rightHanded`` (winding is written for it)
+primvars:normals                 normal3f[] uniform       local face normals (faceted)
+primvars:bake:sourceFace         int[]      uniform       authored face of the input mesh per face
+primvars:bake:skyVisibility      uchar[]    uniform       V_ij quantized to 0..255, elementSize = N
+primvars:bake:skyExposure        float[]    uniform       sum_j V_ij dw_j / pi: open-sky share of irradiance
+bake:sky:visibilityScale         float                    V = value * scale (1/255)
+bake:sky:patchCount ... upAxis   (SkyVisibilityAPI, applied) patch layout, directions, solid angles
+================================ ========== ============= =============================================
+
+Parameters
+----------
+=============== ====== ========= ===========================================================
+name            type   default   meaning
+=============== ====== ========= ===========================================================
+patch_layout    str    uniform   uniform (equal solid angle), tregenza (145), reinhart (MF)
+patch_count     int    256       number of patches of the uniform layout
+subdivision     int    2         Reinhart MF (577 patches for 2)
+samples         int    4         rays per (triangle, patch) pair (rounded to a square)
+tolerance       float  0.1       refine when partial_i exceeds this
+min_area        float  1e-5      smallest triangle area refined, times the scene diagonal^2
+max_level       int    5         most four-way splits below an input triangle
+max_triangles   int    500000    stop refining when the mesh reaches this many triangles
+criterion       str    share     share (partial_i above) or any: (1/pi) sum_j dw_j mean cos over
+                                 the patches with any partial visibility (closer to the paper)
+seed            int    0         random seed (identical results across thread counts)
+=============== ====== ========= ===========================================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from .base import Attribute, Context, Params, Prim, Primvar, Processor, Result, param, register
+from .geometry import receiver_prims, strata_for
+from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame
+from .kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
+from .refine import refine, weld_points
+from .scene import Scene
+
+wp.set_module_options({"enable_backward": False})
+
+QUANT_LEVELS = 255
+"""V is stored as round(V * 255) in uint8: error <= 0.5 / 255 per factor."""
+
+PAIRS_PER_BATCH = 4_000_000
+"""(triangle, patch) pairs per launch: bounds the temporary V/partial arrays to ~32 MB."""
+
+
+@wp.kernel
+def patch_visibility_kernel(
+    start: int,
+    mesh: wp.uint64,
+    corners: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    tri_ids: wp.array(dtype=int),
+    patch_bounds: wp.array(dtype=wp.vec4),
+    patch_centers: wp.array(dtype=wp.vec3),
+    patch_horizon: wp.array(dtype=float),
+    to_world: wp.mat33,
+    num_patches: int,
+    strata: int,
+    epsilon: float,
+    seed: int,
+    any_partial: int,
+    visible: wp.array(dtype=float),
+    partial: wp.array(dtype=float),
+):
+    """V_ij (cosine-weighted visible share) and min(visible, occluded) for pair k = i * N + j."""
+    k = start + wp.tid()
+    i = k // num_patches
+    j = k - i * num_patches
+    n = normals[i]
+    visible[k] = 0.0
+    partial[k] = 0.0
+    if wp.length(n) < 0.5:
+        return
+    if wp.dot(n, patch_centers[j]) < patch_horizon[j]:
+        return  # the whole patch is below the triangle's horizon
+    a = corners[3 * i]
+    b = corners[3 * i + 1]
+    c = corners[3 * i + 2]
+    state = wp.rand_init(seed + 65537 * j, tri_ids[i])
+    bounds = patch_bounds[j]
+    vis = float(0.0)
+    occ = float(0.0)
+    count = strata * strata
+    for s in range(count):
+        u = stratified_pair(s, strata, state)
+        d = sample_patch(bounds, to_world, u[0], u[1])
+        cos_theta = wp.dot(n, d)
+        r1 = wp.sqrt(wp.randf(state))
+        r2 = wp.randf(state)
+        if cos_theta > 0.0:
+            x = a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2)
+            if wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, d, 3.0e38):
+                occ += cos_theta
+            else:
+                vis += cos_theta
+    visible[k] = vis / float(count)
+    if any_partial != 0:
+        if vis > 0.0 and occ > 0.0:
+            partial[k] = (vis + occ) / float(count)
+    else:
+        partial[k] = wp.min(vis, occ) / float(count)
+
+
+@wp.kernel
+def point_sky_view_kernel(
+    start: int,
+    mesh: wp.uint64,
+    positions: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    up: wp.vec3,
+    strata: int,
+    epsilon: float,
+    seed: int,
+    view: wp.array(dtype=float),
+):
+    """Brute-force reference: share of cosine-weighted rays that escape to the sky (above the horizon)."""
+    i = start + wp.tid()
+    n = normals[i]
+    view[i] = 0.0
+    if wp.length(n) < 0.5:
+        return
+    frame = tangent_frame(n)
+    state = wp.rand_init(seed, i)
+    hits = int(0)
+    origin = positions[i] + n * epsilon
+    for k in range(strata * strata):
+        u = stratified_pair(k, strata, state)
+        d = frame * cosine_hemisphere(u[0], u[1])
+        if wp.dot(d, up) > 0.0:
+            if not wp.mesh_query_ray_anyhit(mesh, origin, d, 3.0e38):
+                hits += 1
+    view[i] = float(hits) / float(strata * strata)
+
+
+def compute_point_sky_view(tracer, positions: np.ndarray, normals: np.ndarray, up: np.ndarray, *,
+                           samples: int = 4096, seed: int = 0) -> np.ndarray:
+    """(N,) float32 sky irradiance / (pi L) at points under a uniform sky L, black surroundings.
+
+    The independent reference the patch factors are checked against: stratified cosine-weighted
+    hemisphere rays (no patches), a ray counting when it is unoccluded and points above the horizon.
+    """
+    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+    normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
+    strata = strata_for(samples)
+    view = wp.zeros(len(positions), dtype=float, device=tracer.device)
+    up = np.asarray(up, np.float32)
+    tracer.launch(point_sky_view_kernel, len(positions), [
+        tracer.mesh.id, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3),
+        wp.vec3(float(up[0]), float(up[1]), float(up[2])), strata, tracer.epsilon, int(seed), view])
+    tracer.rays_cast += len(positions) * strata * strata
+    return view.numpy()
+
+
+def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, patches: SkyPatches,
+                             to_world: np.ndarray, *, samples: int = 4, seed: int = 0,
+                             tri_ids: np.ndarray | None = None, criterion: str = "share"
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """Visibility factors of triangles for sky patches.
+
+    Parameters
+    ----------
+    tracer : Tracer over the occluding scene
+    corners : (T, 3, 3) float32 triangle corners (scene frame)
+    normals : (T, 3) float32 unit normals (zero: the triangle gets V = 0)
+    patches : the patch layout (ENU); ``to_world`` (3, 3) maps ENU to the scene frame
+    samples : rays per (triangle, patch) pair
+    tri_ids : (T,) int, optional, stable ids seeding each triangle's random numbers
+
+    Returns
+    -------
+    V : (T, N) float32 cosine-weighted visible share, in [0, 1]
+    partial : (T, N) float32 min(visible, occluded) cosine-weighted shares
+    """
+    corners = np.ascontiguousarray(corners, np.float32).reshape(-1, 3, 3)
+    normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
+    n_tri, n_patch = len(corners), len(patches)
+    tri_ids = np.arange(n_tri, dtype=np.int32) if tri_ids is None else np.asarray(tri_ids, np.int32)
+    to_world = np.asarray(to_world, np.float64)
+    centers = patches.patch_directions @ to_world.T
+    horizon = -np.sin(np.minimum(patches.patch_radius, np.pi / 2))
+    strata = strata_for(samples)
+    bounds_wp = tracer.array(patches.patch_bounds.astype(np.float32), wp.vec4)
+    centers_wp = tracer.array(centers.astype(np.float32), wp.vec3)
+    horizon_wp = tracer.array(horizon.astype(np.float32), float)
+    matrix = wp.mat33(*to_world.astype(np.float32).ravel().tolist())
+    visible = np.zeros((n_tri, n_patch), np.float32)
+    partial = np.zeros((n_tri, n_patch), np.float32)
+    batch = max(1, PAIRS_PER_BATCH // max(n_patch, 1))
+    for lo in range(0, n_tri, batch):
+        hi = min(n_tri, lo + batch)
+        pairs = (hi - lo) * n_patch
+        vis_wp = wp.empty(pairs, dtype=float, device=tracer.device)
+        part_wp = wp.empty(pairs, dtype=float, device=tracer.device)
+        tracer.launch(patch_visibility_kernel, pairs, [
+            tracer.mesh.id, tracer.array(corners[lo:hi].reshape(-1, 3), wp.vec3),
+            tracer.array(normals[lo:hi], wp.vec3), tracer.array(tri_ids[lo:hi], int),
+            bounds_wp, centers_wp, horizon_wp, matrix, n_patch, strata, tracer.epsilon, int(seed),
+            int(criterion == "any"), vis_wp, part_wp,
+        ])
+        visible[lo:hi] = vis_wp.numpy().reshape(hi - lo, n_patch)
+        partial[lo:hi] = part_wp.numpy().reshape(hi - lo, n_patch)
+    above = int((normals.astype(np.float64) @ centers.T >= horizon[None, :]).sum())  # pairs that are traced
+    tracer.rays_cast += above * strata * strata  # (samples below a face's horizon inside a traced patch included)
+    return visible, partial
+
+
+# ---------------------------------------------------------------------------
+# The product
+
+
+@dataclass(frozen=True)
+class SkyVisibility:
+    """The refined receiver mesh and its per-face sky visibility factors (product ``sky_visibility``)."""
+
+    face_points: np.ndarray
+    """(P, 3) float64 refined mesh vertices relative to Scene.origin."""
+    face_vertices: np.ndarray
+    """(F, 3) int32 indices into face_points (scene winding)."""
+    face_normals: np.ndarray
+    """(F, 3) float32 unit normals (those of the source triangles)."""
+    face_areas: np.ndarray
+    """(F,) float32."""
+    face_source: np.ndarray
+    """(F,) int32 source triangle (index into the Scene's triangles)."""
+    face_prim: np.ndarray
+    """(F,) int32 prim index (Scene.prim_paths)."""
+    face_face: np.ndarray
+    """(F,) int32 authored face of the source prim."""
+    face_level: np.ndarray
+    """(F,) int32 area halvings below the source triangle."""
+    visibility: np.ndarray
+    """(F, N) uint8 V_ij * 255 (rounded)."""
+    visibility_scale: float
+    """V = visibility * visibility_scale."""
+    exposure: np.ndarray
+    """(F,) float32 sum_j V_ij dw_j / pi."""
+    patches: SkyPatches
+    to_world: np.ndarray
+    """(3, 3) float64 ENU -> scene frame for the stage's up axis (north = the layout's north)."""
+    up_axis: str
+    prims: np.ndarray
+    """(R,) int32 receiver prims (faces of prim prims[r] are face_prim == prims[r], in order)."""
+    _cache: dict = field(default_factory=dict, compare=False, repr=False)
+
+    @property
+    def num_faces(self) -> int:
+        return len(self.face_vertices)
+
+    def visibility_float(self) -> np.ndarray:
+        """(F, N) float32 dequantized V, computed once and kept (4 bytes per factor)."""
+        if "float" not in self._cache:
+            self._cache["float"] = self.visibility.astype(np.float32) * np.float32(self.visibility_scale)
+        return self._cache["float"]
+
+    def visibility_patch_major(self) -> np.ndarray:
+        """(N, F) float32 dequantized V, patch-major (the layout ``daylight.relight`` streams fastest)."""
+        if "patch_major" not in self._cache:
+            self._cache["patch_major"] = np.ascontiguousarray(self.visibility.T, np.float32) * np.float32(
+                self.visibility_scale)
+        return self._cache["patch_major"]
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_cache"] = {}
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+
+
+def _areas_normals(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    corners = points[triangles]
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    double = np.linalg.norm(cross, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normals = np.where(double[:, None] > 0, cross / double[:, None], 0.0)
+    return double / 2, normals
+
+
+def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples: int = 4,
+                           tolerance: float = 0.1, min_area: float = 1e-5, max_level: int = 5,
+                           max_triangles: int = 500_000, seed: int = 0, adaptive: bool = True,
+                           prims: np.ndarray | None = None, criterion: str = "share", uniform: bool = False,
+                           progress=lambda f: None) -> tuple[SkyVisibility, dict]:
+    """Refine the receiver prims adaptively and compute their visibility factors.
+
+    ``adaptive=False`` traces the input mesh only; ``uniform=True`` splits every face ``max_level`` times
+    instead (the uniform subdivision the adaptive one is compared with).
+    Returns the product and a dict of figures (triangles in/out, iterations, rays).
+    """
+    prims = receiver_prims(scene) if prims is None else np.asarray(prims, np.int32)
+    to_world = enu_to_world(scene.up_axis)
+    n_patch = len(patches)
+    tris = np.flatnonzero(np.isin(scene.tri_prim, prims))
+    used, local = np.unique(scene.tri_vertices[tris], return_inverse=True)
+    points = scene.points[used].astype(np.float64)
+    weld = weld_points(scene.points[used], scene.point_prim[used])
+    triangles = local.reshape(-1, 3).astype(np.int64)
+    source = tris.astype(np.int64)
+    level = np.zeros(len(tris), np.int64)
+    # V is kept quantized (uint8) while refining: 1 byte per factor bounds memory on big meshes.
+    quantized = np.zeros((len(tris), n_patch), np.uint8)
+    exposure = np.zeros(len(tris), np.float64)
+    quant_error = 0.0
+    score = np.zeros(len(tris), np.float64)
+    pending = np.ones(len(tris), bool)
+    area_floor = float(min_area) * scene.diagonal ** 2
+    solid = patches.patch_solid_angles.astype(np.float64)
+    rays_before = tracer.rays_cast
+    next_id = 0
+    ids = np.zeros(len(tris), np.int64)
+    iterations = 0
+    if uniform:  # split every face max_level times, then trace once
+        for _ in range(max_level):
+            result = refine(points, triangles, np.ones(len(triangles), bool), weld=weld)
+            points, weld, triangles = result.points, result.weld, result.triangles
+            source, level = source[result.parent], level[result.parent] + result.halvings
+        quantized = np.zeros((len(triangles), n_patch), np.uint8)
+        exposure = np.zeros(len(triangles), np.float64)
+        score = np.zeros(len(triangles), np.float64)
+        pending = np.ones(len(triangles), bool)
+        ids = np.zeros(len(triangles), np.int64)
+        adaptive = False
+    while True:
+        todo = np.flatnonzero(pending)
+        ids[todo] = next_id + np.arange(len(todo))
+        next_id += len(todo)
+        batch = max(1, PAIRS_PER_BATCH // max(n_patch, 1))
+        for lo in range(0, len(todo), batch):  # batches bound the float32 temporaries
+            part_todo = todo[lo:lo + batch]
+            v, part = compute_patch_visibility(
+                tracer, points[triangles[part_todo]], scene.tri_normals[source[part_todo]], patches, to_world,
+                samples=samples, seed=seed, tri_ids=ids[part_todo] % (2 ** 31 - 1), criterion=criterion)
+            q = np.clip(np.rint(v * QUANT_LEVELS), 0, QUANT_LEVELS).astype(np.uint8)
+            quantized[part_todo] = q
+            exposure[part_todo] = v.astype(np.float64) @ solid / np.pi
+            quant_error = max(quant_error, float(np.abs((q / QUANT_LEVELS - v) @ solid / np.pi).max(initial=0.0)))
+            score[part_todo] = (2.0 if criterion == "share" else 1.0) / np.pi * (part.astype(np.float64) @ solid)
+        pending[:] = False
+        iterations += 1
+        progress(min(0.95, 0.1 * iterations))
+        if not adaptive:
+            break
+        areas, _ = _areas_normals(points, triangles)
+        marked = (score > tolerance) & (areas > area_floor) & (level < 2 * max_level)
+        if not marked.any() or len(triangles) >= max_triangles:
+            break
+        result = refine(points, triangles, marked, weld=weld)
+        points, weld, triangles = result.points, result.weld, result.triangles
+        quantized, exposure, score = quantized[result.parent], exposure[result.parent], score[result.parent]
+        source, ids = source[result.parent], ids[result.parent]
+        level = level[result.parent] + result.halvings
+        pending = result.changed.copy()
+
+    # Faces grouped by prim (stable), so each prim's faces are contiguous and in refinement order.
+    order = np.argsort(scene.tri_prim[source], kind="stable")
+    triangles, source, level = triangles[order], source[order], level[order]
+    quantized, exposure = quantized[order], exposure[order].astype(np.float32)
+    areas, _ = _areas_normals(points, triangles)
+    product = SkyVisibility(
+        face_points=points, face_vertices=triangles.astype(np.int32),
+        face_normals=scene.tri_normals[source].astype(np.float32), face_areas=areas.astype(np.float32),
+        face_source=source.astype(np.int32), face_prim=scene.tri_prim[source].astype(np.int32),
+        face_face=scene.tri_face[source].astype(np.int32), face_level=level.astype(np.int32),
+        visibility=quantized, visibility_scale=1.0 / QUANT_LEVELS, exposure=exposure,
+        patches=patches, to_world=to_world, up_axis=scene.up_axis, prims=prims.astype(np.int32),
+    )
+    stats = {
+        "triangles_in": float(len(tris)), "triangles_out": float(len(triangles)),
+        "iterations": float(iterations), "rays": float(tracer.rays_cast - rays_before),
+        "quantization_error_max": quant_error,
+        "visibility_mb": quantized.nbytes / 2 ** 20,
+    }
+    return product, stats
+
+
+def local_mesh_records(scene: Scene, product: SkyVisibility, prim: int) -> list:
+    """Records authoring the refined mesh of one prim over the original, in its local space."""
+    path = scene.prim_paths[prim]
+    faces = np.flatnonzero(product.face_prim == prim)
+    tri = product.face_vertices[faces]
+    used, inverse = np.unique(tri, return_inverse=True)
+    indices = inverse.reshape(-1, 3)
+    matrix = np.asarray(scene.prim_to_world[prim], np.float64)
+    if np.linalg.det(matrix[:3, :3]) < 0:
+        indices = indices[:, ::-1]  # the scene winding was flipped for a mirroring transform
+    homogeneous = np.c_[product.face_points[used], np.ones(len(used))]
+    try:
+        local = (homogeneous @ np.linalg.inv(matrix))[:, :3]
+    except np.linalg.LinAlgError:
+        local = homogeneous[:, :3]  # singular transform: nothing sensible to invert to
+    _, normals = _areas_normals(local, indices)
+    return [
+        Attribute(path, "points", local.astype(np.float32), "point3f[]"),
+        Attribute(path, "faceVertexCounts", np.full(len(indices), 3, np.int32), "int[]"),
+        Attribute(path, "faceVertexIndices", indices.astype(np.int32).ravel(), "int[]"),
+        Attribute(path, "orientation", "rightHanded", "token", uniform=True),
+        Primvar(path, "normals", normals.astype(np.float32), "normal3f", "uniform"),
+        Primvar(path, "bake:sourceFace", product.face_face[faces].astype(np.int32), "int", "uniform"),
+    ]
+
+
+@register
+class SkyVisibilityProcessor(Processor):
+    name = "sky_visibility"
+    version = "1"
+    summary = "Per-face sky patch visibility with adaptive crack-free refinement (Bosch et al.)."
+    facets = ("geometry",)
+    provides = ("sky_visibility",)
+
+    @dataclass(frozen=True)
+    class Params(Params):
+        patch_layout: str = param("uniform", "sky patches: uniform (equal solid angle), tregenza (145), "
+                                  "reinhart (MF subdivision)", choices=("uniform", "tregenza", "reinhart"))
+        patch_count: int = param(256, "number of patches of the uniform layout", low=1, high=65536)
+        subdivision: int = param(2, "Reinhart MF subdivision (577 patches for 2)", low=1, high=16)
+        samples: int = param(4, "rays per (triangle, patch) pair (rounded to a square)", low=1, high=4096)
+        tolerance: float = param(0.1, "refine a face when its partial-visibility share exceeds this",
+                                 low=0.0, high=1.0)
+        min_area: float = param(1e-5, "smallest face area refined, times the scene diagonal squared",
+                                low=0.0, high=1.0)
+        max_level: int = param(5, "most four-way splits below an input face", low=0, high=16)
+        max_triangles: int = param(500_000, "stop refining at this many faces (V takes faces x patches bytes)",
+                                   low=1)
+        criterion: str = param("share", "refinement test: share (cosine-weighted share of the face's sky that is "
+                               "partly hidden) or any (solid angle of patches with any partial visibility, "
+                               "as the paper)", choices=("share", "any"))
+        seed: int = param(0, "random seed (identical results across thread counts)", low=0)
+
+    def applies(self, scene: Scene) -> tuple[bool, str]:
+        if len(receiver_prims(scene)) == 0:
+            return False, "no writable meshes (all instanced, bake:skip or empty)"
+        return True, ""
+
+    def run(self, ctx: Context) -> Result:
+        scene, p = ctx.scene, ctx.params
+        patches = patch_layout(p.patch_layout, count=p.patch_count, subdivision=p.subdivision)
+        product, stats = compute_sky_visibility(
+            ctx.tracer, scene, patches=patches, samples=p.samples, tolerance=p.tolerance,
+            min_area=p.min_area, max_level=p.max_level, max_triangles=p.max_triangles, seed=p.seed,
+            criterion=p.criterion, progress=ctx.progress)
+        result = Result(products={"sky_visibility": product}, stats=stats)
+        directions = (patches.patch_directions @ product.to_world.T).astype(np.float32)
+        n_patch = len(patches)
+        for prim in product.prims:
+            path = scene.prim_paths[prim]
+            faces = np.flatnonzero(product.face_prim == prim)
+            result.outputs.append(Prim(path, api_schemas=("SkyVisibilityAPI",)))
+            result.outputs.extend(local_mesh_records(scene, product, prim))
+            result.outputs += [
+                Primvar(path, "bake:skyVisibility", product.visibility[faces].ravel(), "uchar", "uniform",
+                        element_size=n_patch),
+                Primvar(path, "bake:skyExposure", product.exposure[faces], "float", "uniform"),
+                Attribute(path, "bake:sky:visibilityScale", float(product.visibility_scale), "float"),
+                Attribute(path, "bake:sky:patchCount", n_patch, "int"),
+                Attribute(path, "bake:sky:patchLayout", patches.layout, "token"),
+                Attribute(path, "bake:sky:subdivision", int(patches.subdivision), "int"),
+                Attribute(path, "bake:sky:patchDirections", directions, "float3[]"),
+                Attribute(path, "bake:sky:patchSolidAngles", patches.patch_solid_angles.astype(np.float32),
+                          "float[]"),
+                Attribute(path, "bake:sky:upAxis", scene.up_axis, "token"),
+            ]
+        ctx.progress(1.0)
+        skipped = int((~scene.prim_writable).sum())
+        if skipped:
+            result.messages.append(f"{skipped} instanced prims occlude but are not refined (read-only in USD)")
+        if stats["triangles_out"] >= p.max_triangles:
+            result.messages.append(f"refinement stopped at max_triangles={p.max_triangles}")
+        return result
