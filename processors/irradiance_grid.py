@@ -1,0 +1,759 @@
+"""Irradiance vector grid: six irradiance vectors per grid vertex, quantized and streamable.
+
+Pacanowski, Raynaud, Granier, Reuter, Schlick, Poulin, "Efficient Streaming
+of 3D Scenes with Complex Geometry and Complex Lighting", Web3D 2008
+(doi:10.1145/1394209.1394214), sections 3 and 4.1.
+
+**Grid.** A regular grid of cubic cells over the scene bounds: ``cell_size``
+stage units, or (``cell_size = 0``) the size that gives at most ``vertices``
+vertices. Each axis has ``n = max(2, ceil(extent / h + 0.5) + 1)`` vertices
+centred on the bounds, so the outer vertices lie between h/4 and 3h/4
+outside the bounds, never on the outer walls. Vertex (i, j, k) has index
+``i + nx * (j + ny * k)`` (x fastest).
+
+**Irradiance vectors** (paper eq. 1, Arvo 1994). For each vertex p and each
+axis hemisphere delta in (+x, -x, +y, -y, +z, -z), per colour channel::
+
+    I_delta(p) = integral_{w . delta > 0} L(p <- w) w dw        (W/m^2, a vector)
+
+Its component along delta is the irradiance of a surface facing delta, its
+direction the mean direction the light comes from; for a uniform sky of radiance L it is
+``pi L delta``. Estimated with ``rays`` stratified uniform sphere directions
+(strata^2, jittered, seeded per vertex), each ray counted in the three
+hemispheres it belongs to with weight 4 pi / N. Incident radiance: an
+escaped ray sees the dome lights (sum of their radiance, textures ignored);
+a ray that hits the front of a triangle (either side if double-sided) sees
+``albedo / pi * E_direct`` with E_direct from one shadow-ray sample per
+light (``kernels/lighting.py``: the light_probes light model), plus the
+triangle's emission only when the stage has no UsdLux lights (a lamp
+modelled as a light and an emissive quad, as in cornell_box.usda, would
+count twice); the back of a single-sided triangle is black. The non-dome
+UsdLux lights (distant, sphere, rect, disk) are added directly
+(``sample_light``): ``rays`` stratified shadow-ray samples each (one for a
+zero-angle distant light), each adding ``L weight w`` (weight = the solid
+angle the sample stands for) to every hemisphere containing w.
+``include_direct = false`` keeps only light reflected once by the scene
+(no dome, no emission, no direct lights): the paper's indirect-only grid,
+for a renderer that adds direct light itself.
+
+**Inside geometry.** A vertex whose rays hit the back of single-sided
+triangles more than half of the time is *invalid* (inside closed geometry);
+its vectors are filled by 3D push-pull (``streaming.push_pull``) from the
+valid ones.
+
+**Quantization** (paper section 3.3). For hemisphere delta with RGB vectors
+``I^R, I^G, I^B``::
+
+    d = (I^R + I^G + I^B) / |I^R + I^G + I^B|      -> 8 bits (kernels/octahedral.py)
+    c = [I^R . delta, I^G . delta, I^B . delta] / (d' . delta)   -> RGB9E5 (kernels/rgb9e5.py)
+
+with ``d'`` the *decoded* direction, so ``M delta = c (d' . delta)`` holds
+exactly for the stored direction (the paper's guarantee, kept through
+quantization). The paper quantizes d on 24 bits; the schema has 8: a
+hemi-octahedral 4 + 4-bit code in delta's frame (at most 8.8 degrees off).
+
+**Reconstruction** (paper section 3.2) at a point p with unit normal n:
+trilinear interpolation of the decoded vectors ``I_delta = c d'`` of the 8
+surrounding vertices, for the three hemispheres chosen by the signs of n,
+then::
+
+    I_n(p) = I_x(p) n_x^2 + I_y(p) n_y^2 + I_z(p) n_z^2
+    E(p, n) = max(0, I_n(p) . n)    per channel (irradiance, W/m^2; eq. 2: L_r = rho / pi E)
+
+The point is moved ``normal_offset`` cells along n first, so a surface
+reads the grid on its lit side rather than half inside the wall it lies on.
+Options beyond the paper (measured in docs/irradiance_grid.md):
+``reconstruction = normalized`` divides E by ``sum |n_a|^3`` (exact for a
+uniform sky too; the paper's formula gives ``pi L sum |n_a|^3``), and
+``behind_cutoff`` drops the trilinear corners behind the surface's plane.
+
+**Streaming** (paper section 4.1, ``streaming.py``): the valid vertices in
+progressive (coarse-to-fine, stratified) order, written to a stream file a
+client can read a prefix of and complete by push-pull.
+
+USD written (bake layer): an ``IrradianceVectorGrid`` at
+``/usdbake/IrradianceGrid`` (``/usdbake`` is a Scope; a root prim, so the
+grid does not depend on the default prim's transform; world space):
+
+====================== ========== ===============================================================
+property               type       value
+====================== ========== ===============================================================
+gridOrigin             point3f    world position of vertex (0, 0, 0)
+cellSize               float3     cell size along x, y, z (stage units)
+resolution             int3       vertices along x, y, z
+directions             uchar[]    6 per vertex (+x, -x, +y, -y, +z, -z), hemi-octahedral code
+colorsRGB9E5           uint[]     6 per vertex, the colour c above
+vectorsPerVertex       int        6
+streamFile             asset      ``usdbake_irradiance_grid_<hash>.bin`` (streaming.py format)
+bake:vertexValid       uchar[]    1 = computed, 0 = inside geometry (filled by push-pull)
+bake:directionEncoding token      ``hemiOctahedral8`` (uniform)
+bake:includeDirect     bool       the include_direct parameter
+bake:rays              int        rays per vertex
+====================== ========== ===============================================================
+
+and on every writable mesh ``primvars:bake:irradianceGrid`` (color3f[],
+vertex): the reconstructed irradiance E at its points with the area-weighted
+vertex normals (``usdbake preview --channel irradianceGrid``).
+
+Product ``irradiance_grid``: an ``IrradianceGrid`` (scene frame).
+
+Parameters
+----------
+================ ===== ======= =============================================================
+name             type  default meaning
+================ ===== ======= =============================================================
+cell_size        float 0       cell size in stage units; 0 = from ``vertices``
+vertices         int   20000   target vertex count when cell_size is 0 (an upper bound)
+rays             int   256     rays per grid vertex (rounded to a square for stratification)
+include_direct   bool  True    store direct light too (false: one-bounce indirect only)
+normal_offset    float 0.5     reconstruction point moved this many cells along the normal
+reconstruction   str   paper   ``paper``: E = I_n . n; ``normalized``: divided by sum |n_a|^3
+behind_cutoff    bool  False   reconstruction ignores grid vertices behind the surface's plane
+smooth           bool  True    pyramidal smoothing in the push-pull fill of invalid vertices
+seed             int   0       random seed (results are identical across thread counts)
+================ ===== ======= =============================================================
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from . import streaming
+from .base import (
+    Attribute,
+    Context,
+    File,
+    Params,
+    Prim,
+    Primvar,
+    Processor,
+    Result,
+    param,
+    register,
+)
+from .geometry import receiver_prims, vertex_normals
+from .kernels.lighting import (
+    Lighting,
+    cone_direction,
+    direct_at,
+    has_light,
+    use_emissive,
+)
+from .kernels.octahedral import AXES, decode_hemisphere, encode_hemisphere
+from .kernels.rgb9e5 import decode_rgb9e5, encode_rgb9e5
+from .kernels.sampling import (
+    concentric_disk,
+    cosine_hemisphere,
+    stratified_pair,
+    tangent_frame,
+)
+from .kernels.sh import uniform_sphere
+from .scene import Scene
+
+wp.set_module_options({"enable_backward": False})
+
+GRID_PRIM = "/usdbake/IrradianceGrid"
+VECTORS_PER_VERTEX = 6
+
+INSIDE_BACK_FRACTION = 0.5
+"""A vertex is inside geometry when more than this fraction of its rays hit single-sided back faces."""
+
+MAX_GRID_VERTICES = 50_000_000
+"""Refuse grids larger than this (a tiny cell_size on a large scene): about 10 GB of float vectors."""
+
+
+# ---------------------------------------------------------------------------
+# Warp
+
+
+@wp.func
+def sample_light(mesh: wp.uint64, p: wp.vec3, kind: int, axis: wp.vec3, position: wp.vec3, size: wp.vec2,
+                 u1: float, u2: float, min_d2: float) -> wp.vec4:
+    """One sample of a non-dome light seen from p: (w, weight * V) with w the unit direction to the
+    sample and weight the solid angle it stands for, so ``L weight w`` estimates the light's vector
+    irradiance ``integral L w dw`` (W/m^2). Distant: a direction in the cone ``angle`` (weight
+    Omega; angle 0: w = -axis, weight 1, the intensity read as irradiance); sphere: a direction in the
+    subtended cone (weight Omega); rect/disk: a point q on the emitter (weight A cos' / d^2)."""
+    w = -axis
+    weight = float(0.0)
+    max_t = float(3.0e38)
+    if kind == 0:
+        half = wp.min(wp.radians(size[0]) * 0.5, wp.pi)
+        weight = 1.0
+        if half > 0.0:
+            w = cone_direction(-axis, wp.cos(half), u1, u2)
+            weight = 2.0 * wp.pi * (1.0 - wp.cos(half))
+    elif kind == 2:
+        r = size[0]
+        to_c = position - p
+        d = wp.length(to_c)
+        if d > r > 0.0:
+            cos_max = wp.sqrt(wp.max(0.0, 1.0 - r * r / (d * d)))
+            w = cone_direction(to_c / d, cos_max, u1, u2)
+            weight = 2.0 * wp.pi * (1.0 - cos_max)
+            b = wp.dot(w, to_c)
+            max_t = b - wp.sqrt(wp.max(0.0, b * b - (d * d - r * r)))
+    elif kind == 3 or kind == 4:
+        frame = tangent_frame(axis)
+        tx = wp.vec3(frame[0, 0], frame[1, 0], frame[2, 0])
+        ty = wp.vec3(frame[0, 1], frame[1, 1], frame[2, 1])
+        q = position
+        area = size[0] * size[1]
+        if kind == 3:
+            q = q + tx * ((u1 - 0.5) * size[0]) + ty * ((u2 - 0.5) * size[1])
+        else:
+            area = wp.pi * size[0] * size[0]
+            dsk = concentric_disk(u1, u2)
+            q = q + tx * (dsk[0] * size[0]) + ty * (dsk[1] * size[0])
+        to_q = q - p
+        d2 = wp.dot(to_q, to_q)
+        if d2 > 0.0:
+            d = wp.sqrt(d2)
+            w = to_q / d
+            cos_l = -wp.dot(axis, w)
+            if cos_l > 0.0:
+                weight = area * cos_l / wp.max(d2, min_d2)
+                max_t = d
+    if weight > 0.0:
+        if wp.mesh_query_ray_anyhit(mesh, p, w, max_t * 0.9999):
+            weight = 0.0
+    return wp.vec4(w[0], w[1], w[2], weight)
+
+
+@wp.func
+def add_to_hemispheres(m: wp.array(dtype=wp.mat33), base: int, w: wp.vec3, o: wp.mat33):
+    """Add o to the (up to) three hemisphere accumulators whose half-space contains w."""
+    if w[0] > 0.0:
+        m[base + 0] = m[base + 0] + o
+    elif w[0] < 0.0:
+        m[base + 1] = m[base + 1] + o
+    if w[1] > 0.0:
+        m[base + 2] = m[base + 2] + o
+    elif w[1] < 0.0:
+        m[base + 3] = m[base + 3] + o
+    if w[2] > 0.0:
+        m[base + 4] = m[base + 4] + o
+    elif w[2] < 0.0:
+        m[base + 5] = m[base + 5] + o
+
+
+@wp.kernel
+def irradiance_vectors_kernel(
+    start: int,
+    mesh: wp.uint64,
+    positions: wp.array(dtype=wp.vec3),
+    strata: int,
+    seed: int,
+    epsilon: float,
+    min_d2: float,
+    include_direct: int,
+    see_emission: int,
+    points: wp.array(dtype=wp.vec3),
+    tri_vertices: wp.array(dtype=wp.vec3i),
+    tri_normals: wp.array(dtype=wp.vec3),
+    tri_albedo: wp.array(dtype=wp.vec3),
+    tri_emission: wp.array(dtype=wp.vec3),
+    tri_double_sided: wp.array(dtype=int),
+    dome_radiance: wp.vec3,
+    light_kind: wp.array(dtype=int), light_radiance: wp.array(dtype=wp.vec3),
+    light_position: wp.array(dtype=wp.vec3), light_direction: wp.array(dtype=wp.vec3),
+    light_size: wp.array(dtype=wp.vec2),
+    emitter_vertices: wp.array(dtype=wp.vec3), emitter_normal: wp.array(dtype=wp.vec3),
+    emitter_radiance: wp.array(dtype=wp.vec3), emitter_area: wp.array(dtype=float),
+    emitter_two_sided: wp.array(dtype=int), emitter_cdf: wp.array(dtype=float),
+    vectors: wp.array(dtype=wp.mat33),
+    back_hits: wp.array(dtype=int),
+):
+    """Vertex i: the six hemisphere irradiance vectors (eq. 1), rows = RGB channels, by strata^2
+    stratified uniform sphere rays (weight 4 pi / N), plus the small lights as point sources."""
+    i = start + wp.tid()
+    p = positions[i]
+    state = wp.rand_init(seed, i)
+    samples = strata * strata
+    weight = 4.0 * wp.pi / float(samples)
+    base = i * 6
+    back = int(0)
+    for k in range(samples):
+        u = stratified_pair(k, strata, state)
+        d = uniform_sphere(u[0], u[1])
+        value = wp.vec3(0.0, 0.0, 0.0)
+        q = wp.mesh_query_ray(mesh, p, d, 3.0e38)
+        if not q.result:
+            if include_direct != 0:
+                value = dome_radiance
+        else:
+            tri = q.face
+            n = tri_normals[tri]
+            front = wp.dot(n, d) < 0.0
+            two_sided = tri_double_sided[tri] != 0
+            if (not front) and (not two_sided):
+                back += 1
+            if (front or two_sided) and wp.length(n) > 0.5:
+                if not front:
+                    n = -n
+                x = p + d * q.t
+                e = direct_at(mesh, x, n, light_kind, light_radiance, light_position, light_direction,
+                              light_size, emitter_vertices, emitter_normal, emitter_radiance, emitter_area,
+                              emitter_two_sided, emitter_cdf, epsilon, min_d2, state)
+                value = wp.cw_mul(tri_albedo[tri], e) / wp.pi
+                if see_emission != 0:
+                    value = value + tri_emission[tri]
+        if wp.length_sq(value) > 0.0:
+            add_to_hemispheres(vectors, base, d, wp.outer(value * weight, d))
+    back_hits[i] = back
+    if include_direct == 0:
+        return
+    for l in range(light_kind.shape[0]):
+        kind = light_kind[l]
+        if kind == 1:  # dome: seen by the escaped rays above
+            continue
+        size = light_size[l]
+        count = samples
+        if kind == 0 and size[0] <= 0.0:
+            count = 1  # a delta light needs one sample
+        for s in range(count):
+            u = wp.vec2(0.5, 0.5)
+            if count > 1:
+                u = stratified_pair(s, strata, state)
+            v = sample_light(mesh, p, kind, light_direction[l], light_position[l], size, u[0], u[1], min_d2)
+            if v[3] > 0.0:
+                w = wp.vec3(v[0], v[1], v[2])
+                add_to_hemispheres(vectors, base, w, wp.outer(light_radiance[l] * (v[3] / float(count)), w))
+
+
+@wp.kernel
+def point_irradiance_kernel(
+    start: int,
+    mesh: wp.uint64,
+    positions: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    strata: int,
+    seed: int,
+    epsilon: float,
+    min_d2: float,
+    include_direct: int,
+    see_emission: int,
+    points: wp.array(dtype=wp.vec3),
+    tri_vertices: wp.array(dtype=wp.vec3i),
+    tri_normals: wp.array(dtype=wp.vec3),
+    tri_albedo: wp.array(dtype=wp.vec3),
+    tri_emission: wp.array(dtype=wp.vec3),
+    tri_double_sided: wp.array(dtype=int),
+    dome_radiance: wp.vec3,
+    light_kind: wp.array(dtype=int), light_radiance: wp.array(dtype=wp.vec3),
+    light_position: wp.array(dtype=wp.vec3), light_direction: wp.array(dtype=wp.vec3),
+    light_size: wp.array(dtype=wp.vec2),
+    emitter_vertices: wp.array(dtype=wp.vec3), emitter_normal: wp.array(dtype=wp.vec3),
+    emitter_radiance: wp.array(dtype=wp.vec3), emitter_area: wp.array(dtype=float),
+    emitter_two_sided: wp.array(dtype=int), emitter_cdf: wp.array(dtype=float),
+    irradiance: wp.array(dtype=wp.vec3),
+):
+    """The brute-force reference: E at point i with normal n by strata^2 cosine-weighted rays
+    (E = pi / N sum L) with the same incident radiance as the grid, plus the small lights as
+    point sources (E = L Omega cos V); ``include_direct`` 0 keeps only the one-bounce light."""
+    i = start + wp.tid()
+    n = normals[i]
+    if wp.length(n) < 0.5:
+        irradiance[i] = wp.vec3(0.0, 0.0, 0.0)
+        return
+    p = positions[i] + n * epsilon
+    state = wp.rand_init(seed, i)
+    frame = tangent_frame(n)
+    total = wp.vec3(0.0, 0.0, 0.0)
+    for k in range(strata * strata):
+        u = stratified_pair(k, strata, state)
+        d = frame * cosine_hemisphere(u[0], u[1])
+        q = wp.mesh_query_ray(mesh, p, d, 3.0e38)
+        if not q.result:
+            if include_direct != 0:
+                total = total + dome_radiance
+        else:
+            tri = q.face
+            tn = tri_normals[tri]
+            front = wp.dot(tn, d) < 0.0
+            if (front or tri_double_sided[tri] != 0) and wp.length(tn) > 0.5:
+                if not front:
+                    tn = -tn
+                x = p + d * q.t
+                e = direct_at(mesh, x, tn, light_kind, light_radiance, light_position, light_direction,
+                              light_size, emitter_vertices, emitter_normal, emitter_radiance, emitter_area,
+                              emitter_two_sided, emitter_cdf, epsilon, min_d2, state)
+                total = total + wp.cw_mul(tri_albedo[tri], e) / wp.pi
+                if see_emission != 0:
+                    total = total + tri_emission[tri]
+    result = total * (wp.pi / float(strata * strata))
+    irradiance[i] = result
+    if include_direct == 0:
+        return
+    for l in range(light_kind.shape[0]):
+        kind = light_kind[l]
+        if kind == 1:
+            continue
+        size = light_size[l]
+        count = strata * strata
+        if kind == 0 and size[0] <= 0.0:
+            count = 1
+        for s in range(count):
+            u = wp.vec2(0.5, 0.5)
+            if count > 1:
+                u = stratified_pair(s, strata, state)
+            v = sample_light(mesh, p, kind, light_direction[l], light_position[l], size, u[0], u[1], min_d2)
+            c = v[0] * n[0] + v[1] * n[1] + v[2] * n[2]
+            if v[3] > 0.0 and c > 0.0:
+                result = result + light_radiance[l] * (v[3] * c / float(count))
+    irradiance[i] = result
+
+
+# ---------------------------------------------------------------------------
+# Grid layout
+
+
+@dataclass(frozen=True)
+class GridLayout:
+    grid_origin: np.ndarray
+    """(3,) float64 position of vertex (0, 0, 0) in the scene frame."""
+    cell_size: np.ndarray
+    """(3,) float64."""
+    resolution: tuple[int, int, int]
+
+    @property
+    def count(self) -> int:
+        return int(np.prod(self.resolution))
+
+    def positions(self) -> np.ndarray:
+        """(V, 3) float32 vertex positions in the scene frame, x fastest."""
+        return (self.grid_origin + streaming.grid_coords(self.resolution) * self.cell_size).astype(np.float32)
+
+
+def _axis_counts(extent: np.ndarray, h: float) -> np.ndarray:
+    return np.maximum(2, np.ceil(extent / h + 0.5).astype(np.int64) + 1)
+
+
+def grid_layout(lo: np.ndarray, hi: np.ndarray, *, cell_size: float = 0.0, vertices: int = 20000) -> GridLayout:
+    """Cubic cells over the box [lo, hi] (module docstring); ``cell_size`` 0 = the largest grid with at
+    most ``vertices`` vertices (bisection on h)."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    extent = np.maximum(hi - lo, 0.0)
+    if cell_size > 0:
+        h = float(cell_size)
+    else:
+        scale = max(float(extent.max()), 1e-30)
+        small, large = scale * 1e-6, scale * 4.0  # large: 2 vertices per axis; small: far too many
+        for _ in range(80):
+            mid = math.sqrt(small * large)
+            if np.prod(_axis_counts(extent, mid).astype(np.float64)) > vertices:
+                small = mid
+            else:
+                large = mid
+        h = large
+    counts = _axis_counts(extent, h)
+    if np.prod(counts.astype(np.float64)) > MAX_GRID_VERTICES:
+        raise ValueError(f"irradiance_grid: cell_size={h:g} gives {int(np.prod(counts.astype(np.float64)))} "
+                         f"vertices (more than {MAX_GRID_VERTICES}); choose a larger cell_size")
+    centre = 0.5 * (lo + hi)
+    cell = np.full(3, h)
+    origin = centre - 0.5 * (counts - 1) * h
+    return GridLayout(origin, cell, tuple(int(c) for c in counts))
+
+
+# ---------------------------------------------------------------------------
+# Compute
+
+
+def strata_for(rays: int) -> int:
+    return max(1, int(round(math.sqrt(rays))))
+
+
+def see_emission(scene: Scene, include_direct: bool) -> int:
+    """1 when rays count the emission of the triangles they hit: direct light is wanted and the
+    stage has no UsdLux lights (a lamp modelled as a light *and* an emissive quad, as in
+    cornell_box.usda, would otherwise count twice; its light comes from the UsdLux light)."""
+    return int(bool(include_direct) and use_emissive(scene))
+
+
+def compute_irradiance_vectors(tracer, scene: Scene, positions: np.ndarray, *, rays: int, seed: int = 0,
+                               include_direct: bool = True, lighting: Lighting | None = None
+                               ) -> tuple[np.ndarray, np.ndarray]:
+    """Irradiance vectors at points (module docstring, paper eq. 1).
+
+    Parameters
+    ----------
+    positions : (N, 3) float32 points in the scene frame
+
+    Returns
+    -------
+    vectors : (N, 6, 3, 3) float32, [point, hemisphere (+x, -x, +y, -y, +z, -z), channel RGB, xyz] (W/m^2)
+    back_fraction : (N,) float32 fraction of rays that hit single-sided triangles from behind
+    """
+    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+    count = len(positions)
+    if count == 0:
+        return np.zeros((0, 6, 3, 3), np.float32), np.zeros(0, np.float32)
+    lighting = lighting or Lighting(tracer, scene)
+    strata = strata_for(rays)
+    vectors = wp.zeros(count * 6, dtype=wp.mat33, device=tracer.device)
+    back = wp.zeros(count, dtype=int, device=tracer.device)
+    tracer.launch(irradiance_vectors_kernel, count, [
+        tracer.mesh.id, tracer.array(positions, wp.vec3), strata, int(seed), tracer.epsilon, lighting.min_d2,
+        int(bool(include_direct)), see_emission(scene, include_direct), *lighting.geometry, lighting.dome,
+        *lighting.lights, *lighting.emitters, vectors, back,
+    ])
+    tracer.rays_cast += count * strata * strata * (1 + lighting.shadow_rays + len(scene.lights))
+    out = np.nan_to_num(vectors.numpy().reshape(count, 6, 3, 3), nan=0.0, posinf=0.0, neginf=0.0)
+    return out.astype(np.float32), (back.numpy() / float(strata * strata)).astype(np.float32)
+
+
+def compute_point_irradiance(tracer, scene: Scene, positions: np.ndarray, normals: np.ndarray, *, rays: int,
+                             seed: int = 0, include_direct: bool = True, lighting: Lighting | None = None
+                             ) -> np.ndarray:
+    """Brute-force irradiance (N, 3) float32 (W/m^2) at surface points with unit normals: the
+    independent reference the grid's reconstruction is measured against (benchmarks, tests)."""
+    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+    normals = np.ascontiguousarray(np.nan_to_num(normals), np.float32).reshape(-1, 3)
+    if len(positions) == 0:
+        return np.zeros((0, 3), np.float32)
+    lighting = lighting or Lighting(tracer, scene)
+    strata = strata_for(rays)
+    out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
+    tracer.launch(point_irradiance_kernel, len(positions), [
+        tracer.mesh.id, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3), strata, int(seed),
+        tracer.epsilon, lighting.min_d2, int(bool(include_direct)), see_emission(scene, include_direct),
+        *lighting.geometry, lighting.dome,
+        *lighting.lights, *lighting.emitters, out,
+    ])
+    tracer.rays_cast += len(positions) * strata * strata * (1 + lighting.shadow_rays)
+    return np.nan_to_num(out.numpy(), nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
+
+
+def quantize_vectors(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Compress (N, 6, 3, 3) vectors to (directions (N, 6) uint8, colors (N, 6) uint32) (paper 3.3)."""
+    vectors = np.nan_to_num(np.asarray(vectors, np.float64).reshape(-1, 6, 3, 3), nan=0.0, posinf=0.0, neginf=0.0)
+    n = len(vectors)
+    hemisphere = np.broadcast_to(np.arange(6), (n, 6)).reshape(-1)
+    total = vectors.sum(axis=2).reshape(-1, 3)  # I^R + I^G + I^B
+    codes = encode_hemisphere(total, hemisphere)
+    decoded = decode_hemisphere(codes, hemisphere).astype(np.float64)
+    axes = AXES[hemisphere].astype(np.float64)
+    along = np.einsum("nci,ni->nc", vectors.reshape(-1, 3, 3), axes)  # I^c . delta
+    cosine = np.einsum("ni,ni->n", decoded, axes)  # >= octahedral.MIN_AXIS_COSINE
+    colors = encode_rgb9e5(np.maximum(along, 0.0) / cosine[:, None])
+    return codes.reshape(n, 6), colors.reshape(n, 6)
+
+
+def dequantize_vectors(directions: np.ndarray, colors: np.ndarray) -> np.ndarray:
+    """(N, 6) uint8 + (N, 6) uint32 -> (N, 6, 3, 3) float32 vectors c d' (rows = RGB)."""
+    directions = np.asarray(directions, np.uint8).reshape(-1, 6)
+    n = len(directions)
+    hemisphere = np.broadcast_to(np.arange(6), (n, 6)).reshape(-1)
+    d = decode_hemisphere(directions.reshape(-1), hemisphere)
+    c = decode_rgb9e5(np.asarray(colors, np.uint32).reshape(-1))
+    return (c[:, :, None] * d[:, None, :]).reshape(n, 6, 3, 3).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class IrradianceGrid:
+    """A baked grid (scene frame)."""
+
+    layout: GridLayout
+    directions: np.ndarray
+    """(V, 6) uint8 hemi-octahedral codes."""
+    colors: np.ndarray
+    """(V, 6) uint32 RGB9E5."""
+    vertex_valid: np.ndarray
+    """(V,) bool: computed (True) or inside geometry and filled by push-pull (False)."""
+    vectors: np.ndarray
+    """(V, 6, 3, 3) float32 unquantized vectors (invalid vertices filled), for error measurements."""
+
+    def decoded(self) -> np.ndarray:
+        return dequantize_vectors(self.directions, self.colors)
+
+
+def fill_invalid(vectors: np.ndarray, resolution, valid: np.ndarray, *, smooth: bool = True) -> np.ndarray:
+    """(V, 6, 3, 3): invalid vertices replaced by push-pull of the valid ones."""
+    shape = vectors.shape
+    if valid.all():
+        return vectors
+    filled = streaming.push_pull(vectors.reshape(len(vectors), -1), resolution, valid, smooth=smooth)
+    return filled.reshape(shape).astype(np.float32)
+
+
+def bake_grid(tracer, scene: Scene, layout: GridLayout, *, rays: int, seed: int = 0, include_direct: bool = True,
+              smooth: bool = True, progress=lambda f: None) -> IrradianceGrid:
+    """Compute, fill and quantize the grid (module docstring)."""
+    vectors, back = compute_irradiance_vectors(tracer, scene, layout.positions(), rays=rays, seed=seed,
+                                               include_direct=include_direct)
+    progress(0.8)
+    valid = back <= INSIDE_BACK_FRACTION
+    # Fill from the dequantized valid vertices, as a client completing the full stream does.
+    directions, colors = quantize_vectors(vectors)
+    received = dequantize_vectors(directions, colors)
+    if not valid.all():
+        filled = fill_invalid(received, layout.resolution, valid, smooth=smooth)
+        fd, fc = quantize_vectors(filled[~valid])
+        directions[~valid], colors[~valid] = fd, fc
+        vectors = fill_invalid(vectors, layout.resolution, valid, smooth=smooth)
+    return IrradianceGrid(layout, directions, colors, valid, vectors)
+
+
+def trilinear(layout: GridLayout, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Corner vertex indices (N, 8) int64 and weights (N, 8) float64 of points (N, 3) (clamped to the grid)."""
+    points = np.nan_to_num(np.asarray(points, np.float64).reshape(-1, 3))
+    res = np.asarray(layout.resolution, np.int64)
+    g = (points - layout.grid_origin) / layout.cell_size
+    g = np.clip(g, 0.0, res - 1)
+    i0 = np.minimum(np.floor(g).astype(np.int64), np.maximum(res - 2, 0))
+    t = np.where(res > 1, g - i0, 0.0)
+    i1 = np.minimum(i0 + 1, res - 1)
+    index = np.empty((len(points), 8), np.int64)
+    weight = np.empty((len(points), 8), np.float64)
+    for corner in range(8):
+        bits = [(corner >> a) & 1 for a in range(3)]
+        c = np.stack([i1[:, a] if bits[a] else i0[:, a] for a in range(3)], axis=1)
+        index[:, corner] = c[:, 0] + res[0] * (c[:, 1] + res[1] * c[:, 2])
+        weight[:, corner] = np.prod([t[:, a] if bits[a] else 1.0 - t[:, a] for a in range(3)], axis=0)
+    return index, weight
+
+
+RECONSTRUCTIONS = ("paper", "normalized")
+
+
+def reconstruct_irradiance(layout: GridLayout, vectors: np.ndarray, points: np.ndarray, normals: np.ndarray, *,
+                           normal_offset: float = 0.5, reconstruction: str = "paper",
+                           behind_cutoff: bool = False) -> np.ndarray:
+    """Irradiance E(p, n) (N, 3) float32 (W/m^2) from grid vectors (V, 6, 3, 3) (paper 3.2, module docstring).
+
+    reconstruction : "paper" (E = I_n . n) or "normalized" (E = I_n . n / sum |n_a|^3: exact for a
+        uniform sky as well as along the axes). Points with a zero normal get 0.
+    behind_cutoff : drop the trilinear corners that lie behind the surface's plane at p
+        ((corner - p) . n < 0) and renormalize the others (plain trilinear when all are behind).
+    """
+    if reconstruction not in RECONSTRUCTIONS:
+        raise ValueError(f"reconstruction={reconstruction!r} is not one of {list(RECONSTRUCTIONS)}")
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    normals = np.nan_to_num(np.asarray(normals, np.float64).reshape(-1, 3))
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    ok = length[:, 0] > 0.5
+    n = np.where(ok[:, None], normals / np.where(length > 0, length, 1.0), 0.0)
+    query = points + n * (normal_offset * float(np.min(layout.cell_size)))
+    index, weight = trilinear(layout, query)
+    if behind_cutoff:
+        corners = layout.grid_origin + streaming.grid_coords(layout.resolution)[index] * layout.cell_size
+        front = np.einsum("nki,ni->nk", corners - points[:, None, :], n) >= 0.0
+        kept = (weight * front).sum(axis=1, keepdims=True)
+        weight = np.where(kept > 0, weight * front / np.where(kept > 0, kept, 1.0), weight)
+    vectors = np.asarray(vectors, np.float32).reshape(-1, 6, 3, 3)
+    result = np.zeros((len(points), 3))
+    for axis in range(3):
+        hemisphere = 2 * axis + (n[:, axis] < 0)
+        interp = np.zeros((len(points), 3, 3))
+        for corner in range(8):
+            interp += weight[:, corner, None, None] * vectors[index[:, corner], hemisphere]
+        result += (n[:, axis] ** 2)[:, None] * np.einsum("nci,ni->nc", interp, n)
+    if reconstruction == "normalized":
+        result /= np.maximum((np.abs(n) ** 3).sum(axis=1), 1.0 / 3.0 ** 0.5)[:, None]
+    result = np.where(ok[:, None], np.maximum(result, 0.0), 0.0)
+    return result.astype(np.float32)
+
+
+# ---------------------------------------------------------------------------
+# The processor
+
+
+def grid_records(grid: IrradianceGrid, origin: np.ndarray, stream_file: str, *, rays: int,
+                 include_direct: bool) -> list:
+    """Prim and attribute records of the IrradianceVectorGrid at GRID_PRIM (world space)."""
+    path = GRID_PRIM
+    layout = grid.layout
+    world = (layout.grid_origin + np.asarray(origin, np.float64)).astype(np.float32)
+    return [
+        Prim("/usdbake", "Scope"), Prim(path, "IrradianceVectorGrid"),
+        Attribute(path, "gridOrigin", world, "point3f"),
+        Attribute(path, "cellSize", layout.cell_size.astype(np.float32), "float3"),
+        Attribute(path, "resolution", np.asarray(layout.resolution, np.int32), "int3"),
+        Attribute(path, "directions", grid.directions.reshape(-1), "uchar[]"),
+        Attribute(path, "colorsRGB9E5", grid.colors.reshape(-1), "uint[]"),
+        Attribute(path, "vectorsPerVertex", VECTORS_PER_VERTEX, "int"),
+        Attribute(path, "streamFile", stream_file, "asset"),
+        Attribute(path, "bake:vertexValid", grid.vertex_valid.astype(np.uint8), "uchar[]"),
+        Attribute(path, "bake:directionEncoding", "hemiOctahedral8", "token", uniform=True),
+        Attribute(path, "bake:includeDirect", bool(include_direct), "bool"),
+        Attribute(path, "bake:rays", int(rays), "int"),
+    ]
+
+
+def stream_bytes(grid: IrradianceGrid, origin: np.ndarray) -> bytes:
+    """The stream file of the grid's valid vertices in progressive order."""
+    layout = grid.layout
+    order = streaming.progressive_order(layout.resolution)
+    order = order[grid.vertex_valid[order]]
+    return streaming.encode_stream(layout.resolution, layout.grid_origin + np.asarray(origin, np.float64),
+                                   layout.cell_size, order, grid.directions, grid.colors)
+
+
+@register
+class IrradianceGridProcessor(Processor):
+    name = "irradiance_grid"
+    version = "1"
+    summary = "Irradiance vector grid: 6 vectors per vertex, 8-bit direction + RGB9E5, progressive stream."
+    facets = ("geometry", "materials", "lights")
+    provides = ("irradiance_grid",)
+
+    @dataclass(frozen=True)
+    class Params(Params):
+        cell_size: float = param(0.0, "cell size in stage units; 0 = from vertices", low=0.0)
+        vertices: int = param(20000, "target vertex count when cell_size is 0 (an upper bound)", low=8,
+                              high=MAX_GRID_VERTICES)
+        rays: int = param(256, "rays per grid vertex (rounded to a square for stratification)", low=1,
+                          high=1_000_000)
+        include_direct: bool = param(True, "store direct light too (false: one-bounce indirect only)")
+        normal_offset: float = param(0.5, "reconstruction point moved this many cells along the normal",
+                                     low=0.0, high=4.0)
+        reconstruction: str = param("paper", "E = I_n . n (paper) or divided by sum |n_a|^3 (normalized)",
+                                    choices=RECONSTRUCTIONS)
+        behind_cutoff: bool = param(False, "reconstruction ignores grid vertices behind the surface's plane")
+        smooth: bool = param(True, "pyramidal smoothing in the push-pull fill of invalid vertices")
+        seed: int = param(0, "random seed (identical results across thread counts)", low=0, high=2**31 - 1)
+
+    def applies(self, scene: Scene) -> tuple[bool, str]:
+        if scene.num_triangles == 0:
+            return False, "no geometry"
+        if not has_light(scene):
+            return False, "no lights (no UsdLux light with radiance and no emissive triangle)"
+        return True, ""
+
+    def run(self, ctx: Context) -> Result:
+        scene, p = ctx.scene, ctx.params
+        lo, hi = scene.bounds
+        layout = grid_layout(lo, hi, cell_size=p.cell_size, vertices=p.vertices)
+        ctx.progress(0.0)
+        grid = bake_grid(ctx.tracer, scene, layout, rays=p.rays, seed=p.seed, include_direct=p.include_direct,
+                         smooth=p.smooth, progress=ctx.progress)
+        data = stream_bytes(grid, scene.origin)
+        stream_file = f"usdbake_irradiance_grid_{hashlib.sha256(data).hexdigest()[:10]}.bin"
+        outputs = [*grid_records(grid, scene.origin, stream_file, rays=strata_for(p.rays) ** 2,
+                                 include_direct=p.include_direct), File(stream_file, data)]
+        receivers = receiver_prims(scene)
+        normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
+        decoded = grid.decoded()
+        for prim in receivers:
+            sl = scene.prim_points(prim)
+            values = reconstruct_irradiance(layout, decoded, scene.points[sl], normals[sl],
+                                            normal_offset=p.normal_offset, reconstruction=p.reconstruction,
+                                            behind_cutoff=p.behind_cutoff)
+            outputs.append(Primvar(scene.prim_paths[prim], "bake:irradianceGrid", values, "color3f", "vertex"))
+        ctx.progress(1.0)
+        v = layout.count
+        stats = {"rays": float(v * strata_for(p.rays) ** 2), "vertices": float(v), "valid_vertices": float(grid.vertex_valid.sum()),
+                 "cell_size": float(layout.cell_size[0]), "stream_bytes": float(len(data)),
+                 "quantized_bytes": float(v * VECTORS_PER_VERTEX * 5),
+                 "float_bytes": float(v * VECTORS_PER_VERTEX * 9 * 4)}
+        messages = []
+        invalid = v - int(grid.vertex_valid.sum())
+        if invalid:
+            messages.append(f"{invalid} of {v} grid vertices are inside geometry (filled by push-pull)")
+        return Result(products={"irradiance_grid": grid}, outputs=outputs, stats=stats, messages=messages)

@@ -1,0 +1,394 @@
+"""irradiance_grid: irradiance vectors against closed forms (uniform sky, a distant light, a shadow),
+quantization (the paper's exactness along delta kept through 8-bit directions and RGB9E5), the
+reconstruction formula, inside-geometry vertices, determinism across thread counts, degenerate
+geometry, applies()/params, and an end-to-end bake through USD with its stream file."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from usdbake.processors import irradiance_grid as ig
+from usdbake.processors import streaming
+from usdbake.processors.base import Context, ParamError
+from usdbake.processors.kernels import octahedral as oct8
+from usdbake.processors.kernels.rgb9e5 import RELATIVE_ERROR
+from usdbake.processors.scene import (
+    LIGHT_DISTANT,
+    LIGHT_DOME,
+    LIGHT_SPHERE,
+    Lights,
+    Scene,
+)
+from usdbake.processors.tracer import Tracer
+
+REPO = Path(__file__).resolve().parents[1]
+
+SIGMAS = 4.0
+"""Monte Carlo tolerances: SIGMAS i.i.d. standard deviations (stratified sampling has less variance)."""
+
+FLOAT32 = 1e-5
+"""Relative tolerance for float32 sums of a few hundred terms and float32 geometry."""
+
+
+# -- scenes built without pxr -------------------------------------------------------------------
+
+
+def quad(corner, u, v, *, flip=False):
+    c, u, v = (np.asarray(a, np.float32) for a in (corner, u, v))
+    points = np.array([c, c + u, c + u + v, c + v], np.float32)
+    tris = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    return points, tris[:, ::-1] if flip else tris
+
+
+def cube(lo, hi, *, inward=False):
+    lo, hi = np.asarray(lo, np.float32), np.asarray(hi, np.float32)
+    ex, ey, ez = np.diag(hi - lo).astype(np.float32)
+    faces = [quad(lo, ey, ex), quad(lo + ez, ex, ey), quad(lo, ex, ez), quad(lo + ey, ez, ex),
+             quad(lo, ez, ey), quad(lo + ex, ey, ez)]
+    return merge([(p, t[:, ::-1] if inward else t) for p, t in faces])
+
+
+def merge(parts):
+    points, tris, base = [], [], 0
+    for p, t in parts:
+        points.append(p)
+        tris.append(t + base)
+        base += len(p)
+    return np.concatenate(points), np.concatenate(tris)
+
+
+def make_scene(points, tris, *, albedo=0.5, emission=None, lights=None) -> Scene:
+    points = np.asarray(points, np.float32)
+    tris = np.asarray(tris, np.int32)
+    p = points[tris].astype(np.float64)
+    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(cross, axis=1)
+    normals = np.divide(cross, length[:, None], out=np.zeros_like(cross), where=length[:, None] > 0)
+    t = len(tris)
+    return Scene(
+        points=points, tri_vertices=tris, tri_normals=normals.astype(np.float32),
+        tri_areas=(0.5 * length).astype(np.float32),
+        tri_albedo=np.broadcast_to(np.asarray(albedo, np.float32), (t, 3)).copy(),
+        tri_emission=np.zeros((t, 3), np.float32) if emission is None else np.asarray(emission, np.float32),
+        tri_prim=np.zeros(t, np.int32), tri_face=np.arange(t, dtype=np.int32), tri_instance=np.full(t, -1, np.int32),
+        tri_double_sided=np.zeros(t, bool), point_prim=np.zeros(len(points), np.int32), prim_paths=("/World/Mesh",),
+        prim_point_start=np.array([0, len(points)], np.int64), prim_face_count=np.array([t], np.int32),
+        prim_writable=np.ones(1, bool), prim_skip=np.zeros(1, bool), prim_surface=("",),
+        lights=lights or Lights(),
+    )
+
+
+def make_lights(*rows) -> Lights:
+    """rows: (kind, radiance rgb, position, direction, size)."""
+    return Lights(
+        light_paths=tuple(f"/World/Light{i}" for i in range(len(rows))),
+        light_kind=np.array([r[0] for r in rows], np.int32),
+        light_radiance=np.array([r[1] for r in rows], np.float32).reshape(-1, 3),
+        light_position=np.array([r[2] for r in rows], np.float32).reshape(-1, 3),
+        light_direction=np.array([r[3] for r in rows], np.float32).reshape(-1, 3),
+        light_size=np.array([r[4] for r in rows], np.float32).reshape(-1, 2),
+    )
+
+
+def far_speck():
+    """A tiny triangle far away: a Tracer needs geometry, this one is (almost) never hit."""
+    return quad([1e3, 1e3, 1e3], [1e-3, 0, 0], [0, 1e-3, 0])
+
+
+def run(scene: Scene, threads: int | None = None, **params):
+    tracer = Tracer.from_scene(scene, threads=threads)
+    processor = ig.IrradianceGridProcessor()
+    return processor.run(Context(scene, processor.Params(**params), tracer)), tracer
+
+
+# -- irradiance vectors ----------------------------------------------------------------------------
+
+
+def test_uniform_sky_gives_pi_l_along_each_axis():
+    """Unoccluded uniform radiance L: integral over hemisphere delta of L w dw = pi L delta."""
+    dome = np.array([0.2, 0.5, 1.0])
+    scene = make_scene(*far_speck(), lights=make_lights((LIGHT_DOME, dome, (0, 0, 0), (0, 0, -1), (0, 0))))
+    rays = 16384
+    vectors, back = ig.compute_irradiance_vectors(Tracer.from_scene(scene), scene, np.zeros((2, 3)), rays=rays,
+                                                  seed=3)
+    assert (back == 0).all()
+    # i.i.d. std of one component of 4 pi L w 1[w.delta > 0] is at most 4 pi L / sqrt(3 N).
+    tol = SIGMAS * 4 * math.pi * dome.max() / math.sqrt(3 * rays)
+    expected = math.pi * dome[None, :, None] * oct8.AXES[:, None, :]  # (6, 3 channels, 3)
+    for v in vectors:
+        np.testing.assert_allclose(v, expected, atol=tol)
+    # Quantized: every direction decodes within the code's bound of its axis, and the paper's
+    # guarantee M delta = c (d' . delta) = I . delta holds to RGB9E5 precision.
+    directions, colors = ig.quantize_vectors(vectors)
+    decoded = ig.dequantize_vectors(directions, colors)
+    along = np.einsum("vhci,hi->vhc", decoded, oct8.AXES)
+    truth = np.einsum("vhci,hi->vhc", vectors, oct8.AXES)
+    # RGB9E5 shares one exponent: the error bound is relative to the largest channel.
+    assert np.all(np.abs(along - truth) <= RELATIVE_ERROR * truth.max(axis=2, keepdims=True) * (1 + FLOAT32))
+
+
+def test_single_distant_light_gives_vectors_along_the_light():
+    """A zero-angle distant light of irradiance E from w: I_delta = E w in the three hemispheres
+    containing w, zero in the others (no sampling involved: exact up to float32)."""
+    w = np.array([0.48, 0.6, 0.64])
+    w /= np.linalg.norm(w)
+    e = np.array([3.0, 2.0, 1.0])
+    scene = make_scene(*far_speck(), lights=make_lights((LIGHT_DISTANT, e, (0, 0, 0), -w, (0, 0))))
+    vectors, _ = ig.compute_irradiance_vectors(Tracer.from_scene(scene), scene, np.zeros((1, 3)), rays=16)
+    for h, axis in enumerate(oct8.AXES):
+        expected = np.outer(e, w) if axis @ w > 0 else np.zeros((3, 3))
+        np.testing.assert_allclose(vectors[0, h], expected, rtol=FLOAT32, atol=FLOAT32)
+    directions, colors = ig.quantize_vectors(vectors)
+    decoded = ig.dequantize_vectors(directions, colors)[0]
+    for h in (0, 2, 4):
+        d = decoded[h].sum(axis=0)
+        assert math.degrees(math.acos(min(1.0, d @ w / np.linalg.norm(d)))) <= oct8.MAX_ANGLE_ERROR_DEG
+        np.testing.assert_allclose(decoded[h] @ oct8.AXES[h], e * (w @ oct8.AXES[h]),
+                                   atol=RELATIVE_ERROR * e.max() * (w @ oct8.AXES[h]) * (1 + FLOAT32))
+
+
+def test_shadowed_distant_light_gives_nothing():
+    w = np.array([0.0, 0.0, 1.0])
+    blocker = quad([-5, -5, 1], [10, 0, 0], [0, 10, 0], flip=True)  # faces down, over the point
+    scene = make_scene(*blocker, albedo=0.0, lights=make_lights((LIGHT_DISTANT, [1, 1, 1], (0, 0, 0), -w, (0, 0))))
+    vectors, _ = ig.compute_irradiance_vectors(Tracer.from_scene(scene), scene, np.zeros((1, 3)), rays=64)
+    np.testing.assert_array_equal(vectors, 0.0)
+
+
+def test_indirect_only_drops_the_light_but_keeps_its_bounce():
+    """Sun over a ground of albedo rho: with include_direct off, the +z vector vanishes and the -z
+    vector holds the ground's reflected light, E(-z) = rho E_s cos(theta) (an infinite Lambertian
+    plane of radiance rho E cos / pi under the point)."""
+    w = np.array([0.0, 0.6, 0.8])
+    ground = quad([-1e3, -1e3, 0], [2e3, 0, 0], [0, 2e3, 0])
+    rho = 0.5
+    scene = make_scene(*ground, albedo=rho, lights=make_lights((LIGHT_DISTANT, [2, 2, 2], (0, 0, 0), -w, (0, 0))))
+    rays = 4096
+    v_all, _ = ig.compute_irradiance_vectors(Tracer.from_scene(scene), scene, np.array([[0, 0, 1.0]]), rays=rays)
+    v_ind, _ = ig.compute_irradiance_vectors(Tracer.from_scene(scene), scene, np.array([[0, 0, 1.0]]), rays=rays,
+                                             include_direct=False)
+    np.testing.assert_allclose(v_ind[0, 4], 0.0, atol=1e-7)
+    np.testing.assert_allclose(v_all[0, 4] @ [0, 0, 1], 2 * 0.8, rtol=FLOAT32)
+    radiance = rho * 2 * 0.8 / math.pi
+    tol = SIGMAS * 4 * math.pi * radiance / math.sqrt(3 * rays)
+    np.testing.assert_allclose(-v_ind[0, 5] @ [0, 0, -1], -math.pi * radiance, atol=tol)
+    np.testing.assert_allclose(v_ind[0, 5], v_all[0, 5], rtol=FLOAT32)
+
+
+# -- reconstruction ---------------------------------------------------------------------------------
+
+
+def uniform_grid(radiance=1.0):
+    layout = ig.GridLayout(np.zeros(3), np.ones(3), (2, 2, 2))
+    vectors = np.broadcast_to(math.pi * radiance * oct8.AXES[None, :, None, :], (8, 6, 3, 3)).copy()
+    return layout, vectors
+
+
+def random_normals(n, seed):
+    d = np.random.default_rng(seed).normal(size=(n, 3))  # fixed seed
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_paper_reconstruction_closed_form_for_a_uniform_sky():
+    """Paper 3.2: I_n = sum_a I_a n_a^2, E = I_n . n; with I_a = pi L delta_a, E = pi L sum |n_a|^3:
+    exact along the axes, pi L / sqrt(3) on the diagonals."""
+    layout, vectors = uniform_grid()
+    n = random_normals(500, 1)
+    points = np.random.default_rng(2).random((500, 3))
+    e = ig.reconstruct_irradiance(layout, vectors, points, n, normal_offset=0.0)
+    np.testing.assert_allclose(e, np.repeat((math.pi * (np.abs(n) ** 3).sum(axis=1))[:, None], 3, 1), rtol=FLOAT32)
+    axes = ig.reconstruct_irradiance(layout, vectors, np.full((6, 3), 0.5), oct8.AXES, normal_offset=0.0)
+    np.testing.assert_allclose(axes, math.pi, rtol=FLOAT32)
+    normalized = ig.reconstruct_irradiance(layout, vectors, points, n, normal_offset=0.0, reconstruction="normalized")
+    np.testing.assert_allclose(normalized, math.pi, rtol=FLOAT32)
+
+
+def test_reconstruction_is_trilinear_and_zero_normals_give_zero():
+    layout = ig.GridLayout(np.zeros(3), np.full(3, 2.0), (2, 2, 2))
+    coords = streaming.grid_coords(layout.resolution).astype(np.float64)
+    value = 1.0 + coords @ [1.0, 2.0, 3.0]  # linear in the vertex coordinates
+    vectors = np.zeros((8, 6, 3, 3))
+    vectors[:, 4, :, 2] = value[:, None]  # +z hemisphere, along +z
+    points = np.random.default_rng(3).random((50, 3)) * 2.0
+    e = ig.reconstruct_irradiance(layout, vectors, points, np.tile([0, 0, 1.0], (50, 1)), normal_offset=0.0)
+    np.testing.assert_allclose(e[:, 0], 1.0 + points / 2.0 @ [1.0, 2.0, 3.0], rtol=FLOAT32)
+    zero = ig.reconstruct_irradiance(layout, vectors, points[:2], np.array([[0, 0, 0], [np.nan, 0, 0]]))
+    np.testing.assert_array_equal(zero, 0.0)
+    with pytest.raises(ValueError):
+        ig.reconstruct_irradiance(layout, vectors, points, points, reconstruction="bogus")
+
+
+def test_sunlit_ground_end_to_end_matches_the_closed_form():
+    """A ground plane (z = 0) under a zero-angle sun of irradiance E_s from w: the grid's +z vectors
+    above the ground hold E_s w, so the ground reads E = E_s cos(theta) (RGB9E5 precision)."""
+    w = np.array([0.3, 0.0, 0.9539392])
+    ground_p, ground_t = quad([-2, -2, 0], [4, 0, 0], [0, 4, 0])
+    scene = make_scene(ground_p, ground_t, albedo=0.3,
+                       lights=make_lights((LIGHT_DISTANT, [4, 4, 4], (0, 0, 0), -w, (0, 0))))
+    result, _ = run(scene, vertices=200, rays=16)
+    grid = result.products["irradiance_grid"]
+    assert grid.vertex_valid.all()
+    (primvar,) = [r for r in result.outputs if getattr(r, "name", "") == "bake:irradianceGrid"]
+    assert primvar.interpolation == "vertex" and primvar.type_name == "color3f"
+    np.testing.assert_allclose(primvar.values, 4 * w[2], rtol=RELATIVE_ERROR * (1 + FLOAT32))
+
+
+# -- grid, inside geometry, determinism, degenerate input ------------------------------------------
+
+
+def test_grid_layout_bounds_and_target_count():
+    layout = ig.grid_layout(np.array([0, 0, 0.0]), np.array([10, 5, 2.0]), vertices=20000)
+    assert 10000 <= layout.count <= 20000
+    lo = layout.grid_origin
+    hi = lo + (np.asarray(layout.resolution) - 1) * layout.cell_size
+    h = layout.cell_size[0]
+    # Outer vertices lie between h/4 and 3h/4 outside the bounds.
+    assert np.all(-lo >= h / 4 - 1e-9) and np.all(-lo <= 3 * h / 4 + 1e-9)
+    assert np.all(hi - [10, 5, 2] >= h / 4 - 1e-9)
+    fixed = ig.grid_layout(np.zeros(3), np.ones(3), cell_size=0.25)
+    assert fixed.resolution == (6, 6, 6)
+    flat = ig.grid_layout(np.zeros(3), np.array([1.0, 1.0, 0.0]), vertices=100)
+    assert flat.resolution[2] == 2 and flat.count <= 100
+    with pytest.raises(ValueError, match="cell_size"):
+        ig.grid_layout(np.zeros(3), np.full(3, 1e4), cell_size=1e-3)
+
+
+def test_vertices_inside_closed_geometry_are_flagged_and_filled():
+    room = cube([-3, -3, -3], [3, 3, 3], inward=True)
+    block = cube([-1, -1, -1], [1, 1, 1])  # closed, faces outward
+    points, tris = merge([room, block])
+    scene = make_scene(points, tris, albedo=0.5,
+                       lights=make_lights((LIGHT_SPHERE, [50, 50, 50], (2, 2, 2), (0, 0, -1), (0.2, 0))))
+    result, _ = run(scene, cell_size=0.5, rays=64)
+    grid = result.products["irradiance_grid"]
+    positions = grid.layout.positions()
+    inside_block = (np.abs(positions) < 0.99).all(axis=1)
+    outside_room = (np.abs(positions) > 3.01).any(axis=1)
+    free = ~inside_block & ~outside_room & ((np.abs(np.abs(positions) - 1) > 0.01).any(axis=1))
+    assert not grid.vertex_valid[inside_block].any()
+    # Outside the inward-facing room, fewer than half of the rays meet its back faces: valid (and dark).
+    assert grid.vertex_valid[outside_room].mean() > 0.9
+    assert grid.vertex_valid[free & (np.abs(positions) > 1.01).any(axis=1) & (np.abs(positions) < 2.99).all(axis=1)
+                             ].all()
+    decoded = grid.decoded()
+    assert np.isfinite(decoded).all()
+    # Filled vertices lie within the range of the computed ones (push-pull is a convex fill).
+    valid = decoded[grid.vertex_valid]
+    assert decoded.max() <= valid.max() * (1 + 2 * RELATIVE_ERROR) + 1e-6
+    assert any("inside geometry" in m for m in result.messages)
+
+
+def test_determinism_across_thread_counts():
+    """Over 2 * MIN_CHUNK vertices so the launch is really split across threads."""
+    room = cube([-3, -3, -3], [3, 3, 3], inward=True)
+    scene = make_scene(*room, lights=make_lights((LIGHT_SPHERE, [20, 20, 20], (1, 1, 1), (0, 0, -1), (0.2, 0))))
+    one, _ = run(scene, threads=1, vertices=12000, rays=4)
+    two, _ = run(scene, threads=2, vertices=12000, rays=4)
+    a, b = one.products["irradiance_grid"], two.products["irradiance_grid"]
+    assert a.layout.count > 8192
+    np.testing.assert_array_equal(a.directions, b.directions)
+    np.testing.assert_array_equal(a.colors, b.colors)
+
+
+def test_degenerate_geometry_gives_finite_outputs():
+    """Zero-area and collinear triangles, a huge-coordinate offset, one flat triangle."""
+    points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 2, 2], [2, 2, 2], [2, 2, 2], [0, 0, 0], [1, 1, 1],
+                       [2, 2, 2]], np.float32) + 1e6
+    tris = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]], np.int32)
+    scene = make_scene(points - 1e6, tris, emission=np.array([[1, 1, 1], [5, 5, 5], [0, 0, 0]], np.float32),
+                       lights=make_lights((LIGHT_DOME, [1, 1, 1], (0, 0, 0), (0, 0, -1), (0, 0))))
+    result, _ = run(scene, vertices=64, rays=16)
+    for record in result.outputs:
+        values = getattr(record, "values", getattr(record, "value", None))
+        if isinstance(values, np.ndarray) and values.dtype.kind == "f":
+            assert np.isfinite(values).all(), record.name
+    assert np.isfinite(result.products["irradiance_grid"].decoded()).all()
+
+
+def test_applies_and_params():
+    points, tris = quad([0, 0, 0], [1, 0, 0], [0, 1, 0])
+    ok, reason = ig.IrradianceGridProcessor().applies(make_scene(points, tris))
+    assert not ok and "no lights" in reason
+    dark = make_scene(points, tris, lights=make_lights((LIGHT_DOME, [0, 0, 0], (0, 0, 0), (0, 0, -1), (0, 0))))
+    assert not ig.IrradianceGridProcessor().applies(dark)[0]
+    emissive = make_scene(points, tris, emission=np.ones((2, 3), np.float32))
+    assert ig.IrradianceGridProcessor().applies(emissive)[0]
+    for bad in ({"rays": 0}, {"vertices": 2}, {"cell_size": -1.0}, {"normal_offset": -0.1},
+                {"reconstruction": "cubic"}):
+        with pytest.raises(ParamError):
+            ig.IrradianceGridProcessor.Params(**bad)
+
+
+# -- end to end through USD ------------------------------------------------------------------------
+
+
+def test_end_to_end_small_stage(tmp_path):
+    from pxr import Gf, Usd, UsdLux
+    from stage_builders import add_mesh, new_stage
+    from usdbake.stages.cli import main
+    from usdbake.stages.preview import grid_spheres
+
+    stage = new_stage(up_axis="Z")
+    room_p, room_t = cube([-3, -3, 0], [3, 3, 3], inward=True)
+    box_p, box_t = cube([-1, -1, 0], [1, 1, 1])
+    points, tris = merge([(room_p, room_t), (box_p, box_t)])
+    add_mesh(stage, "/World/Room", points.tolist(), [3] * len(tris), tris.ravel().tolist())
+    lamp = UsdLux.SphereLight.Define(stage, "/World/Lamp")
+    lamp.CreateRadiusAttr(0.1)
+    lamp.CreateIntensityAttr(100.0)
+    lamp.AddTranslateOp().Set(Gf.Vec3d(1.5, 1.5, 2.5))
+    source = tmp_path / "room.usda"
+    stage.GetRootLayer().Export(str(source))
+    out = tmp_path / "room_grid.usdc"
+    code = main(["bake", str(source), "-o", str(out), "-p", "irradiance_grid", "--cache", str(tmp_path / "cache"),
+                 "--set", "irradiance_grid.vertices=400", "--set", "irradiance_grid.rays=16"])
+    assert code == 0
+    baked = Usd.Stage.Open(str(out))
+    prim = baked.GetPrimAtPath(ig.GRID_PRIM)
+    assert prim and prim.GetTypeName() == "IrradianceVectorGrid"
+    get = lambda name: prim.GetAttribute(name).Get()
+    resolution = tuple(get("resolution"))
+    count = int(np.prod(resolution))
+    assert 8 < count <= 400 and get("vectorsPerVertex") == 6
+    assert len(get("directions")) == 6 * count and len(get("colorsRGB9E5")) == 6 * count
+    valid = np.asarray(get("bake:vertexValid"), bool)
+    # The stream file: the valid vertices in progressive order, same codes as the prim's arrays.
+    stream_path = tmp_path / get("streamFile").path
+    stream = streaming.decode_stream(stream_path.read_bytes())
+    assert stream.resolution == resolution and len(stream.vertex_index) == valid.sum()
+    order = streaming.progressive_order(resolution)
+    np.testing.assert_array_equal(stream.vertex_index, order[valid[order]])
+    np.testing.assert_array_equal(stream.colors.ravel(),
+                                  np.asarray(get("colorsRGB9E5")).reshape(-1, 6)[stream.vertex_index].ravel())
+    np.testing.assert_allclose(stream.grid_origin, np.asarray(get("gridOrigin")), rtol=1e-6)
+    # The mesh primvar and the preview's reading of the grid.
+    primvar = baked.GetPrimAtPath("/World/Room").GetAttribute("primvars:bake:irradianceGrid")
+    values = np.asarray(primvar.Get())
+    assert values.shape == (len(points), 3) and np.isfinite(values).all() and values.max() > 0
+    from usdbake.stages.extract import extract_scene
+
+    scene = extract_scene(baked)
+    spheres = grid_spheres(baked, scene, None)  # centres in the scene frame (relative to scene.origin)
+    assert spheres is not None and len(spheres.centers) == count
+    np.testing.assert_allclose(spheres.centers.min(axis=0) + scene.origin, np.asarray(get("gridOrigin")), atol=1e-4)
+
+
+def test_emissive_geometry_is_seen_only_without_usdlux_lights():
+    """An emissive ceiling (radiance 1, a 2 km square 1 m up, facing down) over the point: with no
+    UsdLux light the +z vector is ~ pi L z (the ceiling fills the upper hemisphere up to a ~0.1%
+    sliver); with a UsdLux light in the stage the ceiling's emission is not counted again (a lamp
+    modelled as both would count twice), only the light itself."""
+    ceiling = quad([-1e3, -1e3, 1], [2e3, 0, 0], [0, 2e3, 0], flip=True)
+    emission = np.ones((2, 3), np.float32)
+    rays = 4096
+    tol = SIGMAS * 4 * math.pi / math.sqrt(3 * rays)
+    alone = make_scene(*ceiling, albedo=0.0, emission=emission)
+    vectors, _ = ig.compute_irradiance_vectors(Tracer.from_scene(alone), alone, np.zeros((1, 3)), rays=rays)
+    np.testing.assert_allclose(vectors[0, 4], math.pi * np.tile([0, 0, 1.0], (3, 1)), atol=tol)
+    np.testing.assert_allclose(vectors[0, 5], 0.0, atol=1e-7)
+    lit = make_scene(*ceiling, albedo=0.0, emission=emission,
+                     lights=make_lights((LIGHT_DISTANT, [1, 1, 1], (0, 0, 0), (0, 0, 1), (0, 0))))
+    vectors, _ = ig.compute_irradiance_vectors(Tracer.from_scene(lit), lit, np.zeros((1, 3)), rays=rays)
+    np.testing.assert_allclose(vectors[0, 4], 0.0, atol=1e-7)  # the sun (from below) is not in +z
+    np.testing.assert_allclose(vectors[0, 5], np.tile([0, 0, -1.0], (3, 1)), rtol=FLOAT32)

@@ -1,0 +1,169 @@
+"""RGB9E5 (EXT_texture_shared_exponent): round-trip error bounds, special values, the bit layout,
+agreement of the Warp decoder and the preview's decoder with ours, and the 8-bit hemisphere
+direction code's error bound."""
+
+import math
+
+import numpy as np
+import pytest
+import warp as wp
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from usdbake.processors.kernels import octahedral as oct8
+from usdbake.processors.kernels.rgb9e5 import (
+    ABSOLUTE_ERROR,
+    MAX_RGB9E5,
+    RELATIVE_ERROR,
+    decode_rgb9e5,
+    encode_rgb9e5,
+    rgb9e5_decode,
+)
+
+wp.set_module_options({"enable_backward": False})
+
+
+def bound(clamped: np.ndarray) -> np.ndarray:
+    """Per-colour error bound of the format: half a mantissa step of the shared exponent."""
+    return np.maximum(RELATIVE_ERROR * clamped.max(axis=-1), ABSOLUTE_ERROR)
+
+
+def test_max_value_is_the_extensions_constant():
+    # (2^9 - 1) / 2^9 * 2^(31 - 15)
+    assert MAX_RGB9E5 == 65408.0
+
+
+@given(st.lists(st.floats(min_value=0.0, max_value=MAX_RGB9E5, allow_nan=False, width=32), min_size=3,
+                max_size=3))
+@settings(max_examples=300, deadline=None)
+def test_round_trip_within_half_a_mantissa_step(rgb):
+    rgb = np.asarray(rgb, np.float64)
+    decoded = decode_rgb9e5(encode_rgb9e5(rgb)).astype(np.float64)
+    assert np.all(np.abs(decoded - rgb) <= bound(rgb) * (1 + 1e-12))
+
+
+def test_round_trip_over_many_magnitudes():
+    rng = np.random.default_rng(7)  # fixed seed
+    rgb = rng.random((100_000, 3)) * np.exp2(rng.uniform(-30, 16, (100_000, 1)))
+    rgb = np.minimum(rgb, MAX_RGB9E5)
+    decoded = decode_rgb9e5(encode_rgb9e5(rgb)).astype(np.float64)
+    error = np.abs(decoded - rgb).max(axis=1)
+    assert np.all(error <= bound(rgb))
+    # The bound is tight: the format does use (nearly) all of it.
+    normal = rgb.max(axis=1) > 1e-3
+    assert (error[normal] / rgb[normal].max(axis=1)).max() > 0.9 * 2.0**-9
+
+
+def test_exact_values_round_trip_exactly():
+    rgb = np.array([[1.0, 0.5, 0.25], [MAX_RGB9E5, 0.0, 128.0], [3.0, 5.0, 7.0], [2.0**-24, 0, 0]])
+    np.testing.assert_array_equal(decode_rgb9e5(encode_rgb9e5(rgb)), rgb.astype(np.float32))
+
+
+def test_zero_is_zero():
+    packed = encode_rgb9e5(np.zeros((4, 3)))
+    np.testing.assert_array_equal(packed, 0)
+    np.testing.assert_array_equal(decode_rgb9e5(packed), 0.0)
+
+
+def test_special_inputs_give_finite_sane_outputs():
+    rgb = np.array([[np.nan, 1.0, 2.0], [-5.0, 1.0, 0.0], [np.inf, 0.0, 0.0], [-np.inf, np.nan, -0.0],
+                    [1e30, 1e30, 1e30], [1e-40, 1e-40, 0.0]])
+    decoded = decode_rgb9e5(encode_rgb9e5(rgb))
+    assert np.isfinite(decoded).all() and (decoded >= 0).all() and (decoded <= MAX_RGB9E5).all()
+    np.testing.assert_allclose(decoded[0], [0.0, 1.0, 2.0])  # NaN -> 0
+    np.testing.assert_allclose(decoded[1], [0.0, 1.0, 0.0])  # negative -> 0
+    np.testing.assert_allclose(decoded[2], [MAX_RGB9E5, 0, 0])  # +inf -> MAX
+    np.testing.assert_array_equal(decoded[3], 0.0)
+    np.testing.assert_allclose(decoded[4], MAX_RGB9E5)  # huge -> clamped to MAX
+    np.testing.assert_array_equal(decoded[5], 0.0)  # below the smallest step
+
+
+def test_bit_layout_matches_the_extension():
+    # R = 1.0 with exponent 16 (2^(16-15-9) * 256 = 1): mantissas 256, 128, 64 in bits 0, 9, 18.
+    packed = int(encode_rgb9e5(np.array([1.0, 0.5, 0.25])))
+    assert packed & 0x1FF == 256
+    assert (packed >> 9) & 0x1FF == 128
+    assert (packed >> 18) & 0x1FF == 64
+    assert packed >> 27 == 16
+
+
+def test_exponent_bump_when_the_mantissa_rounds_up():
+    # Just below 1.0: 511.9 / 512 rounds to 512 -> exponent + 1, mantissa 256.
+    packed = int(encode_rgb9e5(np.array([1.0 - 2.0**-12, 0.0, 0.0])))
+    assert packed & 0x1FF == 256 and packed >> 27 == 16
+
+
+@wp.kernel
+def _decode_kernel(packed: wp.array(dtype=wp.uint32), out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = rgb9e5_decode(packed[i])
+
+
+def test_warp_decoder_agrees_bit_for_bit():
+    rng = np.random.default_rng(3)  # fixed seed
+    packed = rng.integers(0, 2**32, 5000, dtype=np.uint64).astype(np.uint32)
+    out = wp.zeros(len(packed), dtype=wp.vec3, device="cpu")
+    wp.launch(_decode_kernel, len(packed), [wp.array(packed, dtype=wp.uint32, device="cpu"), out], device="cpu")
+    np.testing.assert_array_equal(out.numpy(), decode_rgb9e5(packed))
+
+
+def test_preview_decoder_agrees():
+    from usdbake.stages.preview import decode_rgb9e5 as preview_decode
+
+    rng = np.random.default_rng(5)  # fixed seed
+    packed = rng.integers(0, 2**32, 5000, dtype=np.uint64).astype(np.uint32)
+    np.testing.assert_array_equal(preview_decode(packed), decode_rgb9e5(packed))
+
+
+# -- 8-bit hemisphere directions -------------------------------------------------------------------
+
+
+def test_direction_code_error_bound_over_each_hemisphere():
+    rng = np.random.default_rng(11)  # fixed seed
+    v = rng.normal(size=(120_000, 3))
+    h = rng.integers(0, 6, len(v))
+    v *= np.sign(np.einsum("ni,ni->n", v, oct8.AXES[h]))[:, None]
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    decoded = oct8.decode_hemisphere(oct8.encode_hemisphere(v, h), h)
+    angle = np.degrees(np.arccos(np.clip(np.einsum("ni,ni->n", v, decoded), -1, 1)))
+    assert angle.max() <= oct8.MAX_ANGLE_ERROR_DEG
+    assert oct8.MAX_ANGLE_ERROR_DEG < 9.0  # 256 codes on 2 pi sr: ~5 deg mean spacing
+    assert np.median(angle) < 4.0
+    # Decoded directions stay in their hemisphere, above the rim.
+    assert np.einsum("ni,ni->n", decoded, oct8.AXES[h]).min() >= oct8.MIN_AXIS_COSINE > 0.05
+
+
+def test_axis_and_codes_round_trip():
+    for k in range(6):
+        codes = np.arange(256, dtype=np.uint8)
+        d = oct8.decode_hemisphere(codes, np.full(256, k))
+        np.testing.assert_array_equal(oct8.encode_hemisphere(d, np.full(256, k)), codes)
+        # The axis itself is coded within the bound; degenerate input falls back to the axis.
+        axis = oct8.AXES[k][None]
+        np.testing.assert_array_equal(oct8.encode_hemisphere(np.array([[0.0, 0, 0]]), [k]),
+                                      oct8.encode_hemisphere(axis, [k]))
+        angle = math.degrees(math.acos(min(1.0, float(oct8.decode_hemisphere(oct8.encode_hemisphere(axis, [k]),
+                                                                             [k])[0] @ axis[0]))))
+        assert angle <= oct8.MAX_ANGLE_ERROR_DEG
+    nan = oct8.decode_hemisphere(oct8.encode_hemisphere(np.array([[np.nan, 1, 0]]), [2]), [2])
+    assert np.isfinite(nan).all()
+
+
+def test_frames_are_right_handed_and_axis_last():
+    for k, frame in enumerate(oct8.HEMISPHERE_FRAMES):
+        np.testing.assert_array_equal(frame[2], oct8.AXES[k])
+        np.testing.assert_allclose(np.cross(frame[0], frame[1]), frame[2])
+
+
+@wp.kernel
+def _direction_kernel(codes: wp.array(dtype=int), frame: wp.mat33, out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = oct8.hemisphere_decode(codes[i], frame)
+
+
+@pytest.mark.parametrize("k", range(6))
+def test_warp_direction_decoder_agrees(k):
+    codes = np.arange(256, dtype=np.int32)
+    out = wp.zeros(256, dtype=wp.vec3, device="cpu")
+    wp.launch(_direction_kernel, 256, [wp.array(codes, dtype=int, device="cpu"), wp.mat33(*oct8.HEMISPHERE_FRAMES[k].ravel()),
+                            out], device="cpu")
+    np.testing.assert_allclose(out.numpy(), oct8.decode_hemisphere(codes, np.full(256, k)), atol=1e-6)
