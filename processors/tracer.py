@@ -40,16 +40,18 @@ def default_threads() -> int:
 
 
 def launch_chunked(kernel, dim: int, inputs: list, *, device, threads: int, offset: int = 0,
-                   min_chunk: int = MIN_CHUNK) -> None:
+                   min_chunk: int | None = None) -> None:
     """Launch ``kernel(start, *inputs)`` over items offset .. offset + dim - 1, chunked across CPU threads.
 
     The kernel's first argument is the chunk's first item; it must compute its
     item as ``start + wp.tid()`` and write only that item's outputs. Warp
     releases the GIL during a CPU launch, so the chunks run in parallel.
-    ``min_chunk`` is the smallest chunk worth a thread (lower it for heavy items).
+    ``min_chunk`` is the smallest chunk worth a thread (default MIN_CHUNK, read at
+    call time so tests can force chunking of small launches; lower it for heavy items).
     """
     if dim <= 0:
         return
+    min_chunk = MIN_CHUNK if min_chunk is None else min_chunk
     device = wp.get_device(device)
     if device.is_cuda or threads <= 1 or dim < 2 * min_chunk:
         wp.launch(kernel, dim=dim, inputs=[offset, *inputs], device=device)
