@@ -79,7 +79,7 @@ import warp as wp
 from .base import Context, Params, Primvar, Processor, Result, param, register
 from .geometry import receiver_prims, vertex_normals
 from .kernels.bc1 import bc1_palette_byte, bc1_third, expand565
-from .kernels.lighting import distant_solid_angle
+from .kernels.lighting import cone_direction, distant_solid_angle
 from .kernels.patches import fragment_of_hit
 from .kernels.sampling import (
     concentric_disk,
@@ -111,15 +111,6 @@ def shadow_visible(mesh: wp.uint64, origin: wp.vec3, direction: wp.vec3, distanc
     if wp.mesh_query_ray_anyhit(mesh, origin + direction * epsilon, direction, distance - epsilon):
         return 0.0
     return 1.0
-
-
-@wp.func
-def cone_direction(axis: wp.vec3, cos_max: float, u1: float, u2: float) -> wp.vec3:
-    """Uniform direction within the cone of half-angle acos(cos_max) around ``axis``."""
-    cos_t = 1.0 - u1 * (1.0 - cos_max)
-    sin_t = wp.sqrt(wp.max(0.0, 1.0 - cos_t * cos_t))
-    phi = 2.0 * wp.pi * u2
-    return tangent_frame(axis) * wp.vec3(sin_t * wp.cos(phi), sin_t * wp.sin(phi), cos_t)
 
 
 @wp.func
