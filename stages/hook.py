@@ -16,7 +16,7 @@ from pathlib import Path
 
 from pxr import Sdf, Usd
 
-from ..processors.base import Texture
+from ..processors.base import File, Texture
 from .bake_layer import PROVENANCE_KEY, author, is_bake_layer
 from .extract import extract_scene
 from .pipeline import Pipeline
@@ -52,7 +52,7 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     if layer is None and target.identifier not in stage.GetSessionLayer().subLayerPaths:
         stage.GetSessionLayer().subLayerPaths.insert(0, target.identifier)
     outputs = pipeline.outputs()
-    if texture_dir is None and any(isinstance(record, Texture) for record in outputs):
+    if texture_dir is None and any(isinstance(record, (Texture, File)) for record in outputs):
         texture_dir = _default_texture_dir(stage)  # only when needed: it may create a temp folder
     author(target, outputs, pipeline.provenance({"source": scene.source}), texture_dir=texture_dir)
     return target

@@ -2,6 +2,7 @@
 and third-party processors found through the 'usdbake.processors' entry points."""
 
 import sys
+from pathlib import Path
 import tempfile
 import textwrap
 
@@ -169,3 +170,19 @@ def test_entry_point_that_is_not_a_processor_is_rejected(tmp_path, monkeypatch):
             base.load_entry_points()
     finally:
         sys.modules.pop("badplugin_mod", None)
+
+
+def test_file_outputs_of_an_unsaved_stage_go_to_a_temp_folder_not_the_cwd(tmp_path, monkeypatch):
+    """Radiosity writes a .dds and a sparse .npz (File records); an in-memory stage has no folder."""
+    from pxr import UsdLux
+
+    monkeypatch.chdir(tmp_path)
+    stage = Usd.Stage.CreateInMemory()
+    fakes.build_stage(stage)
+    UsdLux.DistantLight.Define(stage, "/World/sun")
+    layer = usdbake.bake(stage, processors=["form_factors"], params={"form_factors": {"rays": 16}},
+                         cache_dir=str(tmp_path / "cache"))
+    assert not any(p.suffix in (".dds", ".npz") for p in tmp_path.iterdir())
+    matrix = stage.GetPrimAtPath("/usdbake/RadiosityPatches").GetAttribute("matrixFile").Get()
+    assert matrix is not None and Path(matrix.resolvedPath or matrix.path).suffix == ".dds"
+    assert layer is not None
