@@ -47,6 +47,7 @@ def author(layer: Sdf.Layer, outputs: list, provenance: dict, *, texture_dir: st
 
     Textures are written to ``texture_dir`` (default: the layer's folder) before any USD edit.
     """
+    check_topology(outputs)
     for record in outputs:
         if isinstance(record, Texture):
             write_texture(record, texture_dir or str(Path(layer.realPath or ".").parent))
@@ -79,6 +80,33 @@ def _cover_time_samples(layer: Sdf.Layer, outputs: list) -> None:
     if layer.HasEndTimeCode():
         times.append(layer.endTimeCode)
     layer.startTimeCode, layer.endTimeCode = float(min(times)), float(max(times))
+
+
+def check_topology(outputs: list) -> None:
+    """Refuse outputs whose vertex/uniform primvars do not fit a mesh another record re-authors.
+
+    A processor that refines meshes (sky_visibility) authors new points and faces; per-vertex or
+    per-face data computed on the original topology by a processor that did not read the refined
+    mesh would no longer line up, and the output would be corrupt.
+    """
+    points, faces = {}, {}
+    for record in outputs:
+        if isinstance(record, Attribute) and record.value is not None:
+            if record.name == "points":
+                points[record.prim] = len(record.value)
+            elif record.name == "faceVertexCounts":
+                faces[record.prim] = len(record.value)
+    for record in outputs:
+        if not isinstance(record, Primvar):
+            continue
+        expected = {"vertex": points, "uniform": faces}.get(record.interpolation, {}).get(record.prim)
+        count = len(record.values) // max(1, record.element_size) if np.ndim(record.values) == 1 \
+            else len(record.values)
+        if expected is not None and count != expected:
+            raise UsageError(
+                f"{record.prim}.primvars:{record.name}: {count} {record.interpolation} values, but another "
+                f"processor re-authors this mesh with {expected}; bake mesh-refining processors "
+                f"(sky_visibility, daylight) in a run of their own")
 
 
 def _clear_opinions(layer: Sdf.Layer) -> None:

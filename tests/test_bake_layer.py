@@ -223,3 +223,25 @@ def test_time_samples_widen_the_layer_time_range():
     author(layer, outputs, {"version": "test"})
     assert (layer.startTimeCode, layer.endTimeCode) == (0.0, 24.0)
     assert layer.GetNumTimeSamplesForPath("/World/m.primvars:bake:daylight") == 3
+
+
+def test_primvars_that_do_not_fit_a_refined_mesh_are_refused():
+    """AO computed on the original 4 points cannot sit on a mesh refined to 9 points."""
+    import numpy as np
+    import pytest
+    from pxr import Sdf
+
+    from usdbake.processors.base import Attribute, Primvar
+    from usdbake.stages.bake_layer import author
+    from usdbake.stages.errors import UsageError
+
+    refined = [Attribute("/World/m", "points", np.zeros((9, 3), np.float32), "point3f[]"),
+               Attribute("/World/m", "faceVertexCounts", np.full(8, 3, np.int32), "int[]")]
+    fitting = Primvar("/World/m", "bake:skyExposure", np.ones(8, np.float32), "float", "uniform")
+    stale = Primvar("/World/m", "bake:ao", np.ones(4, np.float32), "float", "vertex")
+    layer = Sdf.Layer.CreateAnonymous()
+    author(layer, refined + [fitting], {"version": "test"})  # consistent: accepted
+    other = Sdf.Layer.CreateAnonymous()
+    with pytest.raises(UsageError, match=r"/World/m\.primvars:bake:ao: 4 vertex values.*9"):
+        author(other, refined + [fitting, stale], {"version": "test"})
+    assert not other.rootPrims  # nothing authored
