@@ -219,7 +219,19 @@ class Pipeline:
         return self.steps
 
     def outputs(self) -> list:
-        return [record for step in self.steps if step.result for record in step.result.outputs]
+        """Every step's output records; two steps writing the same property at the same time is an error."""
+        writers: dict[tuple, str] = {}
+        records = []
+        for step in self.steps:
+            for record in step.result.outputs if step.result else []:
+                if isinstance(record, (base.Primvar, base.Attribute)):
+                    name = f"primvars:{record.name}" if isinstance(record, base.Primvar) else record.name
+                    key = (record.prim, name, record.time)
+                    if writers.setdefault(key, step.name) != step.name:
+                        raise UsageError(f"{record.prim}.{name} is written by both {writers[key]} and {step.name}; "
+                                         f"run one of them")
+                records.append(record)
+        return records
 
     def provenance(self, extra: dict | None = None) -> dict:
         from .. import __version__

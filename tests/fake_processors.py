@@ -218,3 +218,16 @@ def write_stage(path, *, material: bool = False) -> str:
     build_stage(stage, material=material)
     stage.GetRootLayer().Save()
     return str(path)
+
+
+class FakeSamePrimvar(Processor):
+    """Writes the same primvar as fake_b (two estimators of one quantity), for the conflict check."""
+
+    name = "fake_same_primvar"
+    facets = ("geometry",)
+    uses_tracer = False
+
+    def run(self, ctx):
+        prim = ctx.scene.prim_points(0)
+        values = np.zeros(prim.stop - prim.start, np.float32)
+        return Result(outputs=[Primvar(ctx.scene.prim_paths[0], "bake:fakeB", values, "float", "vertex")])

@@ -14,6 +14,7 @@ import fake_processors as fakes
 from usdbake.processors import base
 from usdbake.processors.ambient_occlusion import AmbientOcclusion
 from usdbake.stages.pipeline import GraphError, Pipeline, ProcessorFailed, build_steps, step_key
+from usdbake.stages.errors import UsageError
 
 
 @pytest.fixture
@@ -280,3 +281,11 @@ def test_params_describe_rows_have_default_and_doc():
     assert set(rows) == {"samples", "max_distance", "per_face", "connect_occlusion", "seed"}
     assert rows["samples"]["default"] == 256 and rows["samples"]["low"] == 1
     assert all(row["doc"] for row in rows.values())
+
+
+def test_two_processors_writing_one_property_is_an_error(register, tmp_path):
+    register(fakes.FakeA, fakes.FakeB, fakes.FakeSamePrimvar)
+    pipeline = Pipeline.build(["fake_b", "fake_same_primvar"], cache_dir=tmp_path)
+    pipeline.run(fakes.make_scene())
+    with pytest.raises(UsageError, match=r"primvars:bake:fakeB is written by both fake_b and fake_same_primvar"):
+        pipeline.outputs()
