@@ -20,6 +20,48 @@ Ratios are measured within one run; absolute times drift on a shared machine.
 """
 
 
+# The figures the issues ask for: (what, result name, figure key, "<=" or ">=", target).
+TARGETS = [
+    ("Tracer: all cores vs one thread (atrium, AO rays)", "tracer", "all_cores_speedup", ">=", 1.8),
+    ("sky_visibility: building.usda refinement + visibility (s)", "sky_visibility", "building_seconds", "<=", 10.0),
+    ("sky_visibility: window_room.usda (s)", "sky_visibility", "window_room_seconds", "<=", 1.0),
+    ("sky_visibility: uniform / adaptive triangles at equal error", "sky_visibility",
+     "adaptive_vs_uniform_triangle_ratio", ">=", 5.0),
+    ("sky_visibility: sky irradiance relative RMS vs brute force", "sky_visibility",
+     "building_relative_rms_at_default", "<=", 0.02),
+    ("daylight: relight 100k faces x 256 patches (ms)", "sky_visibility", "relight_ms_100k_x_256", "<=", 30.0),
+    ("instance_ao: AO RMS vs ambient_occlusion, 4225 x 32^2 8-bit", "displacement_fields",
+     "rms_vs_ambient_occlusion", "<=", 0.02),
+    ("displacement_fields: field query time per ray, 5k -> 500k triangles (max/min)", "displacement_fields",
+     "field_query_us_per_ray_max_over_min", "<=", 1.5),
+    ("form_factors: compressed / dense float32 RGB matrix memory (atrium)", "radiosity", "memory_ratio", "<=",
+     0.125),
+    ("radiosity: compressed relight speed-up vs dense float32 mat-vec", "radiosity", "relight_speedup_vs_numpy",
+     ">=", 2.0),
+    ("radiosity: k-bounce operator speed-up vs k iterations (k = 3)", "radiosity",
+     "kbounce_speedup_vs_colored_iterations", ">=", 3.0),
+    ("radiosity: compressed vs uncompressed indirect, relative RMS", "radiosity", "compressed_vs_uncompressed",
+     "<=", 0.02),
+    ("radiosity: indirect vs path-traced reference, cornell_box, relative RMS", "radiosity",
+     "cornell_error_default", "<=", 0.10),
+    ("preview: atrium 640x480 with legend (s)", "preview", "atrium_640x480_with_legend_seconds", "<=", 2.0),
+]
+
+
+def targets_table(results: dict[str, dict]) -> str:
+    """One row per issue figure: target, measured value, met or not."""
+    rows = []
+    for what, name, key, op, target in TARGETS:
+        value = results.get(name, {}).get("figures", {}).get(key)
+        if value is None:
+            rows.append({"figure": what, "target": f"{op} {target:g}", "measured": "not measured", "met": ""})
+            continue
+        met = value <= target if op == "<=" else value >= target
+        rows.append({"figure": what, "target": f"{op} {target:g}", "measured": float(value),
+                     "met": "yes" if met else "**no**"})
+    return harness.markdown_table(rows, ["figure", "target", "measured", "met"])
+
+
 def pareto_front(points: list[dict]) -> list[dict]:
     """Points not beaten on both time and error by another point, sorted by time."""
     ordered = sorted(points, key=lambda p: (p["seconds"], p["error"]))
@@ -67,9 +109,9 @@ def plot(data: dict) -> Path | None:
 
 
 def write() -> Path:
-    sections = [HEADER]
-    for path in sorted(harness.RESULTS.glob("*.json")):
-        data = json.loads(path.read_text())
+    results = {path.stem: json.loads(path.read_text()) for path in sorted(harness.RESULTS.glob("*.json"))}
+    sections = [HEADER, "## Targets at a glance\n", targets_table(results) + "\n"]
+    for data in results.values():
         machine = data.get("machine", {})
         sections.append(f"## {data['name']}\n\n{data.get('description', '')}\n")
         sections.append(f"Measured {data.get('date', '?')} on {machine.get('cpu', '?')} "
