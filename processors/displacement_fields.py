@@ -414,7 +414,8 @@ class DisplacementFields(Processor):
                 continue
             try:
                 field = build_field(points, triangles, prototype=path, positional_samples=p.positional_samples,
-                                    map_size=p.direction_map_size, encoding=p.encoding, device=str(device))
+                                    map_size=p.direction_map_size, encoding=p.encoding, device=str(device),
+                                    threads=ctx.tracer.threads if ctx.tracer is not None else None)
             except ValueError as error:
                 result.messages.append(f"{path}: no field ({error})")
                 continue

@@ -641,7 +641,8 @@ class InstanceAO(Processor):
         tri_field = np.where(scene.tri_instance >= 0, instance_field[np.maximum(scene.tri_instance, 0)]
                              if len(inst) else -1, -1)
         traced = np.flatnonzero(tri_field < 0)
-        tracer = Tracer(scene.points, scene.tri_vertices[traced], device=ctx.tracer.device if ctx.tracer else "cpu")
+        tracer = Tracer(scene.points, scene.tri_vertices[traced], device=ctx.tracer.device if ctx.tracer else "cpu",
+                        threads=ctx.tracer.threads if ctx.tracer else None)
         epsilon = max(RAY_EPSILON_RELATIVE * scene.diagonal, 1e-30)  # the scene tracer's offset, as ambient_occlusion
         fieldset = FieldSet(fields, tracer.device)
         receivers = receiver_prims(scene)

@@ -402,7 +402,9 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     # Faces grouped by prim (stable), so each prim's faces are contiguous and in refinement order.
     order = np.argsort(scene.tri_prim[source], kind="stable")
     triangles, source, level = triangles[order], source[order], level[order]
-    quantized, exposure = quantized[order], exposure[order].astype(np.float32)
+    # The patch quadrature of sum_j V_ij dw_j / pi can exceed 1 by a fraction of a percent on a fully
+    # open face; exposure is a share of the sky, so it is clamped to [0, 1].
+    quantized, exposure = quantized[order], np.clip(exposure[order], 0.0, 1.0).astype(np.float32)
     areas, _ = _areas_normals(points, triangles)
     product = SkyVisibility(
         face_points=points, face_vertices=triangles.astype(np.int32),
@@ -450,7 +452,7 @@ def local_mesh_records(scene: Scene, product: SkyVisibility, prim: int) -> list:
 @register
 class SkyVisibilityProcessor(Processor):
     name = "sky_visibility"
-    version = "1"
+    version = "2"
     summary = "Per-face sky patch visibility with adaptive crack-free refinement (Bosch et al.)."
     facets = ("geometry",)
     provides = ("sky_visibility",)

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pxr import Gf, Usd, UsdGeom
-
 import usdbake
+from pxr import Gf, Usd, UsdGeom
+from stress.stage_builders_stress import box_on_floor, hostile_stage, stage_with
 from usdbake.processors.ambient_occlusion import compute_vertex_ao
 from usdbake.processors.geometry import vertex_normals
 from usdbake.processors.tracer import Tracer
@@ -23,33 +23,6 @@ SAMPLES = 64
 # the recentred geometry. A ray that grazes an edge can flip, so allow a few
 # flips per vertex: 3 rays of 64.
 TRANSLATION_TOLERANCE = 3.0 / SAMPLES
-
-
-def box_on_floor(stage: Usd.Stage, root: str = "/World", offset=(0.0, 0.0, 0.0), scale: float = 1.0) -> None:
-    """A 10x10 floor (a 10x10 grid of quads sharing vertices) and a unit box standing on it, Z up."""
-    ox, oy, oz = offset
-    floor = UsdGeom.Mesh.Define(stage, f"{root}/floor")
-    grid = np.stack(np.meshgrid(np.linspace(-5, 5, 11), np.linspace(-5, 5, 11), indexing="xy"), -1).reshape(-1, 2)
-    points = [Gf.Vec3f(float((x * scale) + ox), float((y * scale) + oy), float(oz)) for x, y in grid]
-    quads = [(r * 11 + c, r * 11 + c + 1, (r + 1) * 11 + c + 1, (r + 1) * 11 + c) for r in range(10) for c in range(10)]
-    floor.CreatePointsAttr(points)
-    floor.CreateFaceVertexCountsAttr([4] * len(quads))
-    floor.CreateFaceVertexIndicesAttr([i for q in quads for i in q])
-    cube = UsdGeom.Mesh.Define(stage, f"{root}/box")
-    corners = [(x, y, z) for z in (0, 1) for y in (-0.5, 0.5) for x in (-0.5, 0.5)]
-    cube.CreatePointsAttr([Gf.Vec3f(float(x * scale + ox), float(y * scale + oy), float(z * scale + oz))
-                           for x, y, z in corners])
-    faces = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (1, 3, 7, 5), (3, 2, 6, 7), (2, 0, 4, 6)]
-    cube.CreateFaceVertexCountsAttr([4] * 6)
-    cube.CreateFaceVertexIndicesAttr([i for f in faces for i in f])
-
-
-def stage_with(**kwargs) -> Usd.Stage:
-    stage = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(stage, "Z")
-    UsdGeom.Xform.Define(stage, "/World")
-    box_on_floor(stage, **kwargs)
-    return stage
 
 
 def floor_ao(stage: Usd.Stage) -> np.ndarray:
@@ -90,30 +63,6 @@ def test_translated_by_xform_matches_exactly(reference_ao, translate):
 def test_scaled_scene_matches(reference_ao, scale):
     """Ray offsets scale with the scene: a millimetre-sized or kilometre-sized copy gives the same AO."""
     np.testing.assert_allclose(floor_ao(stage_with(scale=scale)), reference_ao, atol=TRANSLATION_TOLERANCE)
-
-
-def hostile_stage() -> Usd.Stage:
-    """Zero-area and sliver triangles, duplicate vertices, a non-planar and a concave polygon,
-    coincident coplanar faces and a huge triangle next to tiny ones."""
-    stage = stage_with()
-
-    def mesh(name, points, counts, indices):
-        m = UsdGeom.Mesh.Define(stage, f"/World/{name}")
-        m.CreatePointsAttr([Gf.Vec3f(*map(float, p)) for p in points])
-        m.CreateFaceVertexCountsAttr(counts)
-        m.CreateFaceVertexIndicesAttr(indices)
-
-    mesh("zero_area", [(1, 1, 0.5), (1, 1, 0.5), (1, 1, 0.5), (2, 2, 0.5), (3, 3, 0.5)], [3, 3], [0, 1, 2, 0, 3, 4])
-    mesh("sliver", [(0, 2, 0.2), (4, 2, 0.2), (2, 2 + 1e-7, 0.2)], [3], [0, 1, 2])
-    mesh("duplicates", [(-2, -2, 0.3), (-1, -2, 0.3), (-1, -1, 0.3), (-1, -1, 0.3), (-2, -1, 0.3)], [4, 3],
-         [0, 1, 2, 4, 2, 3, 4])
-    mesh("non_planar", [(2, -2, 0), (3, -2, 0.5), (3, -1, 0), (2, -1, 0.5)], [4], [0, 1, 2, 3])
-    mesh("concave", [(-4, 2, 0.1), (-2, 2, 0.1), (-2, 3, 0.1), (-3, 3, 0.1), (-3, 4, 0.1), (-4, 4, 0.1)], [6],
-         list(range(6)))
-    mesh("z_fight", [(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)], [4], [0, 1, 2, 3])
-    mesh("huge", [(-1e4, -1e4, -1), (1e4, -1e4, -1), (0, 1e4, -1)], [3], [0, 1, 2])
-    mesh("tiny", [(0.7, 0.7, 1.0), (0.7 + 1e-6, 0.7, 1.0), (0.7, 0.7 + 1e-6, 1.0)], [3], [0, 1, 2])
-    return stage
 
 
 def test_hostile_geometry_gives_finite_ao_in_range(tmp_path):

@@ -1,0 +1,114 @@
+"""Determinism: the same inputs and seed give bit-identical outputs across runs and thread counts.
+
+Every processor's random numbers are seeded by item index (wp.rand_init(seed, i)), so splitting a
+launch into chunks on several threads must not change a single bit. Launches on these small scenes
+are far below tracer.MIN_CHUNK (4096), so it is lowered to 8 here: launch_chunked reads it at call
+time, and every processor launches through it (Tracer.launch, or launch_chunked directly in
+form_factors). Each run builds a fresh Pipeline with no cache, so everything is recomputed.
+
+Thread counts reach the kernels through Pipeline(threads=...) -> the shared Tracer. Known
+exceptions (they still must be deterministic, which this checks): displacement_fields builds its
+field tracer and instance_ao its prototype/receiver tracers with the default thread count (one per
+core), not ctx.tracer.threads.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from stress.stage_builders_stress import FAST_PARAMS, hostile_lit_stage, small_lit_stage
+from usdbake.processors import base, tracer
+from usdbake.stages.extract import extract_scene
+from usdbake.stages.pipeline import Pipeline
+
+PROCESSORS = sorted(name for name, cls in base.registry().items()
+                    if cls.__module__.startswith("usdbake.processors."))
+
+SMALL_CHUNK = 8
+"""Chunks of 8 items: every launch of more than 16 items is split across threads."""
+
+
+TIMINGS = ("build_seconds", "seconds")
+"""Wall-clock fields in products: measurements, not outputs."""
+
+
+NO_KERNELS = ("progressive_mesh",)
+"""Processors that launch no Warp kernel (pure numpy): nothing to split."""
+
+
+def record_arrays(value, where: str, depth: int = 0):
+    """(where, array) for every value in the output records and products: numpy arrays of any dtype,
+    raw bytes (files) as uint8 arrays, and numeric scalars."""
+    if depth > 6:
+        return
+    if isinstance(value, np.ndarray):
+        yield where, value
+    elif isinstance(value, (bytes, bytearray)):
+        yield where, np.frombuffer(bytes(value), np.uint8)
+    elif isinstance(value, (float, int, np.number)) and not isinstance(value, bool):
+        yield where, np.asarray(value)
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        for f in dataclasses.fields(value):
+            if f.name in TIMINGS:
+                continue
+            yield from record_arrays(getattr(value, f.name), f"{where}.{f.name}", depth + 1)
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            yield from record_arrays(item, f"{where}[{key!r}]", depth + 1)
+    elif isinstance(value, (list, tuple)):
+        for k, item in enumerate(value):
+            yield from record_arrays(item, f"{where}[{k}]", depth + 1)
+
+
+def run_once(name: str, scene, threads: int) -> dict[str, np.ndarray]:
+    steps = Pipeline.build([name], FAST_PARAMS[name], threads=threads).run(scene)
+    out = {}
+    for step in steps:
+        assert step.action == "run", f"{step.name}: {step.action} ({step.reason})"
+        out.update(record_arrays(step.result.outputs, f"{step.name}.outputs"))
+        out.update(record_arrays(step.result.products, f"{step.name}.products"))
+    return out
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    return {"hostile": extract_scene(hostile_lit_stage()), "small": extract_scene(small_lit_stage())}
+
+
+@pytest.fixture
+def small_chunks(monkeypatch):
+    """MIN_CHUNK lowered; returns the list of chunk counts of every launch split across threads."""
+    monkeypatch.setattr(tracer, "MIN_CHUNK", SMALL_CHUNK)
+    calls: list[int] = []
+    original = tracer.ThreadPoolExecutor
+
+    class Counting(original):
+        def map(self, fn, *iterables, **kwargs):
+            items = list(iterables[0])
+            calls.append(len(items))
+            return super().map(fn, items, **kwargs)
+
+    monkeypatch.setattr(tracer, "ThreadPoolExecutor", Counting)
+    return calls
+
+
+@pytest.mark.parametrize("name", PROCESSORS)
+@pytest.mark.parametrize("scene_name", ["small", "hostile"])
+def test_bit_identical_across_runs_and_threads(name, scene_name, scenes, small_chunks):
+    scene = scenes[scene_name]
+    runs = {label: run_once(name, scene, threads) for label, threads in
+            (("threads=1", 1), ("threads=2", 2), ("threads=2 again", 2))}
+    reference = runs["threads=1"]
+    assert reference, f"{name} produced nothing to compare"
+    if name not in NO_KERNELS and (base.get(name).uses_tracer or tracer.default_threads() > 1):
+        # own-tracer processors (uses_tracer False) split with the default thread count only
+        assert small_chunks and max(small_chunks) > 1, f"{name}: no launch was split across threads"
+    assert sum(a.size for a in reference.values()) > 0
+    for label, other in runs.items():
+        assert other.keys() == reference.keys(), label
+        for key, array in reference.items():
+            assert other[key].dtype == array.dtype and other[key].shape == array.shape, f"{label}: {key}"
+            assert np.array_equal(other[key], array), \
+                f"{label}: {key} differs in {np.count_nonzero(other[key] != array)} of {array.size} values"
