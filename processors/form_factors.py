@@ -741,7 +741,7 @@ def precompute(tracer, scene: Scene, p, progress=lambda f: None) -> tuple[FormFa
 @register
 class FormFactors(Processor):
     name = "form_factors"
-    version = "1"
+    version = "2"
     summary = "Radiosity precompute: voxel patches, ray-cast form factors, compressed multi-bounce matrix (BC1)."
     facets = ("geometry", "materials")
     provides = ("form_factors",)

@@ -117,12 +117,10 @@ def _encode_chunk(texels: np.ndarray) -> np.ndarray:
     mean = texels.mean(axis=1, keepdims=True)
     centred = texels - mean
     cov = np.einsum("nki,nkj->nij", centred, centred)
-    # Principal axis by power iteration, started from the channel diagonal (robust for grey data).
-    axis = np.broadcast_to(np.array([0.577, 0.577, 0.577], np.float32), (len(texels), 3)).copy()
-    for _ in range(8):
-        axis = np.einsum("nij,nj->ni", cov, axis)
-        norm = np.linalg.norm(axis, axis=1, keepdims=True)
-        axis = np.where(norm > 1e-12, axis / np.maximum(norm, 1e-30), np.float32(0.577))
+    # Principal axis: the eigenvector of the largest eigenvalue of each block's 3x3 covariance (a
+    # power iteration started from grey misses colours that vary at right angles to grey, such as a
+    # red-green ramp). Flat blocks get some unit axis and t = 0, so both endpoints are the mean.
+    axis = np.linalg.eigh(cov.astype(np.float64))[1][:, :, -1].astype(np.float32)
     t = np.einsum("nki,ni->nk", centred, axis)
     e0 = mean[:, 0] + axis * t.max(axis=1, keepdims=True)
     e1 = mean[:, 0] + axis * t.min(axis=1, keepdims=True)
