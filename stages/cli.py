@@ -242,14 +242,18 @@ def _default_output(input_path: str, source: str) -> str:
 
 
 def _summary_table(steps, *, planned: bool = False) -> Table:
+    """Processor, action and reason; after a bake also time and ray throughput."""
     table = Table(title="plan" if planned else "bake summary")
-    for column in ("processor", "action", "reason", "time (s)", "Mrays/s"):
+    columns = ("processor", "action", "reason") if planned else \
+        ("processor", "action", "reason", "time (s)", "Mrays/s")
+    for column in columns:
         table.add_column(column, justify="right" if column in ("time (s)", "Mrays/s") else "left")
     labels = {"run": "will run" if planned else "ran", "cached": "up to date", "skip": "skipped"}
     for step in steps:
-        table.add_row(step.name, labels[step.action], step.reason,
-                      "" if planned else f"{step.seconds:.2f}",
-                      f"{step.mrays_per_second:.2f}" if step.mrays_per_second else "")
+        row = [step.name, labels[step.action], step.reason]
+        if not planned:
+            row += [f"{step.seconds:.2f}", f"{step.mrays_per_second:.2f}" if step.mrays_per_second else ""]
+        table.add_row(*row)
     return table
 
 
