@@ -10,7 +10,9 @@ keys of the steps it depends on.
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import inspect
 import json
 import pickle
 import time
@@ -107,9 +109,28 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
     return steps
 
 
+def code_fingerprint(cls: type) -> str:
+    """Hash of the code a processor runs: the processors package plus the class's own module
+    (third-party processors live elsewhere), so an edited kernel never serves a stale cached result."""
+    files = sorted(Path(base.__file__).parent.rglob("*.py"))
+    own = inspect.getsourcefile(cls)
+    if own and Path(own).is_file() and Path(own) not in files:
+        files.append(Path(own))
+    return _digest_files(tuple((str(f), f.stat().st_mtime_ns, f.stat().st_size) for f in files))
+
+
+@functools.lru_cache(maxsize=64)
+def _digest_files(stamped: tuple) -> str:
+    digest = hashlib.sha256()
+    for path, _, _ in stamped:
+        digest.update(path.encode())
+        digest.update(Path(path).read_bytes())
+    return digest.hexdigest()
+
+
 def step_key(step: Step, scene: Scene, upstream_keys: list[str]) -> str:
     payload = {
-        "name": step.name, "version": step.processor.version,
+        "name": step.name, "version": step.processor.version, "code": code_fingerprint(type(step.processor)),
         "params": repr(sorted(step.params.as_dict().items())),
         "scene": scene.fingerprint(step.processor.facets), "upstream": upstream_keys,
     }

@@ -289,3 +289,32 @@ def test_two_processors_writing_one_property_is_an_error(register, tmp_path):
     pipeline.run(fakes.make_scene())
     with pytest.raises(UsageError, match=r"primvars:bake:fakeB is written by both (fake_b and fake_same_primvar|fake_same_primvar and fake_b)"):
         pipeline.outputs()
+
+
+def test_cache_key_changes_with_the_processor_code(register, tmp_path, monkeypatch):
+    """Editing a processor's module (without a version bump) must not serve the old cached result."""
+    import importlib
+    import sys
+
+    module = tmp_path / "edited_processor.py"
+    source = textwrap_processor("1.0")
+    module.write_text(source)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    mod = importlib.import_module("edited_processor")
+    register(mod.Edited)
+    scene = fakes.make_scene()
+    first = Pipeline.build(["edited"], cache_dir=tmp_path / "cache").plan(scene)[0].key
+    module.write_text(textwrap_processor("22.0"))  # same version string, different code (and size)
+    second = Pipeline.build(["edited"], cache_dir=tmp_path / "cache").plan(scene)[0].key
+    assert first != second
+    sys.modules.pop("edited_processor", None)
+
+
+def textwrap_processor(constant: str) -> str:
+    return (
+        "from usdbake.processors.base import Processor, Result\n"
+        "class Edited(Processor):\n"
+        "    name = 'edited'\n"
+        "    uses_tracer = False\n"
+        f"    def run(self, ctx):\n        return Result(products={{'x': {constant}}})\n"
+    )
