@@ -80,6 +80,7 @@ from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame
 from .kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
 from .refine import refine, weld_points
 from .scene import Scene
+from .tracer import shared_tracer
 
 wp.set_module_options({"enable_backward": False})
 
@@ -449,6 +450,28 @@ def local_mesh_records(scene: Scene, product: SkyVisibility, prim: int) -> list:
     ]
 
 
+SKY_CHECK_BATCH = 1 << 18
+"""Rays per batch of the applies() check; it stops at the first batch in which a ray escapes."""
+
+
+def sees_sky(tracer, scene: Scene, directions: np.ndarray) -> bool:
+    """Whether any receiver face sees the sky along any patch centre direction (a ray from its
+    centroid that escapes the scene). Scenes open to the sky answer in the first batch."""
+    faces = np.flatnonzero(np.isin(scene.tri_prim, receiver_prims(scene)) & (scene.tri_areas > 0))
+    corners = scene.points[scene.tri_vertices[faces]].astype(np.float64)
+    centroids, normals = corners.mean(axis=1), scene.tri_normals[faces].astype(np.float64)
+    per_batch = max(1, SKY_CHECK_BATCH // max(len(directions), 1))
+    for lo in range(0, len(faces), per_batch):
+        c, n = centroids[lo:lo + per_batch], normals[lo:lo + per_batch]
+        face, patch = np.nonzero(n @ directions.T > 0.0)  # only directions above the face's horizon
+        if len(face) == 0:
+            continue
+        origins = c[face] + n[face] * tracer.epsilon
+        if not tracer.occluded(origins, directions[patch]).all():
+            return True
+    return False
+
+
 @register
 class SkyVisibilityProcessor(Processor):
     name = "sky_visibility"
@@ -479,6 +502,10 @@ class SkyVisibilityProcessor(Processor):
     def applies(self, scene: Scene) -> tuple[bool, str]:
         if len(receiver_prims(scene)) == 0:
             return False, "no writable meshes (all instanced, bake:skip or empty)"
+        patches = patch_layout(self.params.patch_layout, count=self.params.patch_count,
+                               subdivision=self.params.subdivision)
+        if not sees_sky(shared_tracer(scene), scene, patches.patch_directions @ enu_to_world(scene.up_axis).T):
+            return False, "no sky-visible faces (every face is enclosed or faces away from the sky)"
         return True, ""
 
     def run(self, ctx: Context) -> Result:

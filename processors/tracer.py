@@ -15,6 +15,7 @@ the world origin alike.
 from __future__ import annotations
 
 import os
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -210,3 +211,19 @@ class Tracer:
 def _finite(max_t: float) -> float:
     """Warp kernels take float32; inf is fine there but keep it explicit and finite-safe."""
     return float(min(max_t, 3.0e38))
+
+
+_SHARED: dict[tuple[int, str], Tracer] = {}
+
+
+def shared_tracer(scene, *, device: str = "cpu", threads: int | None = None) -> Tracer:
+    """The one BVH of a scene per device: built on first use, then reused by every processor and by
+    applies() checks, and dropped when the scene is."""
+    key = (id(scene), str(wp.get_device(device)))
+    tracer = _SHARED.get(key)
+    if tracer is None:
+        tracer = Tracer.from_scene(scene, device=device, threads=threads)
+        _SHARED[key] = tracer
+        weakref.finalize(scene, _SHARED.pop, key, None)
+    tracer.threads = threads or default_threads()
+    return tracer

@@ -23,7 +23,7 @@ from typing import Callable
 
 from ..processors import base
 from ..processors.scene import Scene
-from ..processors.tracer import Tracer
+from ..processors.tracer import shared_tracer
 from .errors import UsageError
 
 DEFAULT_PROCESSORS = ("ambient_occlusion",)
@@ -221,7 +221,7 @@ class Pipeline:
             if result is None:
                 step.action = "run"
                 if tracer is None and step.processor.uses_tracer:
-                    tracer = Tracer.from_scene(scene, device=self.device, threads=self.threads)
+                    tracer = shared_tracer(scene, device=self.device, threads=self.threads)
                 ctx = base.Context(scene=scene, params=step.params, tracer=tracer,
                                    products={p: products[p] for p in step.processor.requires},
                                    progress=(lambda f, n=step.name: on_progress(n, f)) if on_progress else

@@ -53,6 +53,28 @@ def test_no_instanced_prototypes_and_dependents_follow():
     assert steps["instance_ao"] == ("skip", "requires displacement_fields (skipped)")
 
 
+def closed_box_stage(*, opening: bool) -> Usd.Stage:
+    """A room of six inward-facing walls (Y up); with ``opening`` the ceiling is left out."""
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, "Y")
+    corners = [(x, y, z) for y in (0, 1) for z in (0, 1) for x in (0, 1)]
+    faces = {"floor": (0, 1, 3, 2), "ceiling": (4, 6, 7, 5), "back": (0, 4, 5, 1), "front": (2, 3, 7, 6),
+             "left": (0, 2, 6, 4), "right": (1, 5, 7, 3)}
+    if opening:
+        del faces["ceiling"]
+    mesh = UsdGeom.Mesh.Define(stage, "/World/room")
+    mesh.CreatePointsAttr([Gf.Vec3f(*map(float, c)) for c in corners])
+    mesh.CreateFaceVertexCountsAttr([4] * len(faces))
+    mesh.CreateFaceVertexIndicesAttr([i for face in faces.values() for i in reversed(face)])  # inward
+    return stage
+
+
+def test_no_sky_visible_faces():
+    assert plan(closed_box_stage(opening=False), ["sky_visibility"])["sky_visibility"] == (
+        "skip", "not applicable: no sky-visible faces (every face is enclosed or faces away from the sky)")
+    assert plan(closed_box_stage(opening=True), ["sky_visibility"])["sky_visibility"][0] == "run"
+
+
 def test_no_lights():
     action, reason = plan(quad_stage(light=False), ["radiosity"])["radiosity"]
     assert action == "skip" and reason == "not applicable: no lights or emissive surfaces"
