@@ -296,7 +296,7 @@ def cmd_inspect(args, console: Console) -> int:
                   f"from {report['provenance'].get('source', '?')}", highlight=False)
     table = Table()
     for column in ("property", "type", "interpolation", "elementSize", "values", "time samples"):
-        table.add_column(column)
+        table.add_column(column, overflow="fold")  # long prim paths wrap instead of being cut
     for row in report["properties"]:
         table.add_row(row["path"], row["type"], row["interpolation"], str(row["element_size"]),
                       str(row["values"]), str(row["time_samples"]))
