@@ -295,8 +295,9 @@ def cmd_inspect(args, console: Console) -> int:
     console.print(f"{args.output}: baked by usdbake {report['provenance'].get('version', '?')} "
                   f"from {report['provenance'].get('source', '?')}", highlight=False)
     table = Table()
-    for column in ("property", "type", "interpolation", "elementSize", "values", "time samples"):
-        table.add_column(column, overflow="fold")  # long prim paths wrap instead of being cut
+    table.add_column("property", overflow="fold", ratio=1)  # long prim paths wrap instead of being cut
+    for column in ("type", "interpolation", "elementSize", "values", "time samples"):
+        table.add_column(column, no_wrap=True)
     for row in report["properties"]:
         table.add_row(row["path"], row["type"], row["interpolation"], str(row["element_size"]),
                       str(row["values"]), str(row["time_samples"]))
