@@ -2,7 +2,9 @@
 
 For each requested local time the sun position comes from ``processors.solar``
 (NOAA algorithm), the sky radiance per patch from a sky model
-(``processors.kernels.sky``: Preetham 1999 with turbidity, CIE overcast, or
+(``processors.kernels.sky``: Preetham 1999 with turbidity, the Perez 1993
+all-weather model driven by direct-normal and diffuse-horizontal irradiance as
+in Radiance's gendaylit, CIE overcast, or
 uniform), averaged over a 3 x 3 grid inside each patch. The outgoing radiance
 of refined face i is the paper's Eq. 1 with a Lambertian BRDF rho_i / pi::
 
@@ -15,7 +17,8 @@ toward random points of the 0.53 degree solar disk that escape. The sky part
 is one (F, N) x (N, 3) float32 matrix product (``relight``), no ray casts;
 only the sun term casts rays. Units: visible-equivalent W/(m^2 sr) (luminance
 in cd/m^2 divided by 179 lm/W, as Radiance); ``bake:daylight`` times 179 is
-luminance, and rho_i can be divided out to get irradiance.
+luminance, and rho_i can be divided out to get irradiance. The Perez sky is in
+the solar W/(m^2 sr) of its direct-normal and diffuse-horizontal inputs.
 
 Times: ``times`` is an ISO 8601 instant (``2026-06-21T12:00``), a
 comma-separated list, or an interval ``start/end/step``
@@ -37,23 +40,25 @@ primvars:displayColor  color3f[] uniform     ``display_color``: L_i * k / (1 + L
 
 Parameters
 ----------
-================ ====== ================= ===================================================
-name             type   default           meaning
-================ ====== ================= ===================================================
-times            str    2026-06-21T12:00  instant, list, or start/end/step (ISO 8601), local time
-latitude         float  41.98             degrees north
-longitude        float  2.82              degrees east
-timezone         float  1.0               hours east of UTC of the local standard time
-north            float  0.0               angle of north from the stage's default north (deg, CCW)
-sky              str    preetham          preetham, overcast or uniform
-turbidity        float  3.0               Preetham turbidity (2 clear .. 10 hazy)
-uniform_radiance float  1000.0            radiance of the uniform sky, W/(m^2 sr)
-sun              bool   True              add the direct sun (not for overcast/uniform skies)
-sun_samples      int    4                 rays per face toward the solar disk
-display_color    bool   False             also write a tone-mapped primvars:displayColor
-exposure         float  0.0               tone-mapping scale k for displayColor (0: automatic)
-seed             int    0                 random seed of the sun rays
-================ ====== ================= ===================================================
+=================== ====== ================= ===================================================
+name                type   default           meaning
+=================== ====== ================= ===================================================
+times               str    2026-06-21T12:00  instant, list, or start/end/step (ISO 8601), local time
+latitude            float  41.98             degrees north
+longitude           float  2.82              degrees east
+timezone            float  1.0               hours east of UTC of the local standard time
+north               float  0.0               angle of north from the stage's default north (deg, CCW)
+sky                 str    preetham          preetham, perez, overcast or uniform
+turbidity           float  3.0               Preetham turbidity (2 clear .. 10 hazy)
+uniform_radiance    float  1000.0            radiance of the uniform sky, W/(m^2 sr)
+direct_normal       float  600.0             Perez: direct-normal irradiance, W/m^2 (also the sun's)
+diffuse_horizontal  float  150.0             Perez: diffuse-horizontal irradiance, W/m^2
+sun                 bool   True              add the direct sun (not for overcast/uniform skies)
+sun_samples         int    4                 rays per face toward the solar disk
+display_color       bool   False             also write a tone-mapped primvars:displayColor
+exposure            float  0.0               tone-mapping scale k for displayColor (0: automatic)
+seed                int    0                 random seed of the sun rays
+=================== ====== ================= ===================================================
 """
 
 from __future__ import annotations
@@ -197,15 +202,19 @@ class Daylight:
     """(K,) degrees from north towards east."""
 
 
-def sky_weights(product, model: str, sun_layout: np.ndarray, *, turbidity: float, radiance: float) -> np.ndarray:
+def sky_weights(product, model: str, sun_layout: np.ndarray, *, turbidity: float, radiance: float,
+                direct_normal: float = 0.0, diffuse_horizontal: float = 0.0, day_of_year: int = 172) -> np.ndarray:
     """(N, 3) Lhat_j * dw_j for the product's patches; ``sun_layout`` is the sun in the layout's ENU frame."""
-    values = patch_radiance(product.patches, model, sun_layout, turbidity=turbidity, radiance=radiance)
+    values = patch_radiance(product.patches, model, sun_layout, turbidity=turbidity, radiance=radiance,
+                            direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal,
+                            day_of_year=day_of_year)
     return (values * product.patches.patch_solid_angles[:, None]).astype(np.float32)
 
 
 def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitude: float, longitude: float,
                      timezone: float, north: float = 0.0, sky: str = "preetham", turbidity: float = 3.0,
-                     uniform_radiance: float = 1000.0, sun: bool = True, sun_samples: int = 4, seed: int = 0,
+                     uniform_radiance: float = 1000.0, direct_normal: float = 600.0,
+                     diffuse_horizontal: float = 150.0, sun: bool = True, sun_samples: int = 4, seed: int = 0,
                      progress=lambda f: None) -> tuple[Daylight, dict]:
     """Radiance of every refined face at every time (see the module docstring)."""
     position = sun_position(times, latitude, longitude, timezone)
@@ -218,12 +227,14 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
     sun_rays = 0
     for k, sun_site in enumerate(position.enu()):
         sun_layout = turn @ sun_site
-        weights = sky_weights(product, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance)
+        day = int((times[k].astype("datetime64[D]") - times[k].astype("datetime64[Y]")).astype(int)) + 1
+        weights = sky_weights(product, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
+                              direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day)
         direct = None
-        if sun and sky == "preetham" and sun_site[2] > 0:
+        if sun and sky in ("preetham", "perez") and sun_site[2] > 0:
             sun_world = product.to_world @ sun_layout
-            day = int((times[k].astype("datetime64[D]") - times[k].astype("datetime64[Y]")).astype(int)) + 1
-            e_normal = sun_normal_irradiance(sun_site, turbidity, day)
+            e_normal = sun_normal_irradiance(sun_site, turbidity, day) if sky == "preetham" else \
+                np.full(3, direct_normal)
             cos_i = np.maximum(product.face_normals @ sun_world.astype(np.float32), 0.0)
             seen = compute_sun_visibility(tracer, corners, product.face_normals, sun_world, samples=sun_samples,
                                           seed=seed + k)
@@ -253,7 +264,7 @@ def tone_map(radiance: np.ndarray, exposure: float = 0.0) -> tuple[np.ndarray, f
 @register
 class DaylightProcessor(Processor):
     name = "daylight"
-    version = "1"
+    version = "2"
     summary = "Sky (Preetham/CIE overcast/uniform) + sun relighting of the sky_visibility mesh, time-sampled."
     facets = ("geometry", "materials")
     requires = ("sky_visibility",)
@@ -268,10 +279,15 @@ class DaylightProcessor(Processor):
         timezone: float = param(1.0, "hours east of UTC of the local standard time", low=-12.0, high=14.0)
         north: float = param(0.0, "angle of north from the stage's default north (degrees, counter-clockwise)",
                              low=-360.0, high=360.0)
-        sky: str = param("preetham", "sky model", choices=("preetham", "overcast", "uniform"))
+        sky: str = param("preetham", "sky model: preetham (turbidity), perez (all-weather, from direct_normal and "
+                         "diffuse_horizontal), overcast (CIE), uniform", choices=("preetham", "perez", "overcast",
+                                                                                   "uniform"))
         turbidity: float = param(3.0, "Preetham turbidity (2 clear .. 10 hazy)", low=1.7, high=10.0)
         uniform_radiance: float = param(1000.0, "radiance of the uniform sky, W/(m^2 sr)", low=0.0)
-        sun: bool = param(True, "add the direct sun (Preetham sky only)")
+        direct_normal: float = param(600.0, "Perez sky: direct-normal irradiance, W/m^2 (e.g. from a weather file)",
+                                     low=0.0)
+        diffuse_horizontal: float = param(150.0, "Perez sky: diffuse-horizontal irradiance, W/m^2", low=0.0)
+        sun: bool = param(True, "add the direct sun (Preetham and Perez skies)")
         sun_samples: int = param(4, "rays per face toward the solar disk", low=1, high=4096)
         display_color: bool = param(False, "also write a tone-mapped primvars:displayColor")
         exposure: float = param(0.0, "tone-mapping scale for displayColor (0: automatic)", low=0.0)
@@ -293,7 +309,8 @@ class DaylightProcessor(Processor):
             raise ParamError(f"times={p.times!r}: {error}") from None
         daylight, stats = compute_daylight(
             ctx.tracer, scene, product, times, latitude=p.latitude, longitude=p.longitude, timezone=p.timezone,
-            north=p.north, sky=p.sky, turbidity=p.turbidity, uniform_radiance=p.uniform_radiance, sun=p.sun,
+            north=p.north, sky=p.sky, turbidity=p.turbidity, uniform_radiance=p.uniform_radiance,
+            direct_normal=p.direct_normal, diffuse_horizontal=p.diffuse_horizontal, sun=p.sun,
             sun_samples=p.sun_samples, seed=p.seed, progress=ctx.progress)
         result = Result(products={"daylight": daylight}, stats=stats)
         sampled = len(times) > 1

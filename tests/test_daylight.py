@@ -186,3 +186,50 @@ def test_time_sampled_bake_through_usd():
     # Outdoors at noon is brighter than at 6:00 (low sun, dimmer sky).
     ground = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Ground")).GetPrimvar("bake:daylight")
     assert np.mean(ground.Get(2.0)) > 2 * np.mean(ground.Get(0.0))
+
+
+# ---------------------------------------------------------------------------
+# Perez all-weather sky
+
+def test_perez_sky_integrates_to_the_diffuse_horizontal_irradiance():
+    """The sky is scaled so that integral L cos(zeta) dw = DHI, on any patch layout (not only its own grid)."""
+    from usdbake.processors.kernels.sky import perez_radiance, tregenza_patches
+
+    sun = np.array([0.3, -0.4, 0.8]) / np.linalg.norm([0.3, -0.4, 0.8])
+    for dni, dhi in ((850.0, 90.0), (300.0, 220.0), (0.0, 160.0)):
+        for patches in (uniform_patches(1024), tregenza_patches()):
+            values = patch_radiance(patches, "perez", sun, direct_normal=dni, diffuse_horizontal=dhi, per_side=5)
+            mean_cos = patches.patch_bounds[:, :2].mean(axis=1)
+            irradiance = (values[:, 0] * mean_cos * patches.patch_solid_angles).sum()
+            # patch averaging of a smooth but peaked (circumsolar) distribution: a few percent
+            np.testing.assert_allclose(irradiance, dhi, rtol=0.03)
+        assert np.all(perez_radiance(np.array([[0.6, 0.0, -0.8]]), sun, dni, dhi) == 0.0)  # below the horizon
+
+
+def test_perez_sky_states_and_shapes():
+    """Clearness from DNI/DHI (Perez 1990), the overcast bin's own c and d, and the model's shapes:
+    a clear sky is brightest around the sun, an overcast one at the zenith rather than the horizon."""
+    from usdbake.processors.kernels.sky import (perez_coefficients, perez_radiance, perez_relative_luminance,
+                                                perez_sky_state)
+
+    zenith = math.radians(30.0)
+    epsilon, delta = perez_sky_state(zenith, 0.0, 150.0)
+    assert epsilon == 1.0  # no direct light: the overcast limit
+    epsilon_clear, _ = perez_sky_state(zenith, 850.0, 90.0)
+    kz3 = 1.041 * zenith ** 3
+    np.testing.assert_allclose(epsilon_clear, ((90 + 850) / 90 + kz3) / (1 + kz3))
+    a, b, c, d, e = perez_coefficients(zenith, 1.0, delta)
+    np.testing.assert_allclose(c, math.exp((delta * (2.8 + 0.6004 * zenith)) ** 1.2375) - 1.0)
+    np.testing.assert_allclose(d, -math.exp(delta * (1.8734 + 0.6297 * zenith)) + 0.9738 + delta * 0.2809)
+    # Eq. 1 by hand for one element
+    coefficients = np.array([a, b, c, d, e])
+    sun = np.array([0.0, math.sin(zenith), math.cos(zenith)])
+    element = np.array([0.0, 0.0, 1.0])  # the zenith: zeta = 0, gamma = sun zenith
+    expected = (1 + a * math.exp(b)) * (1 + c * math.exp(d * zenith) + e * math.cos(zenith) ** 2)
+    np.testing.assert_allclose(perez_relative_luminance(element, sun, coefficients), expected)
+
+    clear = lambda v: perez_radiance(np.asarray(v, float), sun, 850.0, 90.0)[..., 0]  # noqa: E731
+    away = np.array([0.0, -math.sin(zenith), math.cos(zenith)])  # mirror of the sun about the zenith
+    assert clear(sun * 0.999 + np.array([0, 0, 0.001])) > 3 * clear(away)
+    overcast = lambda v: perez_radiance(np.asarray(v, float), sun, 0.0, 150.0)[..., 0]  # noqa: E731
+    assert overcast([0, 0, 1.0]) > 1.3 * overcast([1.0, 0.0, 0.05])

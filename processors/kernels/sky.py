@@ -325,16 +325,113 @@ def sun_normal_irradiance(sun: np.ndarray, turbidity: float = 3.0, day_of_year: 
     return EXTRATERRESTRIAL_ILLUMINANCE * distance / LUMINOUS_EFFICACY * transmittance
 
 
+# Perez, Seals & Michalsky 1993, "All-weather model for sky luminance distribution", Table 1 (with the
+# 1993 erratum): for each of the 8 sky-clearness bins, coefficients x1..x4 of a, b, c, d and e, where
+# x = x1 + x2 Z + Delta (x3 + x4 Z) (Z: solar zenith angle in radians).
+PEREZ_COEFFICIENTS = np.array([
+    1.3525, -0.2576, -0.2690, -1.4366, -0.7670, 0.0007, 1.2734, -0.1233, 2.8000, 0.6004, 1.2375, 1.0000,
+    1.8734, 0.6297, 0.9738, 0.2809, 0.0356, -0.1246, -0.5718, 0.9938,
+    -1.2219, -0.7730, 1.4148, 1.1016, -0.2054, 0.0367, -3.9128, 0.9156, 6.9750, 0.1774, 6.4477, -0.1239,
+    -1.5798, -0.5081, -1.7812, 0.1080, 0.2624, 0.0672, -0.2190, -0.4285,
+    -1.1000, -0.2515, 0.8952, 0.0156, 0.2782, -0.1812, -4.5000, 1.1766, 24.7219, -13.0812, -37.7000, 34.8438,
+    -5.0000, 1.5218, 3.9229, -2.6204, -0.0156, 0.1597, 0.4199, -0.5562,
+    -0.5484, -0.6654, -0.2672, 0.7117, 0.7234, -0.6219, -5.6812, 2.6297, 33.3389, -18.3000, -62.2500, 52.0781,
+    -3.5000, 0.0016, 1.1477, 0.1062, 0.4659, -0.3296, -0.0876, -0.0329,
+    -0.6000, -0.3566, -2.5000, 2.3250, 0.2937, 0.0496, -5.6812, 1.8415, 21.0000, -4.7656, -21.5906, 7.2492,
+    -3.5000, -0.1554, 1.4062, 0.3988, 0.0032, 0.0766, -0.0656, -0.1294,
+    -1.0156, -0.3670, 1.0078, 1.4051, 0.2875, -0.5328, -3.8500, 3.3750, 14.0000, -0.9999, -7.1406, 7.5469,
+    -3.4000, -0.1078, -1.0750, 1.5702, -0.0672, 0.4016, 0.3017, -0.4844,
+    -1.0000, 0.0211, 0.5025, -0.5119, -0.3000, 0.1922, 0.7023, -1.6317, 19.0000, -5.0000, 1.2438, -1.9094,
+    -4.0000, 0.0250, 0.3844, 0.2656, 1.0468, -0.3788, -2.4517, 1.4656,
+    -1.0500, 0.0289, 0.4260, 0.3590, -0.3250, 0.1156, 0.7781, 0.0025, 31.0625, -14.5000, -46.1148, 55.3750,
+    -7.2312, 0.4050, 13.3500, 0.6234, 1.5000, -0.6426, 1.8564, 0.5636,
+]).reshape(8, 5, 4)
+
+PEREZ_CLEARNESS_EDGES = np.array([1.065, 1.230, 1.500, 1.950, 2.800, 4.500, 6.200])
+"""Upper edges of the sky-clearness bins 1..7 (bin 8 is open above 6.2)."""
+
+SOLAR_CONSTANT = 1367.0
+"""Extraterrestrial normal irradiance at the mean Earth-Sun distance, W/m^2."""
+
+
+def perez_sky_state(sun_zenith: float, direct_normal: float, diffuse_horizontal: float,
+                    day_of_year: int = 172) -> tuple[float, float]:
+    """Sky clearness epsilon and brightness Delta (Perez et al. 1990) from DNI and DHI in W/m^2,
+    clamped to the model's range (epsilon 1..12, Delta 0.01..0.6) as Radiance's gendaylit does."""
+    z = float(sun_zenith)
+    dhi = max(float(diffuse_horizontal), 1e-9)
+    kappa_z3 = 1.041 * z ** 3
+    epsilon = ((dhi + max(float(direct_normal), 0.0)) / dhi + kappa_z3) / (1.0 + kappa_z3)
+    extraterrestrial = SOLAR_CONSTANT * (1.0 + 0.033 * math.cos(2 * np.pi * day_of_year / 365.0))
+    delta = min(air_mass(math.cos(z)), 40.0) * dhi / extraterrestrial
+    return float(np.clip(epsilon, 1.0, 12.0)), float(np.clip(delta, 0.01, 0.6))
+
+
+def perez_coefficients(sun_zenith: float, epsilon: float, delta: float) -> np.ndarray:
+    """(5,) a, b, c, d, e of the all-weather model for one sky state (bin 1 has its own c and d)."""
+    z = float(sun_zenith)
+    x = PEREZ_COEFFICIENTS[int(np.searchsorted(PEREZ_CLEARNESS_EDGES, epsilon, side="right"))]
+    coefficients = x[:, 0] + x[:, 1] * z + delta * (x[:, 2] + x[:, 3] * z)
+    if epsilon < PEREZ_CLEARNESS_EDGES[0]:
+        coefficients[2] = math.exp((delta * (x[2, 0] + x[2, 1] * z)) ** x[2, 2]) - x[2, 3]
+        coefficients[3] = -math.exp(delta * (x[3, 0] + x[3, 1] * z)) + x[3, 2] + delta * x[3, 3]
+    return coefficients
+
+
+def perez_relative_luminance(directions: np.ndarray, sun: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """(...,) lv = (1 + a exp(b / cos zeta)) (1 + c exp(d gamma) + e cos^2 gamma) (Perez et al. 1993, Eq. 1);
+    zeta is the element's zenith angle, gamma its angle to the sun; zero below the horizon."""
+    directions = np.asarray(directions, np.float64)
+    sun = np.asarray(sun, np.float64) / np.linalg.norm(sun)
+    a, b, c, d, e = coefficients
+    cos_zeta = directions[..., 2]
+    cos_gamma = np.clip(directions @ sun, -1.0, 1.0)
+    gamma = np.arccos(cos_gamma)
+    gradation = 1.0 + a * np.exp(b / np.maximum(cos_zeta, 0.01))  # 0.01: finite at the horizon, as gendaylit
+    indicatrix = 1.0 + c * np.exp(d * gamma) + e * cos_gamma ** 2
+    return np.where(cos_zeta >= 0.0, np.maximum(gradation * indicatrix, 0.0), 0.0)
+
+
+def _hemisphere_quadrature(rings: int = 90, segments: int = 180) -> tuple[np.ndarray, np.ndarray]:
+    """Midpoint directions and solid angles of a (zenith x azimuth) grid over the upper hemisphere."""
+    zeta_edges = np.linspace(0.0, np.pi / 2, rings + 1)
+    zeta = (zeta_edges[:-1] + zeta_edges[1:]) / 2
+    phi = (np.arange(segments) + 0.5) * 2 * np.pi / segments
+    solid = (np.cos(zeta_edges[:-1]) - np.cos(zeta_edges[1:]))[:, None] * np.full(segments, 2 * np.pi / segments)
+    zz, pp = np.meshgrid(zeta, phi, indexing="ij")
+    directions = np.stack([np.sin(zz) * np.sin(pp), np.sin(zz) * np.cos(pp), np.cos(zz)], axis=-1)
+    return directions.reshape(-1, 3), solid.reshape(-1)
+
+
+def perez_radiance(directions: np.ndarray, sun: np.ndarray, direct_normal: float, diffuse_horizontal: float,
+                   day_of_year: int = 172) -> np.ndarray:
+    """(..., 3) grey sky radiance (W/(m^2 sr)) of the Perez all-weather model driven by direct-normal and
+    diffuse-horizontal irradiance (what weather files give), scaled so that the sky's horizontal
+    irradiance integral_{H} L cos(zeta) dw equals ``diffuse_horizontal`` (as gendaylit normalizes)."""
+    sun = np.asarray(sun, np.float64) / np.linalg.norm(sun)
+    zenith = math.acos(float(np.clip(sun[2], -1.0, 1.0)))
+    coefficients = perez_coefficients(zenith, *perez_sky_state(min(zenith, math.radians(87.0)), direct_normal,
+                                                                diffuse_horizontal, day_of_year))
+    grid, solid = _hemisphere_quadrature()
+    horizontal = float((perez_relative_luminance(grid, sun, coefficients) * grid[:, 2] * solid).sum())
+    scale = float(diffuse_horizontal) / horizontal if horizontal > 0 else 0.0
+    value = perez_relative_luminance(directions, sun, coefficients) * scale
+    return np.repeat(value[..., None], 3, axis=-1)
+
+
 def patch_radiance(patches: SkyPatches, model: str, sun: np.ndarray, *, turbidity: float = 3.0,
-                   radiance: float = 1.0, per_side: int = 3) -> np.ndarray:
+                   radiance: float = 1.0, per_side: int = 3, direct_normal: float = 0.0,
+                   diffuse_horizontal: float = 0.0, day_of_year: int = 172) -> np.ndarray:
     """(N, 3) mean radiance of each patch (model averaged over a per_side^2 grid of equal solid angle)."""
     directions = patch_samples(patches, per_side)
-    if model == "preetham":
+    if model == "perez":
+        values = perez_radiance(directions, sun, direct_normal, diffuse_horizontal, day_of_year)
+    elif model == "preetham":
         values = preetham_radiance(directions, sun, turbidity)
     elif model == "overcast":
         values = overcast_radiance(directions, sun)
     elif model == "uniform":
         values = uniform_radiance(directions, radiance)
     else:
-        raise ValueError(f"unknown sky model {model!r} (preetham, overcast, uniform)")
+        raise ValueError(f"unknown sky model {model!r} (preetham, perez, overcast, uniform)")
     return values.mean(axis=1)
