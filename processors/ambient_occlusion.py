@@ -42,7 +42,7 @@ import numpy as np
 import warp as wp
 
 from .base import Attribute, Context, Params, Prim, Primvar, Processor, Result, param, register
-from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame
+from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
 from .geometry import face_means, receiver_prims, strata_for, vertex_normals
 from .scene import Scene
 
@@ -111,9 +111,7 @@ def face_ao_kernel(
     state = wp.rand_init(seed, i)
     visible = int(0)
     for k in range(strata * strata):
-        r1 = wp.sqrt(wp.randf(state))
-        r2 = wp.randf(state)
-        x = a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2)
+        x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))
         u = stratified_pair(k, strata, state)
         direction = frame * cosine_hemisphere(u[0], u[1])
         if not wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, direction, max_distance):

@@ -80,7 +80,7 @@ from .base import (
     param,
     register,
 )
-from .kernels.sampling import tangent_frame
+from .kernels.sampling import tangent_frame, triangle_point
 from .kernels.sky import (
     SUN_ANGULAR_DIAMETER,
     enu_to_world,
@@ -123,9 +123,7 @@ def sun_visibility_kernel(
         sin_t = wp.sqrt(wp.max(0.0, 1.0 - cos_t * cos_t))
         phi = 2.0 * wp.pi * wp.randf(state)
         d = frame * wp.vec3(sin_t * wp.cos(phi), sin_t * wp.sin(phi), cos_t)
-        r1 = wp.sqrt(wp.randf(state))
-        r2 = wp.randf(state)
-        x = a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2)
+        x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))
         if wp.dot(n, d) > 0.0:
             if not wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, d, 3.0e38):
                 hits += 1

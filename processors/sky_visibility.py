@@ -76,7 +76,7 @@ import warp as wp
 
 from .base import Attribute, Context, Params, Prim, Primvar, Processor, Result, param, register
 from .geometry import receiver_prims, strata_for
-from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame
+from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
 from .kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
 from .refine import refine, weld_points
 from .scene import Scene
@@ -133,10 +133,10 @@ def patch_visibility_kernel(
         u = stratified_pair(s, strata, state)
         d = sample_patch(bounds, to_world, u[0], u[1])
         cos_theta = wp.dot(n, d)
-        r1 = wp.sqrt(wp.randf(state))
-        r2 = wp.randf(state)
+        u1 = wp.randf(state)
+        u2 = wp.randf(state)
         if cos_theta > 0.0:
-            x = a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2)
+            x = triangle_point(a, b, c, u1, u2)
             if wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, d, 3.0e38):
                 occ += cos_theta
             else:

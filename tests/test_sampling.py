@@ -10,7 +10,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from usdbake.processors.kernels.sampling import (concentric_disk_np, cosine_hemisphere, cosine_hemisphere_np,
-                                                 stratified_pair, tangent_frame)
+                                                 stratified_pair, tangent_frame, triangle_point)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -238,3 +238,24 @@ def test_stratified_pair_jitters_each_cell_independently():
     assert ((jitter >= 0) & (jitter < 1)).all()  # every sample stays in its own cell
     # Independent uniform jitters: std ~ 0.29; a shared jitter would give 0.
     assert jitter.std(axis=0).min() > 0.2
+
+
+@wp.kernel
+def _triangle_points_kernel(u: wp.array(dtype=wp.vec2), out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = triangle_point(wp.vec3(0.0, 0.0, 0.0), wp.vec3(1.0, 0.0, 0.0), wp.vec3(0.0, 1.0, 0.0), u[i][0], u[i][1])
+
+
+def test_triangle_point_is_uniform_on_the_triangle():
+    """Points stay inside, and the mean is the centroid (1/3, 1/3) with the second moments of a uniform
+    density on the unit right triangle (E[x^2] = 1/6, E[xy] = 1/12)."""
+    rng = np.random.default_rng(4)  # fixed seed
+    u = rng.random((200_000, 2)).astype(np.float32)
+    out = wp.zeros(len(u), dtype=wp.vec3, device="cpu")
+    wp.launch(_triangle_points_kernel, dim=len(u), inputs=[wp.array(u, dtype=wp.vec2, device="cpu")], outputs=[out],
+              device="cpu")
+    p = out.numpy()[:, :2].astype(np.float64)
+    assert (p >= -1e-6).all() and (p.sum(axis=1) <= 1 + 1e-6).all()
+    tol = 4 * 0.25 / math.sqrt(len(u))  # 4 sigma, each coordinate's std is < 0.25
+    np.testing.assert_allclose(p.mean(axis=0), [1 / 3, 1 / 3], atol=tol)
+    np.testing.assert_allclose([(p[:, 0] ** 2).mean(), (p[:, 0] * p[:, 1]).mean()], [1 / 6, 1 / 12], atol=tol)

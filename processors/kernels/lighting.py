@@ -16,7 +16,7 @@ import numpy as np
 import warp as wp
 
 from ..scene import LIGHT_DOME, Scene
-from .sampling import concentric_disk, cosine_hemisphere, tangent_frame
+from .sampling import concentric_disk, cosine_hemisphere, tangent_frame, triangle_point
 
 wp.set_module_options({"enable_backward": False})
 
@@ -149,10 +149,8 @@ def direct_at(
             below = emitter_cdf[lo - 1]
         pmf = (emitter_cdf[lo] - below) / emitter_cdf[count - 1]
         if pmf > 0.0:
-            s = wp.sqrt(wp.randf(state))
-            t2 = wp.randf(state)
-            q = emitter_vertices[3 * lo] * (1.0 - s) + emitter_vertices[3 * lo + 1] * (s * (1.0 - t2)) \
-                + emitter_vertices[3 * lo + 2] * (s * t2)
+            q = triangle_point(emitter_vertices[3 * lo], emitter_vertices[3 * lo + 1], emitter_vertices[3 * lo + 2],
+                               wp.randf(state), wp.randf(state))
             g = area_sample(mesh, p, n, origin, q, emitter_normal[lo], emitter_two_sided[lo], emitter_area[lo],
                             epsilon, min_d2)
             e += emitter_radiance[lo] * (g / pmf)

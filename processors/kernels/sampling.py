@@ -62,6 +62,16 @@ def stratified_pair(index: int, strata: int, state: wp.uint32) -> wp.vec2:
     return wp.vec2((float(sx) + wp.randf(local)) * inv, (float(sy) + wp.randf(local)) * inv)
 
 
+@wp.func
+def triangle_point(a: wp.vec3, b: wp.vec3, c: wp.vec3, u1: float, u2: float) -> wp.vec3:
+    """Uniform point on triangle abc from two uniforms (square-root warp; Osada et al. 2002).
+
+    The caller draws u1 and u2, so its own generator advances (see stratified_pair).
+    """
+    r1 = wp.sqrt(u1)
+    return a * (1.0 - r1) + b * (r1 * (1.0 - u2)) + c * (r1 * u2)
+
+
 def concentric_disk_np(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     """numpy twin of concentric_disk: (N,) x (N,) -> (N, 2)."""
     a = 2.0 * np.asarray(u1, np.float64) - 1.0
