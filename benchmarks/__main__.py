@@ -17,7 +17,7 @@ def available() -> dict[str, object]:
     modules = {}
     for info in pkgutil.iter_modules([str(harness.ROOT)]):
         if info.name.startswith("bench_"):
-            module = importlib.import_module(f"benchmarks.{info.name}")
+            module = importlib.import_module(f"{__package__}.{info.name}")
             modules[module.NAME] = module
     return modules
 

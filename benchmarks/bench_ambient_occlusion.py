@@ -24,8 +24,8 @@ def run(quick: bool = False) -> dict:
     from pxr import Usd
 
     from usdbake.processors.ambient_occlusion import AmbientOcclusion, compute_vertex_ao
-    from usdbake.processors.geometry import vertex_normals
-    from usdbake.processors.tracer import Tracer
+    from usdbake.geometry.mesh import vertex_normals
+    from usdbake.kernels.tracer import Tracer
     from usdbake.stages.extract import extract_scene
 
     sample = harness.SAMPLES / "atrium.usda"
@@ -63,7 +63,7 @@ def run(quick: bool = False) -> dict:
 def _bake_wall_seconds(sample: Path) -> float:
     """Wall time of the `usdbake bake` command at defaults (fresh cache, so it really runs)."""
     with tempfile.TemporaryDirectory() as folder:
-        command = [sys.executable, "-m", "usdbake.stages.cli", "bake", str(sample), "-o",
+        command = [sys.executable, "-m", "usdbake.cli.main", "bake", str(sample), "-o",
                    str(Path(folder) / "atrium.baked.usdc"), "--cache", str(Path(folder) / "cache")]
         started = time.perf_counter()
         subprocess.run(command, check=True, capture_output=True, env={**os.environ})

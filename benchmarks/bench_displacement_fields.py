@@ -43,13 +43,13 @@ def bumpy_sphere(n: int) -> tuple[np.ndarray, np.ndarray]:
 def run(quick: bool = False) -> dict:
     from pxr import Usd
 
-    from usdbake.processors import base
+    from usdbake import core
     from usdbake.processors.ambient_occlusion import AmbientOcclusion
     from usdbake.processors.displacement_fields import (DisplacementField, DisplacementFields,
                                                         compute_field_distances, encode_field, prototype_geometry,
                                                         side_for)
     from usdbake.processors.instance_ao import InstanceAO
-    from usdbake.processors.tracer import Tracer
+    from usdbake.kernels.tracer import Tracer
     from usdbake.stages.extract import extract_scene
 
     scene = extract_scene(Usd.Stage.Open(str(harness.SAMPLES / "instanced_props.usda")))
@@ -59,7 +59,7 @@ def run(quick: bool = False) -> dict:
     started = time.perf_counter()
     tracer = Tracer.from_scene(scene)
     bvh_build = time.perf_counter() - started
-    ctx = base.Context(scene=scene, params=AmbientOcclusion.Params(), tracer=tracer)
+    ctx = core.Context(scene=scene, params=AmbientOcclusion.Params(), tracer=tracer)
     AmbientOcclusion().run(ctx)  # compile outside the timing
     started = time.perf_counter()
     reference = AmbientOcclusion().run(ctx).products["ao"]
@@ -84,7 +84,7 @@ def run(quick: bool = False) -> dict:
                 fields[path] = DisplacementField(path, center, radius, side, size, encoding, texels, means,
                                                  len(prototypes[path][1]))
             params = InstanceAO.Params()
-            ao_ctx = base.Context(scene=scene, params=params, tracer=None, products={"displacement_fields": fields})
+            ao_ctx = core.Context(scene=scene, params=params, tracer=None, products={"displacement_fields": fields})
             InstanceAO().run(ao_ctx)  # compile / warm
             started = time.perf_counter()
             ao = InstanceAO().run(ao_ctx).products["instance_ao"][None]
@@ -100,10 +100,10 @@ def run(quick: bool = False) -> dict:
     # interpolation modes at the default resolution (quadrilinear etc. are options of instance_ao)
     interpolation = {}
     if not quick:
-        fields = DisplacementFields().run(base.Context(scene=scene, params=DisplacementFields.Params(),
+        fields = DisplacementFields().run(core.Context(scene=scene, params=DisplacementFields.Params(),
                                                        tracer=None)).products["displacement_fields"]
         for mode in ("nearest", "position", "direction", "quadrilinear"):
-            ao_ctx = base.Context(scene=scene, params=InstanceAO.Params(interpolation=mode), tracer=None,
+            ao_ctx = core.Context(scene=scene, params=InstanceAO.Params(interpolation=mode), tracer=None,
                                   products={"displacement_fields": fields})
             ao = InstanceAO().run(ao_ctx).products["instance_ao"][None]
             interpolation[mode] = float(np.sqrt(np.mean((ao[receivers] - reference[receivers]) ** 2)))
@@ -158,7 +158,7 @@ def run(quick: bool = False) -> dict:
 def _scaling(quick, compute_field_distances, encode_field, DisplacementField, side_for) -> list[dict]:
     """Field lookup vs BVH any-hit time per ray as the prototype grows."""
     from usdbake.processors.instance_ao import query_field
-    from usdbake.processors.tracer import Tracer
+    from usdbake.kernels.tracer import Tracer
 
     sizes = [36, 112] if quick else [36, 112, 355]
     ray_count = 200_000 if quick else 1_000_000
@@ -204,23 +204,23 @@ def _instance_vertices(scene) -> dict:
     """instance_ao with instances=True: per-instance mean AO against the exact AO at the instances' vertices."""
     import dataclasses
 
-    from usdbake.processors import base
+    from usdbake import core
     from usdbake.processors.ambient_occlusion import AmbientOcclusion
     from usdbake.processors.displacement_fields import DisplacementFields
-    from usdbake.processors.geometry import vertex_normals
+    from usdbake.geometry.mesh import vertex_normals
     from usdbake.processors.instance_ao import InstanceAO, InstancePoints
-    from usdbake.processors.tracer import Tracer
+    from usdbake.kernels.tracer import Tracer
 
-    fields = DisplacementFields().run(base.Context(scene=scene, params=DisplacementFields.Params(),
+    fields = DisplacementFields().run(core.Context(scene=scene, params=DisplacementFields.Params(),
                                                    tracer=None)).products["displacement_fields"]
     started = time.perf_counter()
-    result = InstanceAO().run(base.Context(scene=scene, params=InstanceAO.Params(instances=True), tracer=None,
+    result = InstanceAO().run(core.Context(scene=scene, params=InstanceAO.Params(instances=True), tracer=None,
                                            products={"displacement_fields": fields}))
     field_seconds = time.perf_counter() - started
     means = result.products["instance_ao_per_instance"][None]
     writable = dataclasses.replace(scene, prim_writable=np.ones(len(scene.prim_paths), bool))
     started = time.perf_counter()
-    exact = AmbientOcclusion().run(base.Context(scene=writable, params=AmbientOcclusion.Params(),
+    exact = AmbientOcclusion().run(core.Context(scene=writable, params=AmbientOcclusion.Params(),
                                                 tracer=Tracer.from_scene(scene))).products["ao"]
     exact_seconds = time.perf_counter() - started
     normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)

@@ -42,9 +42,9 @@ def _surface_points(scene, count: int, seed: int):
 def run(quick: bool = False) -> dict:
     from pxr import Usd
     from usdbake.processors import irradiance_grid as ig
-    from usdbake.processors import streaming
-    from usdbake.processors.geometry import vertex_normals
-    from usdbake.processors.tracer import Tracer
+    from usdbake.formats import streaming
+    from usdbake.geometry.mesh import vertex_normals
+    from usdbake.kernels.tracer import Tracer
     from usdbake.stages.extract import extract_scene
 
     sample = harness.SAMPLES / "cornell_box.usda"
@@ -58,7 +58,7 @@ def run(quick: bool = False) -> dict:
     for mode, direct in (("total", True), ("indirect", False)):
         references[mode] = harness.cached_reference(
             f"irradiance_grid_cornell_{mode}",
-            {"rays": reference_rays, "seed": 99, "points": count, "version": ig.IrradianceGridProcessor.version,
+            {"rays": reference_rays, "seed": 99, "points": count, "version": ig.IrradianceGrid.version,
              "include_direct": direct, "light_model": "sampled area lights, emission seen only without UsdLux"},
             lambda direct=direct: {
                 "surface": ig.compute_point_irradiance(tracer, scene, points, normals, rays=reference_rays,

@@ -33,9 +33,9 @@ def run(quick: bool = False) -> dict:
     from pxr import Usd
 
     from usdbake.processors import light_probes as lp
-    from usdbake.processors.base import Context
-    from usdbake.processors.kernels.sh import sh_basis_np
-    from usdbake.processors.tracer import Tracer
+    from usdbake.core import Context
+    from usdbake.kernels.sh import sh_basis_np
+    from usdbake.kernels.tracer import Tracer
     from usdbake.stages.extract import extract_scene
 
     sample = harness.SAMPLES / "atrium.usda"
@@ -131,7 +131,7 @@ def _free_points(lp, tracer, lighting, scene, count: int) -> np.ndarray:
 def _bake_wall_seconds(sample: Path) -> float:
     """Wall time of `usdbake bake -p light_probes` at defaults (fresh cache, so it really runs)."""
     with tempfile.TemporaryDirectory() as folder:
-        command = [sys.executable, "-m", "usdbake.stages.cli", "bake", str(sample), "-o",
+        command = [sys.executable, "-m", "usdbake.cli.main", "bake", str(sample), "-o",
                    str(Path(folder) / "atrium.probes.usdc"), "-p", "light_probes",
                    "--cache", str(Path(folder) / "cache")]
         started = time.perf_counter()

@@ -26,8 +26,8 @@ SUPERSAMPLE = 4
 
 
 def run(quick: bool = False) -> dict:
-    from usdbake.stages import cli
-    from usdbake.stages.preview import preview
+    from usdbake.cli import main as cli
+    from usdbake.preview.compose import preview
 
     sample = harness.SAMPLES / "atrium.usda"
     sizes = [(160, 120), (320, 240), (640, 480)] if quick else [(160, 120), (320, 240), (640, 480), (1280, 960)]
@@ -82,7 +82,7 @@ def run(quick: bool = False) -> dict:
 
 def _aliasing_error(baked: str, out: str, width: int, height: int, display: np.ndarray) -> float:
     """RMS between a one-ray-per-pixel view and the box-filtered 4x4-supersampled view (same camera)."""
-    from usdbake.stages.preview import preview
+    from usdbake.preview.compose import preview
 
     if width * SUPERSAMPLE > 2560:  # keep the reference affordable; the largest size has no error entry
         return float("nan")

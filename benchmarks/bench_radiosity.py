@@ -22,9 +22,9 @@ import numpy as np
 import warp as wp
 from usdbake.processors import form_factors as ff
 from usdbake.processors import radiosity as rad
-from usdbake.processors.geometry import receiver_prims, vertex_normals
-from usdbake.processors.kernels.sampling import cosine_hemisphere, tangent_frame
-from usdbake.processors.tracer import Tracer
+from usdbake.geometry.mesh import receiver_prims, vertex_normals
+from usdbake.kernels.sampling import cosine_hemisphere, tangent_frame
+from usdbake.kernels.tracer import Tracer
 
 from . import harness
 

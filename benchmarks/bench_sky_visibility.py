@@ -40,7 +40,7 @@ def _centroid_error(product, reference) -> float:
 
 def _surface_points(scene, count: int, seed: int = 5):
     """(count, 3) area-uniform random points on the receivers' triangles and their (count, 3) normals."""
-    from usdbake.processors.geometry import receiver_prims
+    from usdbake.geometry.mesh import receiver_prims
 
     tris = np.flatnonzero(np.isin(scene.tri_prim, receiver_prims(scene)) & (scene.tri_areas > 0))
     rng = np.random.default_rng(seed)  # fixed: the same points for every mesh compared
@@ -53,7 +53,7 @@ def _surface_points(scene, count: int, seed: int = 5):
 
 def _surface_error(scene, product, points, normals, reference) -> float:
     """Relative RMS at fixed surface points of the exposure of the refined face containing each point."""
-    from usdbake.processors.tracer import Tracer
+    from usdbake.kernels.tracer import Tracer
 
     locator = Tracer(product.face_points.astype(np.float32), product.face_vertices)
     lift = 1e-4 * scene.diagonal
@@ -65,16 +65,16 @@ def _surface_error(scene, product, points, normals, reference) -> float:
 
 def run(quick: bool = False) -> dict:
     from usdbake.processors.daylight import compute_daylight, relight
-    from usdbake.processors.kernels.sky import uniform_patches
+    from usdbake.kernels.sky import uniform_patches
     from usdbake.processors.sky_visibility import (
-        SkyVisibilityProcessor,
+        SkyVisibility,
         compute_point_sky_view,
         compute_sky_visibility,
     )
-    from usdbake.processors.tracer import Tracer
+    from usdbake.kernels.tracer import Tracer
 
     patches = uniform_patches(256)
-    defaults = SkyVisibilityProcessor.Params()
+    defaults = SkyVisibility.Params()
     kw = dict(tolerance=defaults.tolerance, min_area=defaults.min_area, max_level=defaults.max_level)
     figures: dict = {}
 

@@ -17,8 +17,8 @@ DESCRIPTION = ("Ray throughput of the shared Warp BVH (`Tracer.occluded`, any-hi
 
 def ao_rays(scene, count: int, epsilon: float, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
     """``count`` rays from random vertices along cosine-weighted directions around their normals."""
-    from usdbake.processors.geometry import vertex_normals
-    from usdbake.processors.kernels.sampling import cosine_hemisphere_np
+    from usdbake.geometry.mesh import vertex_normals
+    from usdbake.kernels.sampling import cosine_hemisphere_np
 
     rng = np.random.default_rng(seed)  # fixed seed: the same rays for every backend and thread count
     normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
@@ -47,7 +47,7 @@ def best_of(repeats: int, fn) -> float:
 def run(quick: bool = False) -> dict:
     from pxr import Usd
 
-    from usdbake.processors.tracer import Tracer
+    from usdbake.kernels.tracer import Tracer
     from usdbake.stages.extract import extract_scene
 
     scene = extract_scene(Usd.Stage.Open(str(harness.SAMPLES / "atrium.usda")))

@@ -1,9 +1,7 @@
-"""Pure-compute processors (no pxr): the Scene, the Tracer, and one module per technique."""
+"""The techniques, one module each and nothing else.
 
-from importlib import import_module
-
-# Built-in processors register themselves when their module is imported.
-BUILTIN_MODULES = ("ambient_occlusion", "displacement_fields", "instance_ao", "form_factors", "radiosity", "sky_visibility", "daylight", "light_probes", "irradiance_grid", "progressive_mesh",)
-
-for _module in BUILTIN_MODULES:
-    import_module(f"{__name__}.{_module}")
+Each module reads top to bottom: the math (docstring with the paper's
+equations), the Warp kernels, the compute functions, and the Processor class.
+The registry lists them (usdbake.core.registry.BUILTIN); importing this
+package imports none of them.
+"""

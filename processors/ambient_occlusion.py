@@ -41,10 +41,10 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .base import Attribute, Context, Params, Prim, Primvar, Processor, Result, param, register
-from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
-from .geometry import face_means, receiver_prims, strata_for, vertex_normals
-from .scene import Scene
+from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
+from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame, triangle_point
+from ..geometry.mesh import face_means, receiver_prims, vertex_normals
+from ..core.scene import Scene
 
 wp.set_module_options({"enable_backward": False})
 
@@ -160,7 +160,6 @@ def compute_face_ao(tracer, points: np.ndarray, tri_vertices: np.ndarray, tri_no
     return ao.numpy()
 
 
-@register
 class AmbientOcclusion(Processor):
     name = "ambient_occlusion"
     version = "2"
@@ -176,7 +175,8 @@ class AmbientOcclusion(Processor):
         connect_occlusion: bool = param(False, "wire bake:ao into each bound UsdPreviewSurface inputs:occlusion")
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
 
-    def applies(self, scene: Scene) -> tuple[bool, str]:
+    def applies(self, ctx: Context) -> tuple[bool, str]:
+        scene = ctx.scene
         if len(receiver_prims(scene)) == 0:
             return False, "no writable meshes (all instanced, bake:skip or empty)"
         return True, ""

@@ -70,7 +70,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .base import (
+from ..core import (
     Context,
     ParamError,
     Params,
@@ -78,17 +78,16 @@ from .base import (
     Processor,
     Result,
     param,
-    register,
 )
-from .kernels.sampling import tangent_frame, triangle_point
-from .kernels.sky import (
+from ..kernels.sampling import tangent_frame, triangle_point
+from ..kernels.sky import (
     SUN_ANGULAR_DIAMETER,
     enu_to_world,
     patch_radiance,
     sun_normal_irradiance,
 )
-from .scene import Scene
-from .solar import parse_times, sun_position
+from ..core.scene import Scene
+from ..kernels.solar import parse_times, sun_position
 
 wp.set_module_options({"enable_backward": False})
 
@@ -139,7 +138,7 @@ def relight(visibility: np.ndarray, sky_weights: np.ndarray, *, scale: float = 1
     ----------
     visibility : (F, N) float32 V_ij, or uint8 quantized V (then multiplied by ``scale``); with
         ``patch_major`` the transpose, (N, F) float32 -- the fastest layout (one (3, N) x (N, F) BLAS
-        product streaming V once; see ``SkyVisibility.visibility_patch_major``)
+        product streaming V once; see ``SkyVisibilityProduct.visibility_patch_major``)
     sky_weights : (N, 3) Lhat_j * dw_j, RGB (W/m^2 per patch)
     albedo : (F, 3), optional; the result is then albedo / pi * irradiance (Lambertian radiance)
     sun : (F, 3), optional direct sun irradiance added before the albedo
@@ -187,7 +186,7 @@ def compute_sun_visibility(tracer, corners: np.ndarray, normals: np.ndarray, sun
 
 
 @dataclass(frozen=True)
-class Daylight:
+class DaylightProduct:
     """Product ``daylight``: radiance per refined face and time."""
 
     times: np.ndarray
@@ -213,7 +212,7 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
                      timezone: float, north: float = 0.0, sky: str = "preetham", turbidity: float = 3.0,
                      uniform_radiance: float = 1000.0, direct_normal: float = 600.0,
                      diffuse_horizontal: float = 150.0, sun: bool = True, sun_samples: int = 4, seed: int = 0,
-                     progress=lambda f: None) -> tuple[Daylight, dict]:
+                     progress=lambda f: None) -> tuple[DaylightProduct, dict]:
     """Radiance of every refined face at every time (see the module docstring)."""
     position = sun_position(times, latitude, longitude, timezone)
     turn = enu_to_world("Z", north)  # rotation about up: site ENU -> layout ENU
@@ -245,7 +244,7 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
     stats = {"times": float(len(times)), "faces": float(product.num_faces),
              "relight_ms": 1000.0 * float(np.median(relight_seconds)) if relight_seconds else 0.0,
              "sun_rays": float(sun_rays)}
-    return Daylight(times, out, position.zenith, position.azimuth), stats
+    return DaylightProduct(times, out, position.zenith, position.azimuth), stats
 
 
 def tone_map(radiance: np.ndarray, exposure: float = 0.0) -> tuple[np.ndarray, float]:
@@ -259,8 +258,7 @@ def tone_map(radiance: np.ndarray, exposure: float = 0.0) -> tuple[np.ndarray, f
     return (x / (1.0 + x)).astype(np.float32), k
 
 
-@register
-class DaylightProcessor(Processor):
+class Daylight(Processor):
     name = "daylight"
     version = "2"
     summary = "Sky (Preetham/CIE overcast/uniform) + sun relighting of the sky_visibility mesh, time-sampled."

@@ -78,11 +78,11 @@ from dataclasses import field as dataclass_field
 import numpy as np
 import warp as wp
 
-from .base import Attribute, Context, ParamError, Params, Prim, Processor, Result, Texture, param, register
-from .kernels.sampling import cosine_hemisphere, tangent_frame
-from .kernels.sphere_maps import equal_area_square_to_sphere
-from .scene import Scene
-from .tracer import Tracer
+from ..core import Attribute, Context, ParamError, Params, Prim, Processor, Result, Texture, param
+from ..kernels.sampling import cosine_hemisphere, tangent_frame
+from ..kernels.sphere_maps import equal_area_square_to_sphere
+from ..core.scene import Scene
+from ..kernels.tracer import Tracer
 
 wp.set_module_options({"enable_backward": False})
 
@@ -357,7 +357,6 @@ def choose_prototypes(scene: Scene, p) -> tuple[list[int], list[str]]:
 # Processor
 
 
-@register
 class DisplacementFields(Processor):
     name = "displacement_fields"
     version = "1"
@@ -391,7 +390,8 @@ class DisplacementFields(Processor):
                 raise ParamError(f"direction_map_size={self.direction_map_size} must be a multiple of 8 "
                                  f"with encoding=bit1 (8 texels per byte)")
 
-    def applies(self, scene: Scene) -> tuple[bool, str]:
+    def applies(self, ctx: Context) -> tuple[bool, str]:
+        scene = ctx.scene
         if len(scene.instances) == 0:
             return False, "no instanced prototypes"
         chosen, _ = choose_prototypes(scene, self.params)

@@ -96,8 +96,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from . import dds
-from .base import (
+from ..formats import dds
+from ..core import (
     Attribute,
     Context,
     File,
@@ -106,13 +106,12 @@ from .base import (
     Processor,
     Result,
     param,
-    register,
 )
-from .kernels.bc1 import blocks_to_image, decode_bc1_texels, encode_bc1
-from .kernels.patches import fragment_of_hit, point_in_triangle
-from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame
-from .scene import Scene
-from .tracer import launch_chunked
+from ..kernels.bc1 import blocks_to_image, decode_bc1_texels, encode_bc1
+from ..kernels.patches import fragment_of_hit, point_in_triangle
+from ..kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame
+from ..core.scene import Scene
+from ..kernels.tracer import launch_chunked
 
 wp.set_module_options({"enable_backward": False})
 
@@ -738,7 +737,6 @@ def precompute(tracer, scene: Scene, p, progress=lambda f: None) -> tuple[FormFa
     return FormFactorProduct(patches, compressed, p.bounces, p.infinite, checks), {"form": form, "operator": operator}
 
 
-@register
 class FormFactors(Processor):
     name = "form_factors"
     version = "2"
@@ -764,7 +762,8 @@ class FormFactors(Processor):
         row_correction: bool = param(True, "rescale decoded BC1 rows to their exact row sums ((n, 3) floats)")
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
 
-    def applies(self, scene: Scene) -> tuple[bool, str]:
+    def applies(self, ctx: Context) -> tuple[bool, str]:
+        scene = ctx.scene
         if not (scene.tri_areas > 0).any():
             return False, "no triangles with area"
         return True, ""

@@ -82,13 +82,13 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .base import Context, Params, Primvar, Processor, Result, param, register
-from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame
-from .kernels.sphere_maps import (equal_area_sphere_to_square, equal_area_square_to_sphere,
+from ..core import Context, Params, Primvar, Processor, Result, param
+from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
+from ..kernels.sphere_maps import (equal_area_sphere_to_square, equal_area_square_to_sphere,
                                   malley_direction_to_square, octahedral_wrap)
-from .geometry import receiver_prims, strata_for, vertex_normals
-from .scene import Scene
-from .tracer import RAY_EPSILON_RELATIVE, Tracer
+from ..geometry.mesh import receiver_prims, vertex_normals
+from ..core.scene import Scene
+from ..kernels.tracer import RAY_EPSILON_RELATIVE, Tracer
 
 wp.set_module_options({"enable_backward": False})
 
@@ -599,7 +599,6 @@ def parse_frames(text: str, available: np.ndarray) -> list[float] | None:
     return [float(available[np.abs(available - t).argmin()]) for t in wanted]
 
 
-@register
 class InstanceAO(Processor):
     name = "instance_ao"
     version = "2"
@@ -621,7 +620,8 @@ class InstanceAO(Processor):
                                        "area-weighted mean per instance on the PointInstancer")
         seed: int = param(0, "random seed (the same rays as ambient_occlusion with this seed)", low=0)
 
-    def applies(self, scene: Scene) -> tuple[bool, str]:
+    def applies(self, ctx: Context) -> tuple[bool, str]:
+        scene = ctx.scene
         if len(receiver_prims(scene)) == 0:
             return False, "no writable meshes (all instanced, bake:skip or empty)"
         return True, ""

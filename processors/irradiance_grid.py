@@ -95,7 +95,7 @@ and on every writable mesh ``primvars:bake:irradianceGrid`` (color3f[],
 vertex): the reconstructed irradiance E at its points with the area-weighted
 vertex normals (``usdbake preview --channel irradianceGrid``).
 
-Product ``irradiance_grid``: an ``IrradianceGrid`` (scene frame).
+Product ``irradiance_grid``: an ``IrradianceGridProduct`` (scene frame).
 
 Parameters
 ----------
@@ -123,8 +123,8 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from . import streaming
-from .base import (
+from ..formats import streaming
+from ..core import (
     Attribute,
     Context,
     File,
@@ -134,26 +134,25 @@ from .base import (
     Processor,
     Result,
     param,
-    register,
 )
-from .geometry import receiver_prims, vertex_normals
-from .kernels.lighting import (
+from ..geometry.mesh import receiver_prims, vertex_normals
+from ..kernels.lighting import (
     Lighting,
     cone_direction,
     direct_at,
     has_light,
     use_emissive,
 )
-from .kernels.octahedral import AXES, decode_hemisphere, encode_hemisphere
-from .kernels.rgb9e5 import decode_rgb9e5, encode_rgb9e5
-from .kernels.sampling import (
+from ..kernels.octahedral import AXES, decode_hemisphere, encode_hemisphere
+from ..kernels.rgb9e5 import decode_rgb9e5, encode_rgb9e5
+from ..kernels.sampling import (
     concentric_disk,
     cosine_hemisphere,
     stratified_pair,
     tangent_frame,
 )
-from .kernels.sh import uniform_sphere
-from .scene import Scene
+from ..kernels.sh import uniform_sphere
+from ..core.scene import Scene
 
 wp.set_module_options({"enable_backward": False})
 
@@ -556,7 +555,7 @@ def dequantize_vectors(directions: np.ndarray, colors: np.ndarray) -> np.ndarray
 
 
 @dataclass(frozen=True)
-class IrradianceGrid:
+class IrradianceGridProduct:
     """A baked grid (scene frame)."""
 
     layout: GridLayout
@@ -583,7 +582,7 @@ def fill_invalid(vectors: np.ndarray, resolution, valid: np.ndarray, *, smooth: 
 
 
 def bake_grid(tracer, scene: Scene, layout: GridLayout, *, rays: int, seed: int = 0, include_direct: bool = True,
-              smooth: bool = True, progress=lambda f: None) -> IrradianceGrid:
+              smooth: bool = True, progress=lambda f: None) -> IrradianceGridProduct:
     """Compute, fill and quantize the grid (module docstring)."""
     vectors, back = compute_irradiance_vectors(tracer, scene, layout.positions(), rays=rays, seed=seed,
                                                include_direct=include_direct)
@@ -597,7 +596,7 @@ def bake_grid(tracer, scene: Scene, layout: GridLayout, *, rays: int, seed: int 
         fd, fc = quantize_vectors(filled[~valid])
         directions[~valid], colors[~valid] = fd, fc
         vectors = fill_invalid(vectors, layout.resolution, valid, smooth=smooth)
-    return IrradianceGrid(layout, directions, colors, valid, vectors)
+    return IrradianceGridProduct(layout, directions, colors, valid, vectors)
 
 
 def trilinear(layout: GridLayout, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -664,7 +663,7 @@ def reconstruct_irradiance(layout: GridLayout, vectors: np.ndarray, points: np.n
 # The processor
 
 
-def grid_records(grid: IrradianceGrid, origin: np.ndarray, stream_file: str, *, rays: int,
+def grid_records(grid: IrradianceGridProduct, origin: np.ndarray, stream_file: str, *, rays: int,
                  include_direct: bool) -> list:
     """Prim and attribute records of the IrradianceVectorGrid at GRID_PRIM (world space)."""
     path = GRID_PRIM
@@ -686,7 +685,7 @@ def grid_records(grid: IrradianceGrid, origin: np.ndarray, stream_file: str, *, 
     ]
 
 
-def stream_bytes(grid: IrradianceGrid, origin: np.ndarray) -> bytes:
+def stream_bytes(grid: IrradianceGridProduct, origin: np.ndarray) -> bytes:
     """The stream file of the grid's valid vertices in progressive order."""
     layout = grid.layout
     order = streaming.progressive_order(layout.resolution)
@@ -695,8 +694,7 @@ def stream_bytes(grid: IrradianceGrid, origin: np.ndarray) -> bytes:
                                    layout.cell_size, order, grid.directions, grid.colors)
 
 
-@register
-class IrradianceGridProcessor(Processor):
+class IrradianceGrid(Processor):
     name = "irradiance_grid"
     version = "1"
     summary = "Irradiance vector grid: 6 vectors per vertex, 8-bit direction + RGB9E5, progressive stream."
@@ -719,7 +717,8 @@ class IrradianceGridProcessor(Processor):
         smooth: bool = param(True, "pyramidal smoothing in the push-pull fill of invalid vertices")
         seed: int = param(0, "random seed (identical results across thread counts)", low=0, high=2**31 - 1)
 
-    def applies(self, scene: Scene) -> tuple[bool, str]:
+    def applies(self, ctx: Context) -> tuple[bool, str]:
+        scene = ctx.scene
         if scene.num_triangles == 0:
             return False, "no geometry"
         if not has_light(scene):

@@ -128,14 +128,13 @@ import numpy as np
 import warp as wp
 from scipy.spatial import cKDTree
 
-from . import tetrahedra
-from .base import Attribute, Context, Params, Prim, Processor, Result, param, register
-from .geometry import strata_for
-from .kernels.lighting import Lighting, direct_at, distant_solid_angle, has_light
-from .kernels.sampling import stratified_pair
-from .kernels.sh import (COSINE_LOBE, project_kernel, sh_basis, sh_basis_np,
+from ..geometry import tetrahedra
+from ..core import Attribute, Context, Params, Prim, Processor, Result, param
+from ..kernels.lighting import Lighting, direct_at, distant_solid_angle, has_light
+from ..kernels.sampling import strata_for, stratified_pair
+from ..kernels.sh import (COSINE_LOBE, project_kernel, sh_basis, sh_basis_np,
                          uniform_sphere)
-from .scene import Scene
+from ..core.scene import Scene
 
 wp.set_module_options({"enable_backward": False})
 
@@ -708,7 +707,6 @@ def cloud_records(cloud: ProbeCloud, origin: np.ndarray) -> list:
     ]
 
 
-@register
 class LightProbes(Processor):
     name = "light_probes"
     version = "1"
@@ -730,7 +728,8 @@ class LightProbes(Processor):
         leak_fix: bool = param(True, "wall probes, ray-cast tetrahedron edges, stop interpolation across blockers")
         seed: int = param(0, "random seed (identical results across thread counts)", low=0, high=2**31 - 1)
 
-    def applies(self, scene: Scene) -> tuple[bool, str]:
+    def applies(self, ctx: Context) -> tuple[bool, str]:
+        scene = ctx.scene
         if scene.num_triangles == 0 or scene.diagonal <= 0:
             return False, "no empty space (the stage has no geometry to place probes around)"
         if not has_light(scene):

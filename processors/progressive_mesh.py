@@ -55,9 +55,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Context, Params, Primvar, Processor, Result, param, register
-from .geometry import receiver_prims
-from .scene import Scene
+from ..core import Context, Params, Primvar, Processor, Result, param
+from ..geometry.mesh import receiver_prims
+from ..core.scene import Scene
 
 FLIP_PENALTY = 10.0
 """Added to the curvature term of a collapse that flips a face: such collapses come last."""
@@ -211,7 +211,6 @@ def lod_faces(tri_vertices: np.ndarray, rank: np.ndarray, collapse_to: np.ndarra
     return mapped[keep]
 
 
-@register
 class ProgressiveMesh(Processor):
     name = "progressive_mesh"
     version = "1"
@@ -224,7 +223,8 @@ class ProgressiveMesh(Processor):
     class Params(Params):
         max_points: int = param(200_000, "meshes with more points are skipped (pure Python)", low=1)
 
-    def applies(self, scene: Scene) -> tuple[bool, str]:
+    def applies(self, ctx: Context) -> tuple[bool, str]:
+        scene = ctx.scene
         if len(receiver_prims(scene)) == 0:
             return False, "no writable meshes (all instanced, bake:skip or empty)"
         return True, ""

@@ -76,19 +76,19 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .base import Context, Params, Primvar, Processor, Result, param, register
-from .geometry import receiver_prims, vertex_normals
-from .kernels.bc1 import bc1_palette_byte, bc1_third, expand565
-from .kernels.lighting import cone_direction, distant_solid_angle
-from .kernels.patches import fragment_of_hit
-from .kernels.sampling import (
+from ..core import Context, Params, Primvar, Processor, Result, param
+from ..geometry.mesh import receiver_prims, vertex_normals
+from ..kernels.bc1 import bc1_palette_byte, bc1_third, expand565
+from ..kernels.lighting import cone_direction, distant_solid_angle
+from ..kernels.patches import fragment_of_hit
+from ..kernels.sampling import (
     concentric_disk,
     cosine_hemisphere,
     stratified_pair,
     tangent_frame,
 )
-from .scene import LIGHT_DOME, Scene
-from .tracer import launch_chunked
+from ..core.scene import LIGHT_DOME, Scene
+from ..kernels.tracer import launch_chunked
 
 wp.set_module_options({"enable_backward": False})
 
@@ -521,7 +521,7 @@ class Relighter:
     """The compressed operator uploaded once; ``apply(E0)`` -> indirect irradiance, per relight."""
 
     def __init__(self, compressed, *, device="cpu", threads: int = 1):
-        from .kernels.bc1 import block_words
+        from ..kernels.bc1 import block_words
 
         self.size = compressed.size
         self.padded = compressed.padded
@@ -823,7 +823,6 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
             "vertex_direct": e0_vertex, "vertex_indirect": np.maximum(e_ind_vertex, 0.0).astype(np.float32)}
 
 
-@register
 class Radiosity(Processor):
     name = "radiosity"
     version = "1"
@@ -846,7 +845,8 @@ class Radiosity(Processor):
                                      "lights), on, off", choices=("auto", "on", "off"))
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
 
-    def applies(self, scene: Scene) -> tuple[bool, str]:
+    def applies(self, ctx: Context) -> tuple[bool, str]:
+        scene = ctx.scene
         if not has_light(scene):
             return False, "no lights or emissive surfaces"
         if len(receiver_prims(scene)) == 0:

@@ -74,13 +74,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from .base import Attribute, Context, Params, Prim, Primvar, Processor, Result, param, register
-from .geometry import receiver_prims, strata_for
-from .kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
-from .kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
-from .refine import refine, weld_points
-from .scene import Scene
-from .tracer import shared_tracer
+from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
+from ..geometry.mesh import receiver_prims
+from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame, triangle_point
+from ..kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
+from ..geometry.refine import refine, weld_points
+from ..core.scene import Scene
 
 wp.set_module_options({"enable_backward": False})
 
@@ -257,7 +256,7 @@ def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, p
 
 
 @dataclass(frozen=True)
-class SkyVisibility:
+class SkyVisibilityProduct:
     """The refined receiver mesh and its per-face sky visibility factors (product ``sky_visibility``)."""
 
     face_points: np.ndarray
@@ -329,7 +328,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
                            tolerance: float = 0.1, min_area: float = 1e-5, max_level: int = 5,
                            max_triangles: int = 500_000, seed: int = 0, adaptive: bool = True,
                            prims: np.ndarray | None = None, criterion: str = "share", uniform: bool = False,
-                           progress=lambda f: None) -> tuple[SkyVisibility, dict]:
+                           progress=lambda f: None) -> tuple[SkyVisibilityProduct, dict]:
     """Refine the receiver prims adaptively and compute their visibility factors.
 
     ``adaptive=False`` traces the input mesh only; ``uniform=True`` splits every face ``max_level`` times
@@ -407,7 +406,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     # open face; exposure is a share of the sky, so it is clamped to [0, 1].
     quantized, exposure = quantized[order], np.clip(exposure[order], 0.0, 1.0).astype(np.float32)
     areas, _ = _areas_normals(points, triangles)
-    product = SkyVisibility(
+    product = SkyVisibilityProduct(
         face_points=points, face_vertices=triangles.astype(np.int32),
         face_normals=scene.tri_normals[source].astype(np.float32), face_areas=areas.astype(np.float32),
         face_source=source.astype(np.int32), face_prim=scene.tri_prim[source].astype(np.int32),
@@ -424,7 +423,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     return product, stats
 
 
-def local_mesh_records(scene: Scene, product: SkyVisibility, prim: int) -> list:
+def local_mesh_records(scene: Scene, product: SkyVisibilityProduct, prim: int) -> list:
     """Records authoring the refined mesh of one prim over the original, in its local space."""
     path = scene.prim_paths[prim]
     faces = np.flatnonzero(product.face_prim == prim)
@@ -472,8 +471,7 @@ def sees_sky(tracer, scene: Scene, directions: np.ndarray) -> bool:
     return False
 
 
-@register
-class SkyVisibilityProcessor(Processor):
+class SkyVisibility(Processor):
     name = "sky_visibility"
     version = "2"
     summary = "Per-face sky patch visibility with adaptive crack-free refinement (Bosch et al.)."
@@ -499,12 +497,13 @@ class SkyVisibilityProcessor(Processor):
                                "as the paper)", choices=("share", "any"))
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
 
-    def applies(self, scene: Scene) -> tuple[bool, str]:
+    def applies(self, ctx: Context) -> tuple[bool, str]:
+        scene = ctx.scene
         if len(receiver_prims(scene)) == 0:
             return False, "no writable meshes (all instanced, bake:skip or empty)"
         patches = patch_layout(self.params.patch_layout, count=self.params.patch_count,
                                subdivision=self.params.subdivision)
-        if not sees_sky(shared_tracer(scene), scene, patches.patch_directions @ enu_to_world(scene.up_axis).T):
+        if not sees_sky(ctx.tracer, scene, patches.patch_directions @ enu_to_world(scene.up_axis).T):
             return False, "no sky-visible faces (every face is enclosed or faces away from the sky)"
         return True, ""
 

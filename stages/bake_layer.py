@@ -17,10 +17,10 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf
+from pxr import Sdf, Tf, Usd
 
-from ..processors.base import Attribute, File, Prim, Primvar, Texture
-from .errors import UsageError
+from ..core.records import Attribute, File, Prim, Primvar, Texture
+from ..core.errors import UsageError
 
 PROVENANCE_KEY = "usdbake"
 
@@ -251,3 +251,23 @@ def _sanitize(value):
     if isinstance(value, float) and not np.isfinite(value):
         return str(value)
     return value
+
+
+def open_source(path: str):
+    """Open the stage to bake: the input, or the source of a usdbake output."""
+    if not Path(path).exists():
+        raise UsageError(f"{path}: no such file")
+    try:
+        source = bake_source(path)
+        stage = Usd.Stage.Open(source)
+    except Tf.ErrorException as error:
+        raise UsageError(f"{path}: cannot be read as USD ({_usd_reason(error)})") from None
+    if stage is None:
+        raise UsageError(f"{path}: cannot be read as USD")
+    return source, stage
+
+
+def _usd_reason(error: Exception) -> str:
+    """The human part of a Tf error: the text after the last ' : ', without the quotes."""
+    # Whitespace is collapsed first: a parser message can end in a newline inside its quotes.
+    return " ".join(str(error).split()).rsplit(" : ", 1)[-1].strip("'\" ")

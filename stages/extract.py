@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux
 
-from ..processors.scene import (LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Instances,
+from ..core.scene import (LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Instances,
                                 Lights, Scene)
-from .errors import StageError
+from ..core.errors import StageError
 from .materials import MaterialReader
 from .triangulate import triangulate
 

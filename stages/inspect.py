@@ -7,7 +7,7 @@ from pathlib import Path
 from pxr import Sdf
 
 from .bake_layer import PROVENANCE_KEY, is_bake_layer
-from .errors import UsageError
+from ..core.errors import UsageError
 
 
 def inspect_layer(path: str) -> dict:

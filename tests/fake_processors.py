@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from usdbake.processors.base import Params, Primvar, Processor, Result, param
-from usdbake.processors.scene import Scene
+from usdbake.core import Params, Primvar, Processor, Result, param
+from usdbake.core.scene import Scene
 
 CALLS: Counter = Counter()
 
@@ -78,7 +78,7 @@ class FakeNotApplicable(Processor):
     provides = ("na",)
     uses_tracer = False
 
-    def applies(self, scene):
+    def applies(self, ctx):
         return False, "no lights in the scene"
 
     def run(self, ctx):  # pragma: no cover - must never run

@@ -53,7 +53,7 @@ def record_digest(record) -> tuple[str, str]:
 def fingerprints(sample: Path, name: str, params: dict) -> dict:
     """{'action': run|skip, 'records': {key: digest}} for one processor (with its dependencies) on one sample."""
     from usdbake.stages.extract import extract_scene
-    from usdbake.stages.pipeline import Pipeline
+    from usdbake.core.pipeline import Pipeline
     from pxr import Usd
 
     scene = extract_scene(Usd.Stage.Open(str(sample)))

@@ -112,3 +112,10 @@ def world_points(stage: Usd.Stage, path: str, time=Usd.TimeCode.Default()) -> np
     matrix = UsdGeom.XformCache(time).GetLocalToWorldTransform(prim)
     local = UsdGeom.Mesh(prim).GetPointsAttr().Get(time)
     return np.array([matrix.Transform(Gf.Vec3d(p)) for p in local], np.float64)
+
+
+def base_context(scene, tracer=None):
+    """The context a processor's applies() gets, for a scene outside a Pipeline."""
+    from usdbake.core import Context
+
+    return Context(scene, None, tracer=tracer)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from usdbake.processors.ambient_occlusion import compute_face_ao, compute_vertex_ao
-from usdbake.processors.geometry import vertex_normals
-from usdbake.processors.tracer import Tracer
+from usdbake.geometry.mesh import vertex_normals
+from usdbake.kernels.tracer import Tracer
 
 UP = np.array([0.0, 0.0, 1.0], np.float32)
 

@@ -13,7 +13,7 @@ import fake_processors as fakes
 import usdbake
 from usdbake.processors.ambient_occlusion import AmbientOcclusion
 from usdbake.stages import bake_layer
-from usdbake.stages.cli import main
+from usdbake.cli.main import main
 
 FAST = ["--set", "ambient_occlusion.samples=16"]
 
@@ -213,7 +213,7 @@ def test_time_samples_widen_the_layer_time_range():
     import numpy as np
     from pxr import Sdf
 
-    from usdbake.processors.base import Primvar
+    from usdbake.core import Primvar
     from usdbake.stages.bake_layer import author
 
     layer = Sdf.Layer.CreateAnonymous()
@@ -231,9 +231,9 @@ def test_primvars_that_do_not_fit_a_refined_mesh_are_refused():
     import pytest
     from pxr import Sdf
 
-    from usdbake.processors.base import Attribute, Primvar
+    from usdbake.core import Attribute, Primvar
     from usdbake.stages.bake_layer import author
-    from usdbake.stages.errors import UsageError
+    from usdbake.core.errors import UsageError
 
     refined = [Attribute("/World/m", "points", np.zeros((9, 3), np.float32), "point3f[]"),
                Attribute("/World/m", "faceVertexCounts", np.full(8, 3, np.int32), "int[]")]

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from usdbake.processors import dds
-from usdbake.processors.kernels import bc1
+from usdbake.formats import dds
+from usdbake.kernels import bc1
 
 LINE_TOLERANCE = 3.0
 """RMS (8-bit steps) for texels on the 4 palette positions of a line in RGB: only the rounding of

@@ -56,7 +56,7 @@ def _digest(paths) -> dict[str, str]:
 
 @pytest.mark.slow
 def test_quick_benchmarks_run_and_write_finite_figures(tmp_path):
-    from benchmarks.__main__ import available  # the bench modules, by NAME
+    from usdbake.benchmarks.__main__ import available  # the bench modules, by NAME
 
     names = sorted(available())
     assert names, "no bench_*.py modules found"

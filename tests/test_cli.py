@@ -1,4 +1,4 @@
-"""The `usdbake` command, tested through its entry point usdbake.stages.cli.main(argv).
+"""The `usdbake` command, tested through its entry point usdbake.cli.main(argv).
 
 User mistakes exit 2 with one line on stderr and no traceback; --json output
 on stdout is machine-readable (nothing else may be printed there).
@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 import fake_processors as fakes
-from usdbake.stages.cli import main
-from usdbake.processors import base
+from usdbake.cli.main import main
+from usdbake import core
 
 FAST = ["--set", "ambient_occlusion.samples=16"]
 
@@ -121,7 +121,7 @@ def test_plan_lists_the_action_and_changes_after_a_bake(capsys, stage_in, cache,
     code, out, _ = run_cli(capsys, "plan", stage_in, "--cache", cache, "--json", *FAST)
     assert code == 0
     plan = {row["processor"]: row for row in json.loads(out)}
-    assert set(plan) == set(base.registry())  # without -p, plan reports every processor
+    assert set(plan) == set(core.registry.registry())  # without -p, plan reports every processor
     assert plan["ambient_occlusion"]["action"] == "run"
     assert plan["ambient_occlusion"]["params"]["samples"] == 16
     assert not Path(cache).exists() or not any(Path(cache).iterdir())  # planning runs nothing

@@ -6,14 +6,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from usdbake.processors.base import ParamError
+from usdbake.core import ParamError
 from usdbake.processors.daylight import (
-    DaylightProcessor,
+    Daylight,
     compute_sun_visibility,
     relight,
     tone_map,
 )
-from usdbake.processors.kernels.sky import (
+from usdbake.kernels.sky import (
     LUMINOUS_EFFICACY,
     overcast_radiance,
     patch_radiance,
@@ -21,9 +21,9 @@ from usdbake.processors.kernels.sky import (
     sun_normal_irradiance,
     uniform_patches,
 )
-from usdbake.processors.scene import Scene
+from usdbake.core.scene import Scene
 from usdbake.processors.sky_visibility import compute_sky_visibility
-from usdbake.processors.tracer import Tracer
+from usdbake.kernels.tracer import Tracer
 
 SAMPLES = Path(__file__).resolve().parent.parent / "samples"
 
@@ -148,13 +148,13 @@ def test_sun_visibility_open_and_shaded():
 
 def test_bad_times_are_param_errors():
     with pytest.raises(ParamError, match="times"):
-        DaylightProcessor.Params(times="2026-06-21T18:00/06:00/PT1H")
+        Daylight.Params(times="2026-06-21T18:00/06:00/PT1H")
     with pytest.raises(ParamError, match="times"):
-        DaylightProcessor.Params.from_dict({"times": "noon"})
+        Daylight.Params.from_dict({"times": "noon"})
     with pytest.raises(ParamError):
-        DaylightProcessor.Params(sky="cloudy")
+        Daylight.Params(sky="cloudy")
     with pytest.raises(ParamError):
-        DaylightProcessor.Params(turbidity=50.0)
+        Daylight.Params(turbidity=50.0)
 
 
 def test_tone_map_is_bounded_and_monotone():
@@ -193,7 +193,7 @@ def test_time_sampled_bake_through_usd():
 
 def test_perez_sky_integrates_to_the_diffuse_horizontal_irradiance():
     """The sky is scaled so that integral L cos(zeta) dw = DHI, on any patch layout (not only its own grid)."""
-    from usdbake.processors.kernels.sky import perez_radiance, tregenza_patches
+    from usdbake.kernels.sky import perez_radiance, tregenza_patches
 
     sun = np.array([0.3, -0.4, 0.8]) / np.linalg.norm([0.3, -0.4, 0.8])
     for dni, dhi in ((850.0, 90.0), (300.0, 220.0), (0.0, 160.0)):
@@ -209,7 +209,7 @@ def test_perez_sky_integrates_to_the_diffuse_horizontal_irradiance():
 def test_perez_sky_states_and_shapes():
     """Clearness from DNI/DHI (Perez 1990), the overcast bin's own c and d, and the model's shapes:
     a clear sky is brightest around the sun, an overcast one at the zenith rather than the horizon."""
-    from usdbake.processors.kernels.sky import (perez_coefficients, perez_radiance, perez_relative_luminance,
+    from usdbake.kernels.sky import (perez_coefficients, perez_radiance, perez_relative_luminance,
                                                 perez_sky_state)
 
     zenith = math.radians(30.0)

@@ -4,15 +4,16 @@ Also holds the small synthetic-scene builders test_instance_ao.py reuses.
 """
 
 import numpy as np
+from stage_builders import base_context
 import pytest
 
-from usdbake.processors import base
+from usdbake import core
 from usdbake.processors.displacement_fields import (MAX_HIT_CODE, MISS_CODE, DisplacementFields, build_field,
                                                     choose_prototypes, field_atlas, field_from_atlas,
                                                     field_records, prototype_geometry, side_for)
-from usdbake.processors.kernels.sampling import cosine_hemisphere_np
-from usdbake.processors.kernels.sphere_maps import grid_cell_centers_np
-from usdbake.processors.scene import Instances, Scene
+from usdbake.kernels.sampling import cosine_hemisphere_np
+from usdbake.kernels.sphere_maps import grid_cell_centers_np
+from usdbake.core.scene import Instances, Scene
 
 # ---------------------------------------------------------------------------
 # Synthetic geometry and scenes (no USD)
@@ -110,7 +111,7 @@ def build_scene(receivers, prototypes, instances, *, times=None, transforms_at_t
 
 def run_processor(cls, scene, params=None, products=None):
     processor = cls()
-    return processor.run(base.Context(scene=scene, params=cls.Params.from_dict(params or {}), tracer=None,
+    return processor.run(core.Context(scene=scene, params=cls.Params.from_dict(params or {}), tracer=None,
                                       products=products or {}))
 
 
@@ -205,7 +206,7 @@ def test_atlas_round_trip_through_a_png(tmp_path, encoding):
                         encoding=encoding)
     records = field_records(field)
     texture = records[0]
-    assert isinstance(texture, base.Texture) and texture.pixels.dtype == np.uint8
+    assert isinstance(texture, core.Texture) and texture.pixels.dtype == np.uint8
     path = write_texture(texture, str(tmp_path))
     pixels = oiio.ImageBuf(path).get_pixels(oiio.UINT8)
     np.testing.assert_array_equal(pixels[:, :, 0], field_atlas(field))
@@ -254,14 +255,14 @@ def test_cost_model_force_forbid_and_min_instances():
 
 def test_applies_and_param_validation():
     empty = build_scene([("/World/Floor", *grid(1, 1))], [], [])
-    assert DisplacementFields().applies(empty) == (False, "no instanced prototypes")
-    assert DisplacementFields().applies(_props_scene())[0]
-    with pytest.raises(base.ParamError, match="multiple of 8"):
+    assert DisplacementFields().applies(base_context(empty)) == (False, "no instanced prototypes")
+    assert DisplacementFields().applies(base_context(_props_scene()))[0]
+    with pytest.raises(core.ParamError, match="multiple of 8"):
         DisplacementFields.Params(encoding="bit1", direction_map_size=12)
-    with pytest.raises(base.ParamError, match="encoding"):
+    with pytest.raises(core.ParamError, match="encoding"):
         DisplacementFields.Params(encoding="float")
     assert side_for(4226) == 65 and side_for(1090) == 33
-    with pytest.raises(base.ParamError, match="rays per prototype is above the maximum"):
+    with pytest.raises(core.ParamError, match="rays per prototype is above the maximum"):
         DisplacementFields.Params(positional_samples=66049, direction_map_size=256)
 
 
@@ -269,9 +270,9 @@ def test_run_writes_texture_and_applied_schema_on_the_prototype():
     result = run_processor(DisplacementFields, _props_scene(), {"positional_samples": 64, "direction_map_size": 8})
     fields = result.products["displacement_fields"]
     assert list(fields) == ["/World/Scatter/Prototypes/Ball"]
-    prims = [r for r in result.outputs if isinstance(r, base.Prim)]
-    assert prims == [base.Prim("/World/Scatter/Prototypes/Ball", api_schemas=("DisplacementFieldAPI",))]
-    attributes = {r.name: r for r in result.outputs if isinstance(r, base.Attribute)}
+    prims = [r for r in result.outputs if isinstance(r, core.Prim)]
+    assert prims == [core.Prim("/World/Scatter/Prototypes/Ball", api_schemas=("DisplacementFieldAPI",))]
+    attributes = {r.name: r for r in result.outputs if isinstance(r, core.Attribute)}
     assert attributes["bake:field:file"].value == "./displacement_fields/World_Scatter_Prototypes_Ball.png"
     assert attributes["bake:field:positionalSamples"].value == 64
     assert attributes["bake:field:directionMapSize"].type_name == "int2"

@@ -15,9 +15,9 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 from stage_builders import (TETRA_COUNTS, TETRA_INDICES, TETRA_POINTS, UNIT_QUAD, add_mesh, add_preview_material,
                             add_quads, add_xform, bind, new_stage, world_points, write_png)
 
-from usdbake.processors.scene import (LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE,
+from usdbake.core.scene import (LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE,
                                       Scene)
-from usdbake.stages.errors import StageError
+from usdbake.core.errors import StageError
 from usdbake.stages.extract import extract_scene
 
 SAMPLES_DIR = Path(__file__).resolve().parents[1] / "samples"

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 from usdbake.processors import form_factors as ff
-from usdbake.processors.base import File, Prim
-from usdbake.processors.scene import Lights, Scene
-from usdbake.processors.tracer import Tracer
+from usdbake.core import File, Prim
+from usdbake.core.scene import Lights, Scene
+from usdbake.kernels.tracer import Tracer
 
 # ---------------------------------------------------------------------------
 # Scene helpers (also used by test_radiosity)
@@ -149,7 +149,7 @@ def test_patches_cover_the_surface_and_map_hits_to_fragments():
     centres = patches.fragment_vertices[floor_frag].mean(axis=1)
     hits = tracer.closest_hit(centres + [0, 0, 1.0], np.tile([0, 0, -1.0], (len(centres), 1)))
     import warp as wp
-    from usdbake.processors.kernels.patches import fragment_of_hit
+    from usdbake.kernels.patches import fragment_of_hit
 
     @wp.kernel
     def lookup(face: wp.array(dtype=int), uv: wp.array(dtype=wp.vec2), sub: wp.array(dtype=int),
@@ -287,7 +287,7 @@ def test_greedy_order_groups_similar_rows():
 
 
 def test_processor_outputs_patch_prim_and_files(tmp_path):
-    from usdbake.processors.base import Context
+    from usdbake.core import Context
 
     scene = make_scene(box_parts(grid=2))
     proc = ff.FormFactors()
@@ -299,7 +299,7 @@ def test_processor_outputs_patch_prim_and_files(tmp_path):
     assert any(r.type_name == "RadiosityPatches" and r.path == ff.PATCHES_PRIM for r in prims)
     files = {r.path: r.data for r in result.outputs if isinstance(r, File)}
     dds_name = next(name for name in files if name.endswith(".dds"))
-    from usdbake.processors import dds
+    from usdbake.formats import dds
 
     blocks, width, height = dds.read_dds_bc1(files[dds_name])
     np.testing.assert_array_equal(blocks, product.operator.blocks)
@@ -311,7 +311,7 @@ def test_processor_outputs_patch_prim_and_files(tmp_path):
 
 
 def test_bad_params_are_rejected():
-    from usdbake.processors.base import ParamError
+    from usdbake.core import ParamError
 
     with pytest.raises(ParamError):
         ff.FormFactors.Params(exact_fraction=1.5)

@@ -12,9 +12,9 @@ from pxr import Sdf, Usd, UsdGeom
 
 import fake_processors as fakes
 import usdbake
-from usdbake.processors import base
+from usdbake import core
 from usdbake.stages.hook import last_report
-from usdbake.stages.pipeline import Pipeline
+from usdbake.core.pipeline import Pipeline
 
 AO_FAST = {"ambient_occlusion": {"samples": 16}}
 
@@ -88,7 +88,7 @@ def test_bake_into_a_given_layer(stage, cache):
 
 def test_failed_bake_authors_nothing(stage, cache, monkeypatch):
     from usdbake.processors.ambient_occlusion import AmbientOcclusion
-    from usdbake.stages.pipeline import ProcessorFailed
+    from usdbake.core.pipeline import ProcessorFailed
 
     def boom(self, ctx):
         raise RuntimeError("kaboom")
@@ -106,7 +106,7 @@ def test_failed_bake_authors_nothing(stage, cache, monkeypatch):
 PLUGIN = '''
 import numpy as np
 
-from usdbake.processors.base import Primvar, Processor, Result
+from usdbake.core import Primvar, Processor, Result
 
 
 class FakeProcessor(Processor):
@@ -136,19 +136,19 @@ def fake_distribution(tmp_path, monkeypatch):
     (site / "fakeplugin_mod.py").write_text(textwrap.dedent(PLUGIN))
     monkeypatch.syspath_prepend(str(site))
     yield site
-    base._REGISTRY.pop("fake_ep", None)
+    core.registry.unregister("fake_ep")
     sys.modules.pop("fakeplugin_mod", None)
 
 
 def test_processor_from_an_entry_point(fake_distribution, stage, cache):
-    assert "fake_ep" in base.load_entry_points()
-    cls = base.get("fake_ep")
-    assert cls.__module__ == "fakeplugin_mod" and issubclass(cls, base.Processor)
+    assert "fake_ep" in list(core.registry.plugins())
+    cls = core.registry.get("fake_ep")
+    assert cls.__module__ == "fakeplugin_mod" and issubclass(cls, core.Processor)
 
     steps = Pipeline.build(["fake_ep"], cache_dir=cache).run(fakes.make_scene())
     assert [(step.name, step.action) for step in steps] == [("fake_ep", "run")]
     records = steps[0].result.outputs
-    assert len(records) == 1 and isinstance(records[0], base.Primvar)
+    assert len(records) == 1 and isinstance(records[0], core.Primvar)
     np.testing.assert_array_equal(records[0].values, np.full(4, 0.25, np.float32))
 
     # And end to end through the hook: the plugin's primvar appears on the stage.
@@ -167,7 +167,7 @@ def test_entry_point_that_is_not_a_processor_is_rejected(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(site))
     try:
         with pytest.raises(TypeError, match="bad_ep"):
-            base.load_entry_points()
+            list(core.registry.plugins())
     finally:
         sys.modules.pop("badplugin_mod", None)
 

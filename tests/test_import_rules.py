@@ -1,5 +1,10 @@
-"""USD stays at the boundary: processors/ never imports pxr nor stages/; only
-schemas/ and stages/ import pxr (house style 3, DESIGN 'Layout').
+"""The house plan, as imports: each folder of the package imports only the folders below it.
+
+    cli, preview           -> stages, processors (via the registry), core, kernels, geometry
+    stages (+ schemas)     -> core                 USD lives here and in schemas/ only
+    processors             -> core, kernels, geometry, formats; never each other
+    kernels, geometry, formats -> core
+    core                   -> nothing of ours (one lazy import: the runner builds the shared BVH)
 
 Imports are read with ast (relative imports resolved to absolute names), so a
 rule broken in a function body or behind a branch is caught too; a subprocess
@@ -11,17 +16,33 @@ import subprocess
 import sys
 from pathlib import Path
 
-
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = "usdbake"
+FOLDERS = ("core", "kernels", "geometry", "formats", "processors", "stages", "schemas", "preview", "cli")
+
+MAY_IMPORT = {
+    "core": (),
+    "kernels": ("core",),
+    "geometry": ("core",),
+    "formats": ("core",),
+    "processors": ("core", "kernels", "geometry", "formats"),
+    "schemas": (),
+    "stages": ("core", "schemas"),
+    "preview": ("core", "kernels", "geometry", "stages"),
+    "cli": ("core", "stages", "preview", "benchmarks"),
+}
+"""Folder -> the other folders of the package it may import."""
+
+LAZY_EXCEPTIONS = {("core/pipeline.py", "usdbake.kernels.tracer")}
+"""The runner's factory of the shared BVH imports the tracer when a processor first asks for it."""
+
 PXR_ALLOWED = ("schemas", "stages")
-"""Top-level folders that may import pxr."""
+"""Folders that may import pxr."""
 
 
-def package_files() -> list[Path]:
-    """The package's modules: the root __init__.py and every .py under its subpackages."""
-    files = [ROOT / "__init__.py"]
-    for folder in ("processors", "stages", "schemas"):
+def package_files(folders=FOLDERS) -> list[Path]:
+    files = [ROOT / "__init__.py"] if folders == FOLDERS else []
+    for folder in folders:
         files += sorted((ROOT / folder).rglob("*.py"))
     return files
 
@@ -61,22 +82,10 @@ def violations(files, forbidden) -> list[str]:
     for path in files:
         for line, name in imported_names(path):
             if any(name == f or name.startswith(f + ".") for f in forbidden):
-                bad.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
+                if not any(str(path.relative_to(ROOT)) == file and name.startswith(module)
+                           for file, module in LAZY_EXCEPTIONS):
+                    bad.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
     return bad
-
-
-def test_package_files_are_found():
-    names = {str(p.relative_to(ROOT)) for p in package_files()}
-    assert {"processors/base.py", "processors/scene.py", "stages/pipeline.py", "schemas/__init__.py"} <= names
-
-
-def test_resolver_sees_relative_and_aliased_imports(tmp_path):
-    probe = tmp_path / "probe.py"
-    probe.write_text("from ...stages import cli\nfrom ... import stages\nimport pxr.Usd\nfrom pxr import Sdf\n")
-    names = {name for _, name in imported_names(probe, "usdbake.processors.kernels.probe")}
-    assert {"usdbake.stages", "usdbake.stages.cli", "pxr.Usd", "pxr", "pxr.Sdf"} <= names
-    assert violations_in(probe, "usdbake.processors.kernels.probe", ["pxr"]) == 2
-    assert violations_in(probe, "usdbake.processors.kernels.probe", ["usdbake.stages"]) == 2
 
 
 def violations_in(path, module, forbidden) -> int:
@@ -84,21 +93,32 @@ def violations_in(path, module, forbidden) -> int:
                 if any(name == f or name.startswith(f + ".") for f in forbidden)})
 
 
-def test_processors_never_import_pxr():
-    files = sorted((ROOT / "processors").rglob("*.py"))
-    assert violations(files, ["pxr"]) == []
+def test_resolver_sees_relative_and_aliased_imports(tmp_path):
+    probe = tmp_path / "probe.py"
+    probe.write_text("from ..stages import extract\nfrom .. import stages\nimport pxr.Usd\nfrom pxr import Sdf\n")
+    names = {name for _, name in imported_names(probe, "usdbake.kernels.probe")}
+    assert {"usdbake.stages", "usdbake.stages.extract", "pxr.Usd", "pxr", "pxr.Sdf"} <= names
+    assert violations_in(probe, "usdbake.kernels.probe", ["pxr"]) == 2
+    assert violations_in(probe, "usdbake.kernels.probe", ["usdbake.stages"]) == 2
 
 
-def test_processors_never_import_stages_or_schemas():
-    files = sorted((ROOT / "processors").rglob("*.py"))
-    assert violations(files, [f"{PACKAGE}.stages", f"{PACKAGE}.schemas"]) == []
+def test_every_folder_has_a_rule():
+    folders = {p.name for p in ROOT.iterdir() if (p / "__init__.py").exists()}
+    assert folders - {"tests", "samples", "benchmarks"} == set(MAY_IMPORT)
 
 
-def test_builtin_processor_list_names_processor_modules_only():
-    from usdbake import processors
+def test_each_folder_imports_only_the_folders_below_it():
+    for folder, allowed in MAY_IMPORT.items():
+        forbidden = [f"{PACKAGE}.{other}" for other in (*FOLDERS, "benchmarks")
+                     if other != folder and other not in allowed]
+        assert violations(package_files((folder,)), forbidden) == [], folder
 
-    for name in processors.BUILTIN_MODULES:
-        assert (ROOT / "processors" / f"{name}.py").exists(), name
+
+def test_processors_never_import_each_other():
+    for path in package_files(("processors",)):
+        others = [f"{PACKAGE}.processors.{p.stem}" for p in (ROOT / "processors").glob("*.py")
+                  if p.stem not in (path.stem, "__init__")]
+        assert violations([path], others) == []
 
 
 def test_only_schemas_and_stages_import_pxr():
@@ -107,16 +127,17 @@ def test_only_schemas_and_stages_import_pxr():
     assert violations(outside, ["pxr"]) == []
 
 
-def test_importing_processors_loads_no_pxr_of_its_own():
+def test_importing_the_processors_loads_no_pxr_of_their_own():
     """The parent package registers the schema plugin (so pxr is loaded by ``import usdbake``);
-    importing the processors on top of it must add no pxr module and nothing from stages/."""
+    importing every processor on top of it must add no pxr module and nothing from stages/."""
     code = (
         "import sys\n"
         "def usd():\n"
         "    return {m for m in sys.modules if m == 'pxr' or m.startswith(('pxr.', 'usdbake.stages'))}\n"
         "import usdbake\n"
         "before = usd()\n"
-        "import usdbake.processors\n"
+        "from usdbake.core import registry\n"
+        "registry.builtin()\n"
         "assert 'usdbake.processors.ambient_occlusion' in sys.modules\n"
         "print(sorted(usd() - before))\n"
     )

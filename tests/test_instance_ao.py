@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from test_displacement_fields import build_scene, grid, icosphere, run_processor, translate
 
-from usdbake.processors import base
+from usdbake import core
 from usdbake.processors import instance_ao as ia
 from usdbake.processors.ambient_occlusion import AmbientOcclusion
 from usdbake.processors.displacement_fields import DisplacementFields, build_field
 from usdbake.processors.instance_ao import InstanceAO, invertible, parse_frames, query_field
-from usdbake.processors.tracer import Tracer
+from usdbake.kernels.tracer import Tracer
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
 
@@ -35,7 +35,7 @@ INSIDE_RMS = 0.05
 
 
 def exact_ao(scene, samples=256, **params) -> np.ndarray:
-    ctx = base.Context(scene=scene, params=AmbientOcclusion.Params(samples=samples, **params),
+    ctx = core.Context(scene=scene, params=AmbientOcclusion.Params(samples=samples, **params),
                        tracer=Tracer.from_scene(scene))
     return AmbientOcclusion().run(ctx).products["ao"]
 
@@ -80,7 +80,7 @@ def test_field_ao_matches_exact_ao_on_instanced_props(props):
     # the instances do occlude the floor (the comparison is not trivially 1 = 1)
     floor = np.isin(scene.point_prim, np.flatnonzero(scene.prim_writable))
     assert (reference[floor] < 0.9).sum() >= 10
-    primvars = [r for r in result.outputs if isinstance(r, base.Primvar)]
+    primvars = [r for r in result.outputs if isinstance(r, core.Primvar)]
     assert [(r.prim, r.name, r.interpolation, r.time) for r in primvars] == [("/World/Floor", "bake:ao", "vertex",
                                                                              None)]
 

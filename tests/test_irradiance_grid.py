@@ -7,20 +7,21 @@ import math
 from pathlib import Path
 
 import numpy as np
+from stage_builders import base_context
 import pytest
 from usdbake.processors import irradiance_grid as ig
-from usdbake.processors import streaming
-from usdbake.processors.base import Context, ParamError
-from usdbake.processors.kernels import octahedral as oct8
-from usdbake.processors.kernels.rgb9e5 import RELATIVE_ERROR
-from usdbake.processors.scene import (
+from usdbake.formats import streaming
+from usdbake.core import Context, ParamError
+from usdbake.kernels import octahedral as oct8
+from usdbake.kernels.rgb9e5 import RELATIVE_ERROR
+from usdbake.core.scene import (
     LIGHT_DISTANT,
     LIGHT_DOME,
     LIGHT_SPHERE,
     Lights,
     Scene,
 )
-from usdbake.processors.tracer import Tracer
+from usdbake.kernels.tracer import Tracer
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -98,7 +99,7 @@ def far_speck():
 
 def run(scene: Scene, threads: int | None = None, **params):
     tracer = Tracer.from_scene(scene, threads=threads)
-    processor = ig.IrradianceGridProcessor()
+    processor = ig.IrradianceGrid()
     return processor.run(Context(scene, processor.Params(**params), tracer)), tracer
 
 
@@ -308,16 +309,16 @@ def test_degenerate_geometry_gives_finite_outputs():
 
 def test_applies_and_params():
     points, tris = quad([0, 0, 0], [1, 0, 0], [0, 1, 0])
-    ok, reason = ig.IrradianceGridProcessor().applies(make_scene(points, tris))
+    ok, reason = ig.IrradianceGrid().applies(base_context(make_scene(points, tris)))
     assert not ok and "no lights" in reason
     dark = make_scene(points, tris, lights=make_lights((LIGHT_DOME, [0, 0, 0], (0, 0, 0), (0, 0, -1), (0, 0))))
-    assert not ig.IrradianceGridProcessor().applies(dark)[0]
+    assert not ig.IrradianceGrid().applies(base_context(dark))[0]
     emissive = make_scene(points, tris, emission=np.ones((2, 3), np.float32))
-    assert ig.IrradianceGridProcessor().applies(emissive)[0]
+    assert ig.IrradianceGrid().applies(base_context(emissive))[0]
     for bad in ({"rays": 0}, {"vertices": 2}, {"cell_size": -1.0}, {"normal_offset": -0.1},
                 {"reconstruction": "cubic"}):
         with pytest.raises(ParamError):
-            ig.IrradianceGridProcessor.Params(**bad)
+            ig.IrradianceGrid.Params(**bad)
 
 
 # -- end to end through USD ------------------------------------------------------------------------
@@ -325,9 +326,9 @@ def test_applies_and_params():
 
 def test_end_to_end_small_stage(tmp_path):
     from pxr import Gf, Usd, UsdLux
-    from stage_builders import add_mesh, new_stage
-    from usdbake.stages.cli import main
-    from usdbake.stages.preview import grid_spheres
+    from stage_builders import base_context, add_mesh, new_stage
+    from usdbake.cli.main import main
+    from usdbake.preview.compose import grid_spheres
 
     stage = new_stage(up_axis="Z")
     room_p, room_t = cube([-3, -3, 0], [3, 3, 3], inward=True)

@@ -6,14 +6,15 @@ import math
 from pathlib import Path
 
 import numpy as np
+from stage_builders import base_context
 import pytest
 
 from usdbake.processors import light_probes as lp
-from usdbake.processors import tetrahedra
-from usdbake.processors.base import Context, ParamError
-from usdbake.processors.kernels import sh
-from usdbake.processors.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Lights, Scene
-from usdbake.processors.tracer import Tracer
+from usdbake.geometry import tetrahedra
+from usdbake.core import Context, ParamError
+from usdbake.kernels import sh
+from usdbake.core.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Lights, Scene
+from usdbake.kernels.tracer import Tracer
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -197,7 +198,7 @@ def test_emissive_surface_lights_probes():
     le = 3.0
     points, tris = quad([-50, -50, 1], [0, 100, 0], [100, 0, 0])  # normal -z
     scene = make_scene(points, tris, albedo=0.0, emission=np.full((2, 3), le, np.float32))
-    ok, _ = lp.LightProbes().applies(scene)
+    ok, _ = lp.LightProbes().applies(base_context(scene))
     assert ok
     tracer = Tracer.from_scene(scene)
     rays = 4096
@@ -358,14 +359,14 @@ def test_interpolate_at_probes_returns_their_sh_and_irradiance_matches_evaluatio
 
 def test_applies_reasons():
     points, tris = quad([0, 0, 0], [1, 0, 0], [0, 1, 0])
-    ok, reason = lp.LightProbes().applies(make_scene(points, tris))
+    ok, reason = lp.LightProbes().applies(base_context(make_scene(points, tris)))
     assert not ok and "no lights" in reason
     empty = make_scene(np.zeros((0, 3)), np.zeros((0, 3)),
                        lights=make_lights((LIGHT_DOME, [1, 1, 1], (0, 0, 0), (0, 0, -1), (0, 0))))
-    ok, reason = lp.LightProbes().applies(empty)
+    ok, reason = lp.LightProbes().applies(base_context(empty))
     assert not ok and "no empty space" in reason
     dark = make_scene(points, tris, lights=make_lights((LIGHT_DOME, [0, 0, 0], (0, 0, 0), (0, 0, -1), (0, 0))))
-    assert not lp.LightProbes().applies(dark)[0]
+    assert not lp.LightProbes().applies(base_context(dark))[0]
 
 
 @pytest.mark.parametrize("bad", [{"probes": 2}, {"rays": 0}, {"contrast": 1.5}, {"min_spacing": -1.0},
@@ -413,9 +414,9 @@ def read_cloud(path):
 
 def test_end_to_end_small_stage(tmp_path):
     from pxr import Gf, UsdLux
-    from stage_builders import add_mesh, new_stage
+    from stage_builders import base_context, add_mesh, new_stage
 
-    from usdbake.stages.cli import main
+    from usdbake.cli.main import main
 
     stage = new_stage(up_axis="Z")
     room_p, room_t = cube([-3, -3, 0], [3, 3, 3], inward=True)
@@ -445,7 +446,7 @@ def test_end_to_end_small_stage(tmp_path):
 
 def test_end_to_end_atrium(tmp_path):
     """samples/atrium.usda at defaults through the CLI (a few seconds on 2 cores)."""
-    from usdbake.stages.cli import main
+    from usdbake.cli.main import main
 
     out = tmp_path / "atrium_probes.usdc"
     code = main(["bake", str(REPO / "samples" / "atrium.usda"), "-o", str(out), "-p", "light_probes",

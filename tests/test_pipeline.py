@@ -11,27 +11,27 @@ import numpy as np
 import pytest
 
 import fake_processors as fakes
-from usdbake.processors import base
+from usdbake import core
 from usdbake.processors.ambient_occlusion import AmbientOcclusion
-from usdbake.stages.pipeline import GraphError, Pipeline, ProcessorFailed, build_steps, step_key
-from usdbake.stages.errors import UsageError
+from usdbake.core.pipeline import GraphError, Pipeline, ProcessorFailed, build_steps, step_key
+from usdbake.core.errors import UsageError
 
 
 @pytest.fixture
 def register():
     """Register fake processors for one test; remove them from the global registry afterwards."""
-    base.registry()  # load built-ins and entry points first, so teardown restores exactly this state
+    core.registry.registry()  # load built-ins and entry points first, so teardown restores exactly this state
     added = []
 
     def _register(*classes):
         for cls in classes:
-            base.register(cls)
+            core.registry.register(cls)
             added.append(cls.name)
 
     fakes.CALLS.clear()
     yield _register
     for name in added:
-        base._REGISTRY.pop(name, None)
+        core.registry.unregister(name)
     fakes.CALLS.clear()
 
 
@@ -60,12 +60,12 @@ def test_build_steps_default_is_ambient_occlusion():
 
 
 def test_params_for_unknown_processor_rejected():
-    with pytest.raises(base.ParamError, match="nope"):
+    with pytest.raises(core.ParamError, match="nope"):
         build_steps(["ambient_occlusion"], {"nope": {"x": 1}})
 
 
 def test_unknown_processor_rejected():
-    with pytest.raises(base.ParamError, match="unknown processor 'nope'"):
+    with pytest.raises(core.ParamError, match="unknown processor 'nope'"):
         build_steps(["nope"])
 
 
@@ -88,12 +88,12 @@ def test_cycle_is_a_graph_error(register):
 
 
 def test_register_refuses_a_taken_name():
-    class Impostor(base.Processor):
+    class Impostor(core.Processor):
         name = "ambient_occlusion"
 
     with pytest.raises(ValueError, match="taken"):
-        base.register(Impostor)
-    assert base.get("ambient_occlusion") is AmbientOcclusion
+        core.registry.register(Impostor)
+    assert core.registry.get("ambient_occlusion") is AmbientOcclusion
 
 
 # ---------------------------------------------------------------------------
@@ -265,14 +265,14 @@ def test_params_defaults_and_string_conversion():
     ({"gain": "fast"}, "not a valid float"),
 ])
 def test_invalid_params_raise_param_error(values, match):
-    with pytest.raises(base.ParamError, match=match):
+    with pytest.raises(core.ParamError, match=match):
         fakes.FakeB.Params.from_dict(values)
 
 
 def test_params_bounds_checked_at_construction():
-    with pytest.raises(base.ParamError, match="samples"):
+    with pytest.raises(core.ParamError, match="samples"):
         AmbientOcclusion.Params(samples=0)
-    with pytest.raises(base.ParamError, match="max_distance"):
+    with pytest.raises(core.ParamError, match="max_distance"):
         AmbientOcclusion.Params(max_distance=-1.0)
 
 
@@ -312,7 +312,7 @@ def test_cache_key_changes_with_the_processor_code(register, tmp_path, monkeypat
 
 def textwrap_processor(constant: str) -> str:
     return (
-        "from usdbake.processors.base import Processor, Result\n"
+        "from usdbake.core import Processor, Result\n"
         "class Edited(Processor):\n"
         "    name = 'edited'\n"
         "    uses_tracer = False\n"

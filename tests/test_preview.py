@@ -9,11 +9,11 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 from stage_builders import add_mesh, add_preview_material, new_stage
 
 import usdbake
-from usdbake.processors import render
-from usdbake.stages import cli
-from usdbake.stages.errors import UsageError
+from usdbake.preview import render
+from usdbake.cli import main as cli
+from usdbake.core.errors import UsageError
 from usdbake.stages.extract import extract_scene
-from usdbake.stages.preview import decode_rgb9e5, preview, read_channel, sh_irradiance
+from usdbake.preview.compose import decode_rgb9e5, preview, read_channel, sh_irradiance
 
 PIXEL_TOLERANCE = 1.0
 """A projected point and the centroid of the pixels a small quad covers agree within one pixel: the

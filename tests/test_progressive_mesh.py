@@ -84,7 +84,7 @@ def test_end_to_end_cornell_box(tmp_path):
     from pathlib import Path
 
     from pxr import Usd
-    from usdbake.stages.cli import main
+    from usdbake.cli.main import main
 
     sample = Path(__file__).resolve().parents[1] / "samples" / "cornell_box.usda"
     out = tmp_path / "cornell_pm.usdc"
@@ -99,7 +99,7 @@ def test_end_to_end_cornell_box(tmp_path):
 
 
 def test_params():
-    from usdbake.processors.base import ParamError
+    from usdbake.core import ParamError
 
     with pytest.raises(ParamError):
         pm.ProgressiveMesh.Params(max_points=0)

@@ -32,9 +32,10 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
-from usdbake.processors import form_factors, tetrahedra
-from usdbake.processors.kernels import bc1, rgb9e5, sh, sky
-from usdbake.processors.kernels import octahedral as oct8
+from usdbake.geometry import tetrahedra
+from usdbake.processors import form_factors
+from usdbake.kernels import bc1, rgb9e5, sh, sky
+from usdbake.kernels import octahedral as oct8
 
 PROPERTY = settings(derandomize=True, max_examples=100, deadline=None)
 """Fixed examples (reproducible in CI), few enough that the whole file runs in seconds."""

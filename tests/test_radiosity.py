@@ -3,20 +3,21 @@
 import math
 
 import numpy as np
+from stage_builders import base_context
 import pytest
 from test_form_factors import box_parts, make_scene, quad
 from usdbake.processors import form_factors as ff
 from usdbake.processors import radiosity as rad
-from usdbake.processors.base import Context, Primvar
-from usdbake.processors.geometry import vertex_normals
-from usdbake.processors.scene import (
+from usdbake.core import Context, Primvar
+from usdbake.geometry.mesh import vertex_normals
+from usdbake.core.scene import (
     LIGHT_DISK,
     LIGHT_DISTANT,
     LIGHT_DOME,
     LIGHT_SPHERE,
     Lights,
 )
-from usdbake.processors.tracer import Tracer
+from usdbake.kernels.tracer import Tracer
 
 DIRECT_TOLERANCE = 0.01
 """Relative error of stratified light sampling with 1024 samples on smooth unoccluded integrands."""
@@ -90,10 +91,10 @@ def test_blocker_casts_a_shadow():
 
 
 def test_processor_skips_without_lights_with_a_reason():
-    ok, reason = rad.Radiosity().applies(make_scene(box_parts()))
+    ok, reason = rad.Radiosity().applies(base_context(make_scene(box_parts())))
     assert not ok and reason == "no lights or emissive surfaces"
     lit = make_scene(box_parts(), emission=np.array([[1, 1, 1]] + [[0, 0, 0]] * 5, np.float32))
-    assert rad.Radiosity().applies(lit)[0]
+    assert rad.Radiosity().applies(base_context(lit))[0]
 
 
 def test_transfer_is_smooth_and_respects_normals():
@@ -148,7 +149,7 @@ def test_processor_end_to_end(lit_box):
 
 
 def test_vertex_indirect_agrees_with_a_path_tracer(lit_box):
-    from benchmarks.bench_radiosity import path_traced_indirect
+    from usdbake.benchmarks.bench_radiosity import path_traced_indirect
 
     scene, tracer, product = lit_box
     ids = np.arange(scene.num_points)
@@ -176,7 +177,7 @@ def test_bake_cornell_box_through_the_cli(tmp_path):
 
     from pxr import Sdf, Usd
 
-    from usdbake.stages.cli import main
+    from usdbake.cli.main import main
 
     sample = Path(__file__).resolve().parent.parent / "samples" / "cornell_box.usda"
     out = tmp_path / "cornell.usdc"

@@ -4,7 +4,7 @@ marked triangles quartered, closure stays local, welded seams refined crack-free
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from usdbake.processors.refine import boundary_edges, is_watertight, refine, weld_points
+from usdbake.geometry.refine import boundary_edges, is_watertight, refine, weld_points
 
 GEOMETRY_TOL = 1e-9
 """float64 midpoints of unit-size meshes: rounding is ~1e-16; 1e-9 separates 'on the edge' from 'off it'."""

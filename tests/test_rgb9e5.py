@@ -9,8 +9,8 @@ import pytest
 import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from usdbake.processors.kernels import octahedral as oct8
-from usdbake.processors.kernels.rgb9e5 import (
+from usdbake.kernels import octahedral as oct8
+from usdbake.kernels.rgb9e5 import (
     ABSOLUTE_ERROR,
     MAX_RGB9E5,
     RELATIVE_ERROR,
@@ -107,7 +107,7 @@ def test_warp_decoder_agrees_bit_for_bit():
 
 
 def test_preview_decoder_agrees():
-    from usdbake.stages.preview import decode_rgb9e5 as preview_decode
+    from usdbake.preview.compose import decode_rgb9e5 as preview_decode
 
     rng = np.random.default_rng(5)  # fixed seed
     packed = rng.integers(0, 2**32, 5000, dtype=np.uint64).astype(np.uint32)

@@ -9,7 +9,7 @@ import warp as wp
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from usdbake.processors.kernels.sampling import (concentric_disk_np, cosine_hemisphere, cosine_hemisphere_np,
+from usdbake.kernels.sampling import (concentric_disk_np, cosine_hemisphere, cosine_hemisphere_np,
                                                  stratified_pair, tangent_frame, triangle_point)
 
 wp.set_module_options({"enable_backward": False})

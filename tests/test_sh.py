@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from usdbake.processors.kernels import sh
+from usdbake.kernels import sh
 
 wp.set_module_options({"enable_backward": False})
 
@@ -72,7 +72,7 @@ def test_basis_constants_match_closed_forms():
                 math.sqrt(5 / (16 * math.pi)), math.sqrt(15 / (16 * math.pi))]
     np.testing.assert_allclose([sh.C0, sh.C1, sh.C2, sh.C3, sh.C4], expected, rtol=1e-15)
     # The preview renderer's constants (stages/preview.py) are the same basis and order.
-    from usdbake.stages.preview import SH_BASIS_L2
+    from usdbake.preview.compose import SH_BASIS_L2
     d = random_directions(50, seed=3)  # fixed seed
     x, y, z = d.T
     c = SH_BASIS_L2

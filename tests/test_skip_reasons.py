@@ -7,7 +7,7 @@ from pathlib import Path
 from pxr import Gf, Usd, UsdGeom, UsdLux
 
 from usdbake.stages.extract import extract_scene
-from usdbake.stages.pipeline import Pipeline
+from usdbake.core.pipeline import Pipeline
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
 

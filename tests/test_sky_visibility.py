@@ -7,21 +7,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from usdbake.processors.kernels.sky import (
+from usdbake.kernels.sky import (
     enu_to_world,
     patch_layout,
     patch_samples,
     reinhart_patches,
     uniform_patches,
 )
-from usdbake.processors.refine import boundary_edges, is_watertight, weld_points
-from usdbake.processors.scene import Scene
+from usdbake.geometry.refine import boundary_edges, is_watertight, weld_points
+from usdbake.core.scene import Scene
 from usdbake.processors.sky_visibility import (
     compute_patch_visibility,
     compute_point_sky_view,
     compute_sky_visibility,
 )
-from usdbake.processors.tracer import Tracer
+from usdbake.kernels.tracer import Tracer
 
 SAMPLES = Path(__file__).resolve().parent.parent / "samples"
 

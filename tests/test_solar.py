@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from usdbake.processors.solar import parse_duration, parse_times, sun_position
+from usdbake.kernels.solar import parse_duration, parse_times, sun_position
 
 SPA_TOL_DEG = 0.02
 """The NOAA algorithm claims ~0.0167 deg over 1800-2100; the SPA example is a published value to 1e-5 deg."""

@@ -7,8 +7,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import chisquare
 
-from usdbake.processors.kernels.sampling import cosine_hemisphere_np
-from usdbake.processors.kernels.sphere_maps import (cell_spacing_ratio_np, concentric_disk_to_square_np,
+from usdbake.kernels.sampling import cosine_hemisphere_np
+from usdbake.kernels.sphere_maps import (cell_spacing_ratio_np, concentric_disk_to_square_np,
                                                     equal_area_sphere_to_square, equal_area_sphere_to_square_np,
                                                     equal_area_square_to_sphere, equal_area_square_to_sphere_np,
                                                     grid_cell_centers_np, malley_direction_to_square,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from usdbake.processors import streaming as s
+from usdbake.formats import streaming as s
 
 RESOLUTIONS = [(9, 9, 9), (8, 5, 3), (16, 12, 7), (1, 4, 4), (2, 2, 2), (1, 1, 1), (33, 2, 17)]
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull, Delaunay
 
-from usdbake.processors import tetrahedra as T
+from usdbake.geometry import tetrahedra as T
 
 EXACT = 1e-9
 """float64 barycentrics of unit-sized tetrahedra: rounding ~1e-15, far below this."""

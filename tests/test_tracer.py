@@ -6,7 +6,7 @@ import pytest
 import warp as wp
 
 from usdbake.processors.ambient_occlusion import compute_vertex_ao
-from usdbake.processors.tracer import MIN_CHUNK, RAY_EPSILON_RELATIVE, Tracer
+from usdbake.kernels.tracer import MIN_CHUNK, RAY_EPSILON_RELATIVE, Tracer
 
 wp.set_module_options({"enable_backward": False})
 

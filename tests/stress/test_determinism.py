@@ -19,11 +19,12 @@ import dataclasses
 import numpy as np
 import pytest
 from stress.stage_builders_stress import FAST_PARAMS, hostile_lit_stage, small_lit_stage
-from usdbake.processors import base, tracer
+from usdbake import core
+from usdbake.kernels import tracer
 from usdbake.stages.extract import extract_scene
-from usdbake.stages.pipeline import Pipeline
+from usdbake.core.pipeline import Pipeline
 
-PROCESSORS = sorted(name for name, cls in base.registry().items()
+PROCESSORS = sorted(name for name, cls in core.registry.registry().items()
                     if cls.__module__.startswith("usdbake.processors."))
 
 SMALL_CHUNK = 8
@@ -102,7 +103,7 @@ def test_bit_identical_across_runs_and_threads(name, scene_name, scenes, small_c
             (("threads=1", 1), ("threads=2", 2), ("threads=2 again", 2))}
     reference = runs["threads=1"]
     assert reference, f"{name} produced nothing to compare"
-    if name not in NO_KERNELS and (base.get(name).uses_tracer or tracer.default_threads() > 1):
+    if name not in NO_KERNELS and (core.registry.get(name).uses_tracer or tracer.default_threads() > 1):
         # own-tracer processors (uses_tracer False) split with the default thread count only
         assert small_chunks and max(small_chunks) > 1, f"{name}: no launch was split across threads"
     assert sum(a.size for a in reference.values()) > 0

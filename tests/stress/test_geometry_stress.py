@@ -13,9 +13,9 @@ import usdbake
 from pxr import Gf, Usd, UsdGeom
 from stress.stage_builders_stress import box_on_floor, hostile_stage, stage_with
 from usdbake.processors.ambient_occlusion import compute_vertex_ao
-from usdbake.processors.geometry import vertex_normals
-from usdbake.processors.tracer import Tracer
-from usdbake.stages.errors import StageError
+from usdbake.geometry.mesh import vertex_normals
+from usdbake.kernels.tracer import Tracer
+from usdbake.core.errors import StageError
 from usdbake.stages.extract import extract_scene
 
 SAMPLES = 64

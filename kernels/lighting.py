@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..scene import LIGHT_DOME, Scene
+from ..core.scene import LIGHT_DOME, Scene
 from .sampling import concentric_disk, cosine_hemisphere, tangent_frame, triangle_point
 
 wp.set_module_options({"enable_backward": False})

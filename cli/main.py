@@ -24,9 +24,10 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from ..processors import base
-from .errors import UsageError
-from .pipeline import DEFAULT_PROCESSORS, Pipeline, ProcessorFailed
+from ..core import registry
+from ..core.errors import UsageError
+from ..core.pipeline import DEFAULT_PROCESSORS, Pipeline, ProcessorFailed
+from ..stages.bake_layer import open_source
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -107,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = make_parser().parse_args(argv)
         return COMMANDS[args.command](args, console)
-    except (UsageError, base.ParamError) as error:
+    except UsageError as error:
         console.print(f"[red]usdbake: error:[/red] {error}", highlight=False)
         return EXIT_USAGE
     except ProcessorFailed as error:
@@ -149,38 +150,14 @@ def resolve_options(args, default=DEFAULT_PROCESSORS) -> tuple[list[str], dict[s
     return processors or list(default), params
 
 
-def open_source(path: str):
-    """Open the stage to bake: the input, or the source of a usdbake output."""
-    from pxr import Tf, Usd
-
-    from .bake_layer import bake_source
-
-    if not Path(path).exists():
-        raise UsageError(f"{path}: no such file")
-    try:
-        source = bake_source(path)
-        stage = Usd.Stage.Open(source)
-    except Tf.ErrorException as error:
-        raise UsageError(f"{path}: cannot be read as USD ({_usd_reason(error)})") from None
-    if stage is None:
-        raise UsageError(f"{path}: cannot be read as USD")
-    return source, stage
-
-
-def _usd_reason(error: Exception) -> str:
-    """The human part of a Tf error: the text after the last ' : ', without the quotes."""
-    # Whitespace is collapsed first: a parser message can end in a newline inside its quotes.
-    return " ".join(str(error).split()).rsplit(" : ", 1)[-1].strip("'\" ")
-
-
 # ---------------------------------------------------------------------------
 # Commands
 
 
 def cmd_plan(args, console: Console) -> int:
-    from .extract import extract_scene
+    from ..stages.extract import extract_scene
 
-    names, params = resolve_options(args, default=sorted(base.registry()))  # plan: every processor
+    names, params = resolve_options(args, default=sorted(registry.registry()))  # plan: every processor
     pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force)
     _, stage = open_source(args.input)
     steps = pipeline.plan(extract_scene(stage, time=args.time))
@@ -192,8 +169,8 @@ def cmd_plan(args, console: Console) -> int:
 
 
 def cmd_bake(args, console: Console) -> int:
-    from .bake_layer import save_atomically
-    from .extract import extract_scene
+    from ..stages.bake_layer import save_atomically
+    from ..stages.extract import extract_scene
 
     names, params = resolve_options(args)
     pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force)
@@ -259,7 +236,7 @@ def _summary_table(steps, *, planned: bool = False) -> Table:
 
 def cmd_list(args, console: Console) -> int:
     rows = []
-    for name, cls in sorted(base.registry().items()):
+    for name, cls in sorted(registry.registry().items()):
         rows.append({"name": name, "summary": cls.summary, "requires": list(cls.requires),
                      "provides": list(cls.provides), "params": cls.Params.describe()})
     if args.json:
@@ -286,7 +263,7 @@ def _fmt(value) -> str:
 
 
 def cmd_inspect(args, console: Console) -> int:
-    from .inspect import inspect_layer
+    from ..stages.inspect import inspect_layer
 
     report = inspect_layer(args.output)
     if args.json:
@@ -306,7 +283,7 @@ def cmd_inspect(args, console: Console) -> int:
 
 
 def cmd_preview(args, console: Console) -> int:
-    from .preview import parse_size, preview
+    from ..preview.compose import parse_size, preview
 
     report = preview(args.input, args.output, camera=args.camera, channel=args.channel, time=args.time,
                      size=parse_size(args.size), exposure=args.exposure, style=args.style,
@@ -327,13 +304,8 @@ def cmd_preview(args, console: Console) -> int:
 
 
 def cmd_bench(args, console: Console) -> int:
-    """Delegate to benchmarks/ beside the package (the package root is the repository root)."""
-    root = Path(__file__).resolve().parent.parent
-    if not (root / "benchmarks" / "__main__.py").exists():
-        raise UsageError("benchmarks/ is not part of this installation; run from a source checkout "
-                         "(pip install -e .) or use `python -m benchmarks` there")
-    sys.path.insert(0, str(root))
-    from benchmarks.__main__ import main as bench_main
+    """Run usdbake.benchmarks (installed with the package; its plots need the 'bench' extra)."""
+    from ..benchmarks.__main__ import main as bench_main
 
     argv = [*args.names, *(["--quick"] if args.quick else []), *(["--results", args.results] if args.results else [])]
     return bench_main(argv)

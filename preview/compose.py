@@ -34,11 +34,11 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom
 
-from ..processors import render
-from ..processors.scene import Scene
-from ..processors.tracer import Tracer
-from .errors import UsageError
-from .extract import extract_scene
+from . import render
+from ..core.scene import Scene
+from ..kernels.tracer import Tracer
+from ..core.errors import UsageError
+from ..stages.extract import extract_scene
 
 IRRADIANCE_PREFIXES = ("irradiance", "daylight", "radiosity")
 STYLES = ("auto", "falsecolor", "shaded")

@@ -10,21 +10,19 @@ keys of the steps it depends on.
 
 from __future__ import annotations
 
-import functools
-import hashlib
-import inspect
-import json
-import pickle
 import time
 from dataclasses import dataclass, field
 from graphlib import CycleError, TopologicalSorter
-from pathlib import Path
 from typing import Callable
 
-from ..processors import base
-from ..processors.scene import Scene
-from ..processors.tracer import shared_tracer
+from .registry import get as get_processor
+from .registry import registry as all_processors
+from .cache import ResultCache, step_key
 from .errors import UsageError
+from .params import ParamError, Params
+from .processor import Context, Processor, Result
+from .records import Attribute, Primvar
+from .scene import Scene
 
 DEFAULT_PROCESSORS = ("ambient_occlusion",)
 
@@ -46,15 +44,15 @@ class Step:
     """One processor in the plan, and after running, what happened to it."""
 
     name: str
-    processor: base.Processor
-    params: base.Params
+    processor: Processor
+    params: Params
     key: str = ""
     action: str = "run"
     """'run', 'cached' (up to date) or 'skip' (not applicable)."""
     reason: str = ""
     seconds: float = 0.0
     rays: float = 0.0
-    result: base.Result | None = None
+    result: Result | None = None
 
     @property
     def mrays_per_second(self) -> float:
@@ -71,10 +69,10 @@ class Step:
 def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dict] | None = None) -> list[Step]:
     """Requested processors plus everything they depend on, in dependency order."""
     params = dict(params or {})
-    registry = base.registry()
+    registry = all_processors()
     for name in params:
         if name not in registry:
-            raise base.ParamError(f"parameters given for unknown processor {name!r}")
+            raise ParamError(f"parameters given for unknown processor {name!r}")
     producers: dict[str, str] = {}
     for name, cls in registry.items():
         for product in cls.provides:
@@ -88,7 +86,7 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
         name = pending.pop()
         if name in graph:
             continue
-        cls = base.get(name)
+        cls = get_processor(name)
         deps = set()
         for product in cls.requires:
             if product not in producers:
@@ -109,64 +107,6 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
     return steps
 
 
-def code_fingerprint(cls: type) -> str:
-    """Hash of the code a processor runs: the processors package plus the class's own module
-    (third-party processors live elsewhere), so an edited kernel never serves a stale cached result."""
-    files = sorted(Path(base.__file__).parent.rglob("*.py"))
-    own = inspect.getsourcefile(cls)
-    if own and Path(own).is_file() and Path(own) not in files:
-        files.append(Path(own))
-    return _digest_files(tuple((str(f), f.stat().st_mtime_ns, f.stat().st_size) for f in files))
-
-
-@functools.lru_cache(maxsize=64)
-def _digest_files(stamped: tuple) -> str:
-    digest = hashlib.sha256()
-    for path, _, _ in stamped:
-        digest.update(path.encode())
-        digest.update(Path(path).read_bytes())
-    return digest.hexdigest()
-
-
-def step_key(step: Step, scene: Scene, upstream_keys: list[str]) -> str:
-    payload = {
-        "name": step.name, "version": step.processor.version, "code": code_fingerprint(type(step.processor)),
-        "params": repr(sorted(step.params.as_dict().items())),
-        "scene": scene.fingerprint(step.processor.facets), "upstream": upstream_keys,
-    }
-    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]
-
-
-class ResultCache:
-    """Pickled Results on disk, one file per step key; no directory means no caching."""
-
-    def __init__(self, directory: str | Path | None):
-        self.directory = Path(directory) if directory else None
-
-    def path(self, name: str, key: str) -> Path | None:
-        return self.directory / f"{name}-{key}.pkl" if self.directory else None
-
-    def load(self, name: str, key: str) -> base.Result | None:
-        path = self.path(name, key)
-        if path is None or not path.exists():
-            return None
-        try:
-            with open(path, "rb") as handle:
-                return pickle.load(handle)
-        except (OSError, pickle.UnpicklingError, EOFError, AttributeError):
-            return None  # unreadable or from an incompatible version: recompute
-
-    def store(self, name: str, key: str, result: base.Result) -> None:
-        path = self.path(name, key)
-        if path is None:
-            return
-        path.parent.mkdir(parents=True, exist_ok=True)
-        temp = path.with_suffix(".tmp")
-        with open(temp, "wb") as handle:
-            pickle.dump(result, handle, protocol=pickle.HIGHEST_PROTOCOL)
-        temp.replace(path)
-
-
 @dataclass
 class Pipeline:
     """Plan and run processors on one Scene, sharing one Tracer."""
@@ -176,6 +116,18 @@ class Pipeline:
     cache: ResultCache = field(default_factory=lambda: ResultCache(None))
     force: bool = False
     threads: int | None = None
+
+    def tracer_for(self, scene: Scene) -> Callable[[], object]:
+        """A factory of the scene's one shared BVH: built on first use by applies() or run()."""
+        def build():
+            from ..kernels.tracer import shared_tracer  # core holds no Warp code; the BVH is built on demand
+
+            return shared_tracer(scene, device=self.device, threads=self.threads)
+        return build
+
+    def context(self, step: Step, scene: Scene, products: dict | None = None, progress=None) -> Context:
+        return Context(scene=scene, params=step.params, tracer=self.tracer_for(scene), products=products,
+                       progress=progress)
 
     @classmethod
     def build(cls, names=None, params=None, *, device="cpu", cache_dir=None, force=False, threads=None):
@@ -192,7 +144,7 @@ class Pipeline:
             step.key = step_key(step, scene, [keys[name] for name in upstream])
             keys[step.name] = step.key
             blocked = [name for name in upstream if name in skipped]
-            applies, why = step.processor.applies(scene)
+            applies, why = step.processor.applies(self.context(step, scene))
             if blocked:
                 step.action, step.reason = "skip", f"requires {', '.join(blocked)} (skipped)"
             elif not applies:
@@ -210,7 +162,6 @@ class Pipeline:
         """Run the plan; raises ProcessorFailed (nothing is written by the runner itself)."""
         self.plan(scene)
         products: dict = {}
-        tracer = None
         for step in self.steps:
             if step.action == "skip":
                 continue
@@ -220,12 +171,8 @@ class Pipeline:
             result = self.cache.load(step.name, step.key) if step.action == "cached" else None
             if result is None:
                 step.action = "run"
-                if tracer is None and step.processor.uses_tracer:
-                    tracer = shared_tracer(scene, device=self.device, threads=self.threads)
-                ctx = base.Context(scene=scene, params=step.params, tracer=tracer,
-                                   products={p: products[p] for p in step.processor.requires},
-                                   progress=(lambda f, n=step.name: on_progress(n, f)) if on_progress else
-                                   (lambda f: None))
+                ctx = self.context(step, scene, {p: products[p] for p in step.processor.requires},
+                                   (lambda f, n=step.name: on_progress(n, f)) if on_progress else None)
                 try:
                     result = step.processor.run(ctx)
                 except Exception as error:  # report which processor failed, and why
@@ -245,8 +192,8 @@ class Pipeline:
         records = []
         for step in self.steps:
             for record in step.result.outputs if step.result else []:
-                if isinstance(record, (base.Primvar, base.Attribute)):
-                    name = f"primvars:{record.name}" if isinstance(record, base.Primvar) else record.name
+                if isinstance(record, (Primvar, Attribute)):
+                    name = f"primvars:{record.name}" if isinstance(record, Primvar) else record.name
                     key = (record.prim, name, record.time)
                     if writers.setdefault(key, step.name) != step.name:
                         raise UsageError(f"{record.prim}.{name} is written by both {writers[key]} and {step.name}; "

@@ -1,12 +1,10 @@
-"""Small pure-numpy helpers on Scene geometry shared by several processors."""
+"""Pure-numpy helpers on Scene meshes shared by several processors: normals, receivers, face means."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from .scene import Scene
+from ..core.scene import Scene
 
 
 def vertex_normals(points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.ndarray,
@@ -26,11 +24,6 @@ def receiver_prims(scene: Scene) -> np.ndarray:
     """Indices of prims that receive baked values: writable, not marked bake:skip, with triangles."""
     has_triangles = np.bincount(scene.tri_prim, minlength=len(scene.prim_paths)) > 0
     return np.flatnonzero(scene.prim_writable & ~scene.prim_skip & has_triangles)
-
-
-def strata_for(samples: int) -> int:
-    """Side of a stratification grid: the square nearest to ``samples`` (at least 1)."""
-    return max(1, int(round(math.sqrt(samples))))
 
 
 def face_means(values: np.ndarray, weights: np.ndarray, face: np.ndarray, face_count: int) -> np.ndarray:

@@ -4,6 +4,8 @@ The numpy twins exist so the maps can be tested (hypothesis, closed forms)
 without launching kernels; the kernels use the @wp.func versions.
 """
 
+import math
+
 import numpy as np
 import warp as wp
 
@@ -90,3 +92,8 @@ def cosine_hemisphere_np(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     d = concentric_disk_np(u1, u2)
     z = np.sqrt(np.maximum(0.0, 1.0 - (d * d).sum(axis=-1)))
     return np.concatenate([d, z[:, None]], axis=-1)
+
+
+def strata_for(samples: int) -> int:
+    """Side of a stratification grid: the square nearest to ``samples`` (at least 1)."""
+    return max(1, int(round(math.sqrt(samples))))

@@ -1,0 +1,1 @@
+"""The `usdbake` command: parse arguments, call the library, format what it returns."""

@@ -1,0 +1,17 @@
+"""The library's core: no pxr, no Warp kernels.
+
+The Scene (struct of arrays + fingerprints), the processor contract (Params,
+products, output records, Result, Context, Processor), the registry, the DAG
+runner and its cache, and the errors that are the user's to fix. A technique
+imports what it needs from here: ``from ..core import Processor, Params, param, ...``.
+"""
+
+from . import registry
+from .errors import StageError, UsageError
+from .params import ParamError, Params, param
+from .processor import Context, Processor, Result
+from .records import Attribute, File, Output, Prim, Primvar, Texture
+from .scene import Scene
+
+__all__ = ["Attribute", "Context", "File", "Output", "ParamError", "Params", "Prim", "Primvar", "Processor",
+           "Result", "Scene", "StageError", "Texture", "UsageError", "param"]

@@ -1,0 +1,80 @@
+"""The processor contract: Result, Context and the Processor base class.
+
+A processor is pure compute: arrays in, arrays out, no pxr. It declares
+
+- ``name``, ``version``, ``summary``,
+- ``requires`` / ``provides``: product *types* (classes in core.products),
+- ``Params``: a frozen dataclass of ``param()`` fields (core.params),
+- ``facets``: the Scene facets its fingerprint reads (see scene.FACETS),
+- ``applies(ctx) -> (bool, reason)`` and ``run(ctx) -> Result``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, ClassVar
+
+from .params import Params
+from .records import Output
+from .scene import Scene
+
+
+@dataclass
+class Result:
+    """What a processor hands back: products for later processors, records for USD, figures for people."""
+
+    products: dict[str, Any] = field(default_factory=dict)
+    outputs: list[Output] = field(default_factory=list)
+    stats: dict[str, float] = field(default_factory=dict)
+    """Figures for the summary, e.g. {'rays': 1.2e7}."""
+    messages: list[str] = field(default_factory=list)
+    """Warnings for people (e.g. prims that were not baked, and why)."""
+
+
+class Context:
+    """Everything ``applies`` and ``run`` may read: the scene, params, upstream products, the shared tracer.
+
+    ``tracer`` is either a built Tracer or a zero-argument factory; the factory
+    runs on first access, so a processor that never traces never builds a BVH,
+    and ``applies()`` and ``run()`` of every step share one.
+    """
+
+    def __init__(self, scene: Scene, params: Params, tracer: Any = None, products: dict | None = None,
+                 progress: Callable[[float], None] | None = None):
+        self.scene = scene
+        self.params = params
+        self.products = dict(products or {})
+        self.progress = progress or (lambda fraction: None)
+        """Report progress in [0, 1] on long work."""
+        self._tracer = tracer
+
+    @property
+    def tracer(self) -> Any:
+        """The scene's shared usdbake.kernels.tracer.Tracer."""
+        if callable(self._tracer):
+            self._tracer = self._tracer()
+        return self._tracer
+
+
+class Processor:
+    """Base class: subclass, set the class attributes, implement applies and run."""
+
+    name: ClassVar[str] = ""
+    version: ClassVar[str] = "1"
+    requires: ClassVar[tuple[str, ...]] = ()
+    provides: ClassVar[tuple[str, ...]] = ()
+    facets: ClassVar[tuple[str, ...]] = ("geometry",)
+    uses_tracer: ClassVar[bool] = True
+    Params: ClassVar[type[Params]] = Params
+    summary: ClassVar[str] = ""
+
+    def __init__(self, params: Params | None = None):
+        self.params = params if params is not None else self.Params()
+        """This step's params, so applies() can decide with them (e.g. a cost model)."""
+
+    def applies(self, ctx: Context) -> tuple[bool, str]:
+        """(True, why it runs or "") or (False, why it does not apply)."""
+        return True, ""
+
+    def run(self, ctx: Context) -> Result:  # pragma: no cover - abstract
+        raise NotImplementedError

@@ -1,0 +1,1 @@
+"""Byte layouts we write ourselves: DDS (BC1) textures and the irradiance-grid stream."""

@@ -1,0 +1,1 @@
+"""Mesh algorithms in numpy: normals and receivers, crack-free refinement, tetrahedra."""

@@ -1,0 +1,1 @@
+"""The renderer behind `usdbake preview` (outside every processor's cache key)."""
