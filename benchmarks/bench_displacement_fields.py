@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from usdbake.core.products import AmbientOcclusionProduct, DisplacementFieldSet, InstanceOcclusionProduct
 
 from . import harness
 
@@ -62,7 +63,7 @@ def run(quick: bool = False) -> dict:
     ctx = core.Context(scene=scene, params=AmbientOcclusion.Params(), tracer=tracer)
     AmbientOcclusion().run(ctx)  # compile outside the timing
     started = time.perf_counter()
-    reference = AmbientOcclusion().run(ctx).products["ao"]
+    reference = AmbientOcclusion().run(ctx).products[AmbientOcclusionProduct].point_ao
     reference_seconds = time.perf_counter() - started + bvh_build
 
     prototypes = {path: prototype_geometry(scene, index) for index, path in enumerate(scene.instances.prototype_paths)}
@@ -84,10 +85,10 @@ def run(quick: bool = False) -> dict:
                 fields[path] = DisplacementField(path, center, radius, side, size, encoding, texels, means,
                                                  len(prototypes[path][1]))
             params = InstanceAO.Params()
-            ao_ctx = core.Context(scene=scene, params=params, tracer=None, products={"displacement_fields": fields})
+            ao_ctx = core.Context(scene=scene, params=params, tracer=None, products={DisplacementFieldSet: DisplacementFieldSet(fields)})
             InstanceAO().run(ao_ctx)  # compile / warm
             started = time.perf_counter()
-            ao = InstanceAO().run(ao_ctx).products["instance_ao"][None]
+            ao = InstanceAO().run(ao_ctx).products[InstanceOcclusionProduct].point_ao_by_frame[None]
             query = time.perf_counter() - started
             rms = float(np.sqrt(np.mean((ao[receivers] - reference[receivers]) ** 2)))
             vase = fields["/World/Scatter/Prototypes/Vase"]
@@ -101,11 +102,11 @@ def run(quick: bool = False) -> dict:
     interpolation = {}
     if not quick:
         fields = DisplacementFields().run(core.Context(scene=scene, params=DisplacementFields.Params(),
-                                                       tracer=None)).products["displacement_fields"]
+                                                       tracer=None)).products[DisplacementFieldSet].fields
         for mode in ("nearest", "position", "direction", "quadrilinear"):
             ao_ctx = core.Context(scene=scene, params=InstanceAO.Params(interpolation=mode), tracer=None,
-                                  products={"displacement_fields": fields})
-            ao = InstanceAO().run(ao_ctx).products["instance_ao"][None]
+                                  products={DisplacementFieldSet: DisplacementFieldSet(fields)})
+            ao = InstanceAO().run(ao_ctx).products[InstanceOcclusionProduct].point_ao_by_frame[None]
             interpolation[mode] = float(np.sqrt(np.mean((ao[receivers] - reference[receivers]) ** 2)))
 
     instance_figures = {} if quick else _instance_vertices(scene)
@@ -212,16 +213,16 @@ def _instance_vertices(scene) -> dict:
     from usdbake.kernels.tracer import Tracer
 
     fields = DisplacementFields().run(core.Context(scene=scene, params=DisplacementFields.Params(),
-                                                   tracer=None)).products["displacement_fields"]
+                                                   tracer=None)).products[DisplacementFieldSet].fields
     started = time.perf_counter()
     result = InstanceAO().run(core.Context(scene=scene, params=InstanceAO.Params(instances=True), tracer=None,
-                                           products={"displacement_fields": fields}))
+                                           products={DisplacementFieldSet: DisplacementFieldSet(fields)}))
     field_seconds = time.perf_counter() - started
-    means = result.products["instance_ao_per_instance"][None]
+    means = result.products[InstanceOcclusionProduct].instance_ao_by_frame[None]
     writable = dataclasses.replace(scene, prim_writable=np.ones(len(scene.prim_paths), bool))
     started = time.perf_counter()
     exact = AmbientOcclusion().run(core.Context(scene=writable, params=AmbientOcclusion.Params(),
-                                                tracer=Tracer.from_scene(scene))).products["ao"]
+                                                tracer=Tracer.from_scene(scene))).products[AmbientOcclusionProduct].point_ao
     exact_seconds = time.perf_counter() - started
     normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
     exact_means = InstancePoints(scene, normals, np.zeros(len(scene.instances), np.int32)).means(

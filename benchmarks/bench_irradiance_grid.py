@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from usdbake.processors.irradiance_grid import dequantize_vectors
 
 from . import harness
 
@@ -90,7 +91,7 @@ def run(quick: bool = False) -> dict:
         for mode, direct in (("total", True), ("indirect", False)):
             with harness.measure() as m:
                 grid = ig.bake_grid(tracer, scene, layout, rays=rays, include_direct=direct)
-            estimate = ig.reconstruct_irradiance(layout, grid.decoded(), points, normals)
+            estimate = ig.reconstruct_irradiance(layout, dequantize_vectors(grid.directions, grid.colors), points, normals)
             row[f"error_{mode}"] = _relative_rms(estimate, references[mode]["surface"])
             row[f"seconds_{mode}"] = m.seconds
             grids[(vertices, rays, mode)] = grid
@@ -99,7 +100,7 @@ def run(quick: bool = False) -> dict:
 
     default = grids[(DEFAULT_VERTICES, DEFAULT_RAYS, "total")]
     layout = default.layout
-    decoded = default.decoded()
+    decoded = dequantize_vectors(default.directions, default.colors)
     ref = references["total"]["surface"]
     figures = {"surface_points": count, "reference_rays": reference_rays, "grid_vertices_default": layout.count,
                "cell_size_default": round(float(layout.cell_size[0]), 3),

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from usdbake.core.products import ProbeCloud
 
 from . import harness
 
@@ -70,7 +71,7 @@ def run(quick: bool = False) -> dict:
         started = time.perf_counter()
         result = processor.run(Context(scene, processor.Params(**params), tracer))
         seconds = time.perf_counter() - started
-        cloud = result.products["light_probes"]
+        cloud = result.products[ProbeCloud]
         return cloud, seconds, result.stats
 
     bake(probes=16, rays=4, placement_rays=4, iterations=1)  # compile outside the timing

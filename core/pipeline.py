@@ -1,8 +1,9 @@
 """The DAG runner: resolve, order, skip, cache, time and run processors.
 
-Processors meet only through named products: a processor that ``requires``
-a product depends on the one processor that ``provides`` it. The graph is
-checked when the pipeline is built (one producer per product, every
+Processors meet only through typed products (classes, see core.products): a
+processor that ``requires`` a product type depends on the one processor that
+``provides`` it. The graph is checked when the pipeline is built (every
+product a type, one producer per product, every
 requirement produced, no cycles). Each step's cache key is its name,
 version and params plus the fingerprint of the Scene facets it reads and the
 keys of the steps it depends on.
@@ -75,9 +76,13 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
             raise ParamError(f"parameters given for unknown processor {name!r}")
     producers: dict[str, str] = {}
     for name, cls in registry.items():
+        for product in (*cls.provides, *cls.requires):
+            if not isinstance(product, type):
+                raise GraphError(f"{name!r}: product {product!r} is not a type (see usdbake.core.products)")
         for product in cls.provides:
             if product in producers:
-                raise GraphError(f"product {product!r} is provided by both {producers[product]!r} and {name!r}")
+                raise GraphError(f"product {product.__name__} is provided by both {producers[product]!r} and "
+                                 f"{name!r}")
             producers[product] = name
 
     wanted, pending = [], list(names or DEFAULT_PROCESSORS)
@@ -90,7 +95,7 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
         deps = set()
         for product in cls.requires:
             if product not in producers:
-                raise GraphError(f"{name!r} requires {product!r}, which no processor provides")
+                raise GraphError(f"{name!r} requires {product.__name__}, which no processor provides")
             deps.add(producers[product])
         graph[name] = deps
         wanted.append(name)
@@ -105,6 +110,16 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
         step_params = cls.Params.from_dict(params.get(name, {}))
         steps.append(Step(name, cls(step_params), step_params))
     return steps
+
+
+def checked_products(step: Step, result: Result) -> dict:
+    """The step's products, each an instance of a type it declares in ``provides``."""
+    for kind, value in result.products.items():
+        if kind not in step.processor.provides or not isinstance(value, kind):
+            raise ProcessorFailed(step.name, TypeError(
+                f"product {getattr(kind, '__name__', kind)!r} ({type(value).__name__}) is not one of its declared "
+                f"types {[t.__name__ for t in step.processor.provides]}"))
+    return result.products
 
 
 @dataclass
@@ -127,7 +142,7 @@ class Pipeline:
 
     def context(self, step: Step, scene: Scene, products: dict | None = None, progress=None) -> Context:
         return Context(scene=scene, params=step.params, tracer=self.tracer_for(scene), products=products,
-                       progress=progress)
+                       progress=progress, device=self.device, threads=self.threads)
 
     @classmethod
     def build(cls, names=None, params=None, *, device="cpu", cache_dir=None, force=False, threads=None):
@@ -181,7 +196,7 @@ class Pipeline:
                 step.rays = float(result.stats.get("rays", 0.0))
             step.seconds = time.perf_counter() - started
             step.result = result
-            products.update(result.products)
+            products.update(checked_products(step, result))
             if on_progress:
                 on_progress(step.name, 1.0)
         return self.steps

@@ -40,8 +40,10 @@ class Context:
     """
 
     def __init__(self, scene: Scene, params: Params, tracer: Any = None, products: dict | None = None,
-                 progress: Callable[[float], None] | None = None):
+                 progress: Callable[[float], None] | None = None, *, device: str = "cpu", threads: int | None = None):
         self.scene = scene
+        self.device, self.threads = device, threads
+        """Where kernels run, and CPU threads; for processors that build BVHs of their own."""
         self.params = params
         self.products = dict(products or {})
         self.progress = progress or (lambda fraction: None)
@@ -64,7 +66,6 @@ class Processor:
     requires: ClassVar[tuple[str, ...]] = ()
     provides: ClassVar[tuple[str, ...]] = ()
     facets: ClassVar[tuple[str, ...]] = ("geometry",)
-    uses_tracer: ClassVar[bool] = True
     Params: ClassVar[type[Params]] = Params
     summary: ClassVar[str] = ""
 

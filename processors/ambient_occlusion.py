@@ -42,6 +42,7 @@ import numpy as np
 import warp as wp
 
 from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
+from ..core.products import AmbientOcclusionProduct
 from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame, triangle_point
 from ..geometry.mesh import face_means, receiver_prims, vertex_normals
 from ..core.scene import Scene
@@ -165,7 +166,7 @@ class AmbientOcclusion(Processor):
     version = "2"
     summary = "Per-vertex ambient occlusion by cosine-weighted hemisphere ray casts (the reference AO)."
     facets = ("geometry",)
-    provides = ("ao",)
+    provides = (AmbientOcclusionProduct,)
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -194,7 +195,7 @@ class AmbientOcclusion(Processor):
             samples=p.samples, max_distance=p.max_distance, seed=p.seed)
         ctx.progress(0.5 if p.per_face else 1.0)
 
-        result = Result(products={"ao": ao_points})
+        result = Result(products={AmbientOcclusionProduct: AmbientOcclusionProduct(ao_points)})
         for prim in receivers:
             result.outputs.append(Primvar(scene.prim_paths[prim], "bake:ao", ao_points[scene.prim_points(prim)],
                                           "float", "vertex"))

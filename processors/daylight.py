@@ -79,6 +79,7 @@ from ..core import (
     Result,
     param,
 )
+from ..core.products import DaylightProduct, SkyVisibilityProduct
 from ..kernels.sampling import tangent_frame, triangle_point
 from ..kernels.sky import (
     SUN_ANGULAR_DIAMETER,
@@ -185,18 +186,7 @@ def compute_sun_visibility(tracer, corners: np.ndarray, normals: np.ndarray, sun
     return result
 
 
-@dataclass(frozen=True)
-class DaylightProduct:
-    """Product ``daylight``: radiance per refined face and time."""
 
-    times: np.ndarray
-    """(K,) datetime64[us] local times."""
-    face_radiance: np.ndarray
-    """(K, F, 3) float32 outgoing radiance, W/(m^2 sr)."""
-    sun_zenith: np.ndarray
-    """(K,) degrees."""
-    sun_azimuth: np.ndarray
-    """(K,) degrees from north towards east."""
 
 
 def sky_weights(product, model: str, sun_layout: np.ndarray, *, turbidity: float, radiance: float,
@@ -263,8 +253,8 @@ class Daylight(Processor):
     version = "2"
     summary = "Sky (Preetham/CIE overcast/uniform) + sun relighting of the sky_visibility mesh, time-sampled."
     facets = ("geometry", "materials")
-    requires = ("sky_visibility",)
-    provides = ("daylight",)
+    requires = (SkyVisibilityProduct,)
+    provides = (DaylightProduct,)
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -298,7 +288,7 @@ class Daylight(Processor):
 
     def run(self, ctx: Context) -> Result:
         scene, p = ctx.scene, ctx.params
-        product = ctx.products["sky_visibility"]
+        product = ctx.products[SkyVisibilityProduct]
         try:
             times = parse_times(p.times)
         except ValueError as error:
@@ -308,7 +298,7 @@ class Daylight(Processor):
             north=p.north, sky=p.sky, turbidity=p.turbidity, uniform_radiance=p.uniform_radiance,
             direct_normal=p.direct_normal, diffuse_horizontal=p.diffuse_horizontal, sun=p.sun,
             sun_samples=p.sun_samples, seed=p.seed, progress=ctx.progress)
-        result = Result(products={"daylight": daylight}, stats=stats)
+        result = Result(products={DaylightProduct: daylight}, stats=stats)
         sampled = len(times) > 1
         mapped, k = tone_map(daylight.face_radiance.reshape(-1, 3), p.exposure) if p.display_color else (None, 0)
         if mapped is not None:

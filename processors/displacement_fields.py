@@ -79,6 +79,7 @@ import numpy as np
 import warp as wp
 
 from ..core import Attribute, Context, ParamError, Params, Prim, Processor, Result, Texture, param
+from ..core.products import DisplacementField, DisplacementFieldSet
 from ..kernels.sampling import cosine_hemisphere, tangent_frame
 from ..kernels.sphere_maps import equal_area_square_to_sphere
 from ..core.scene import Scene
@@ -100,37 +101,7 @@ POSITION_MAPPING = "octahedralEqualArea"
 DIRECTION_MAPPING = "concentricMalley"
 
 
-@dataclass(frozen=True)
-class DisplacementField:
-    """One prototype's field (the product handed to instance_ao)."""
 
-    prototype: str
-    """Prototype prim path."""
-    center: np.ndarray
-    """(3,) float64 bounding-sphere centre in prototype space."""
-    radius: float
-    """Bounding-sphere radius in prototype space."""
-    side: int
-    """n: the positional samples are an n x n equal-area octahedral grid (n^2 samples)."""
-    map_size: int
-    """M: direction maps are M x M."""
-    encoding: str
-    """'uint8' or 'bit1'."""
-    texels: np.ndarray
-    """uint8: (n*n, M, M) distance codes (255 = miss); bit1: (n*n, M*M/8) packed hit bits (LSB first)."""
-    mean_codes: np.ndarray
-    """(n*n,) uint8 mean hit distance code per sample (bit1; for uint8 also filled, unused)."""
-    triangles: int = 0
-    build_seconds: float = 0.0
-    prototype_points: np.ndarray = dataclass_field(default_factory=lambda: np.zeros((0, 3), np.float32))
-    """(P, 3) float32 prototype-space vertices the field was built from (instance_ao traces self-occlusion)."""
-    prototype_triangles: np.ndarray = dataclass_field(default_factory=lambda: np.zeros((0, 3), np.int32))
-    """(T, 3) int32 triangles of prototype_points."""
-
-    @property
-    def nbytes(self) -> int:
-        """Bytes of field data (texels, plus the per-sample means in bit1 mode)."""
-        return int(self.texels.nbytes + (self.mean_codes.nbytes if self.encoding == "bit1" else 0))
 
 
 # ---------------------------------------------------------------------------
@@ -362,8 +333,7 @@ class DisplacementFields(Processor):
     version = "1"
     summary = "Per-prototype presampled visibility (displacement fields) for instance_ao."
     facets = ("geometry", "instancers")
-    provides = ("displacement_fields",)
-    uses_tracer = False  # each field has its own BVH over the prototype alone
+    provides = (DisplacementFieldSet,)
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -403,8 +373,8 @@ class DisplacementFields(Processor):
     def run(self, ctx: Context) -> Result:
         scene, p = ctx.scene, ctx.params
         chosen, messages = choose_prototypes(scene, p)
-        device = ctx.tracer.device if ctx.tracer is not None else "cpu"
-        result = Result(products={"displacement_fields": {}}, messages=messages)
+        device = ctx.device
+        result = Result(products={DisplacementFieldSet: DisplacementFieldSet({})}, messages=messages)
         rays = 0
         for step, index in enumerate(chosen):
             path = scene.instances.prototype_paths[index]
@@ -415,15 +385,15 @@ class DisplacementFields(Processor):
             try:
                 field = build_field(points, triangles, prototype=path, positional_samples=p.positional_samples,
                                     map_size=p.direction_map_size, encoding=p.encoding, device=str(device),
-                                    threads=ctx.tracer.threads if ctx.tracer is not None else None)
+                                    threads=ctx.threads)
             except ValueError as error:
                 result.messages.append(f"{path}: no field ({error})")
                 continue
             rays += field.side ** 2 * field.map_size ** 2
-            result.products["displacement_fields"][path] = field
+            result.products[DisplacementFieldSet].fields[path] = field
             result.outputs.extend(field_records(field))
             result.stats[f"bytes:{path}"] = float(field.nbytes)
             ctx.progress((step + 1) / max(1, len(chosen)))
         result.stats["rays"] = float(rays)
-        result.stats["fields"] = float(len(result.products["displacement_fields"]))
+        result.stats["fields"] = float(len(result.products[DisplacementFieldSet].fields))
         return result

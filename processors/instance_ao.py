@@ -83,6 +83,7 @@ import numpy as np
 import warp as wp
 
 from ..core import Context, Params, Primvar, Processor, Result, param
+from ..core.products import DisplacementFieldSet, InstanceOcclusionProduct
 from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
 from ..kernels.sphere_maps import (equal_area_sphere_to_square, equal_area_square_to_sphere,
                                   malley_direction_to_square, octahedral_wrap)
@@ -604,9 +605,8 @@ class InstanceAO(Processor):
     version = "2"
     summary = "Per-vertex AO with instanced prototypes looked up in displacement fields (per frame, no BVH rebuild)."
     facets = ("geometry", "instancers")
-    requires = ("displacement_fields",)
-    provides = ("instance_ao",)
-    uses_tracer = False  # a BVH of the geometry without fields is built here
+    requires = (DisplacementFieldSet,)
+    provides = (InstanceOcclusionProduct,)
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -630,7 +630,7 @@ class InstanceAO(Processor):
         scene, p = ctx.scene, ctx.params
         inst = scene.instances
         frames = parse_frames(p.frames, inst.instance_times)
-        fields_by_path = ctx.products.get("displacement_fields", {}) or {}
+        fields_by_path = ctx.products.get(DisplacementFieldSet, DisplacementFieldSet({})).fields
         paths = [path for path in inst.prototype_paths if path in fields_by_path]
         fields = [fields_by_path[path] for path in paths]
         proto_field = np.array([paths.index(path) if path in paths else -1 for path in inst.prototype_paths],
@@ -641,8 +641,7 @@ class InstanceAO(Processor):
         tri_field = np.where(scene.tri_instance >= 0, instance_field[np.maximum(scene.tri_instance, 0)]
                              if len(inst) else -1, -1)
         traced = np.flatnonzero(tri_field < 0)
-        tracer = Tracer(scene.points, scene.tri_vertices[traced], device=ctx.tracer.device if ctx.tracer else "cpu",
-                        threads=ctx.tracer.threads if ctx.tracer else None)
+        tracer = Tracer(scene.points, scene.tri_vertices[traced], device=ctx.device, threads=ctx.threads)
         epsilon = max(RAY_EPSILON_RELATIVE * scene.diagonal, 1e-30)  # the scene tracer's offset, as ambient_occlusion
         fieldset = FieldSet(fields, tracer.device)
         receivers = receiver_prims(scene)
@@ -677,9 +676,7 @@ class InstanceAO(Processor):
                 result.outputs.append(Primvar(scene.prim_paths[prim], "bake:ao", ao_points[scene.prim_points(prim)],
                                               "float", "vertex", time=frame))
             ctx.progress((step + 1) / len(frames or [None]))
-        result.products["instance_ao"] = by_frame
-        if on_instances is not None:
-            result.products["instance_ao_per_instance"] = by_frame_instances
+        result.products[InstanceOcclusionProduct] = InstanceOcclusionProduct(by_frame, by_frame_instances)
         instance_points = len(on_instances.point_ids) if on_instances is not None else 0
         result.stats["rays"] = float((len(point_ids) + instance_points) * strata_for(p.samples) ** 2 * len(by_frame))
         result.stats["fields"] = float(len(fields))

@@ -135,6 +135,7 @@ from ..core import (
     Result,
     param,
 )
+from ..core.products import IrradianceGridProduct
 from ..geometry.mesh import receiver_prims, vertex_normals
 from ..kernels.lighting import (
     Lighting,
@@ -554,22 +555,7 @@ def dequantize_vectors(directions: np.ndarray, colors: np.ndarray) -> np.ndarray
     return (c[:, :, None] * d[:, None, :]).reshape(n, 6, 3, 3).astype(np.float32)
 
 
-@dataclass(frozen=True)
-class IrradianceGridProduct:
-    """A baked grid (scene frame)."""
 
-    layout: GridLayout
-    directions: np.ndarray
-    """(V, 6) uint8 hemi-octahedral codes."""
-    colors: np.ndarray
-    """(V, 6) uint32 RGB9E5."""
-    vertex_valid: np.ndarray
-    """(V,) bool: computed (True) or inside geometry and filled by push-pull (False)."""
-    vectors: np.ndarray
-    """(V, 6, 3, 3) float32 unquantized vectors (invalid vertices filled), for error measurements."""
-
-    def decoded(self) -> np.ndarray:
-        return dequantize_vectors(self.directions, self.colors)
 
 
 def fill_invalid(vectors: np.ndarray, resolution, valid: np.ndarray, *, smooth: bool = True) -> np.ndarray:
@@ -699,7 +685,7 @@ class IrradianceGrid(Processor):
     version = "1"
     summary = "Irradiance vector grid: 6 vectors per vertex, 8-bit direction + RGB9E5, progressive stream."
     facets = ("geometry", "materials", "lights")
-    provides = ("irradiance_grid",)
+    provides = (IrradianceGridProduct,)
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -738,7 +724,7 @@ class IrradianceGrid(Processor):
                                  include_direct=p.include_direct), File(stream_file, data)]
         receivers = receiver_prims(scene)
         normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
-        decoded = grid.decoded()
+        decoded = dequantize_vectors(grid.directions, grid.colors)
         for prim in receivers:
             sl = scene.prim_points(prim)
             values = reconstruct_irradiance(layout, decoded, scene.points[sl], normals[sl],
@@ -755,4 +741,4 @@ class IrradianceGrid(Processor):
         invalid = v - int(grid.vertex_valid.sum())
         if invalid:
             messages.append(f"{invalid} of {v} grid vertices are inside geometry (filled by push-pull)")
-        return Result(products={"irradiance_grid": grid}, outputs=outputs, stats=stats, messages=messages)
+        return Result(products={IrradianceGridProduct: grid}, outputs=outputs, stats=stats, messages=messages)

@@ -130,6 +130,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry import tetrahedra
 from ..core import Attribute, Context, Params, Prim, Processor, Result, param
+from ..core.products import ProbeCloud
 from ..kernels.lighting import Lighting, direct_at, distant_solid_angle, has_light
 from ..kernels.sampling import strata_for, stratified_pair
 from ..kernels.sh import (COSINE_LOBE, project_kernel, sh_basis, sh_basis_np,
@@ -624,21 +625,7 @@ def thin(positions: np.ndarray, order: np.ndarray, radius: float) -> np.ndarray:
 # The cloud and its interpolation
 
 
-@dataclass(frozen=True)
-class ProbeCloud:
-    """Tetrahedralized probes with irradiance SH (struct of arrays, scene frame)."""
 
-    probe_positions: np.ndarray
-    """(P, 3) float32."""
-    probe_sh: np.ndarray
-    """(P, 9, 3) float32 irradiance SH, real orthonormal basis (kernels/sh.py), W/m^2."""
-    tet_vertices: np.ndarray
-    """(T, 4) int32."""
-    tet_neighbors: np.ndarray
-    """(T, 4) int32, -1 on the hull."""
-    tet_blocked: np.ndarray
-    """(T,) uint8 6-bit blocked-edge masks (tetrahedra.TET_EDGES); zeros without leak fixing."""
-    tetra: tetrahedra.Tetrahedralization
 
 
 def build_cloud(positions: np.ndarray, sh: np.ndarray, tracer=None, *, leak_fix: bool = True) -> ProbeCloud:
@@ -712,7 +699,7 @@ class LightProbes(Processor):
     version = "1"
     summary = "Light probe cloud: placement by gradient ascent + spawn/merge, L2 SH irradiance, tetrahedra."
     facets = ("geometry", "materials", "lights")
-    provides = ("light_probes",)
+    provides = (ProbeCloud,)
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -764,4 +751,4 @@ class LightProbes(Processor):
                  "merged": float(placement.merged), "wall_probes": float(placement.wall_probes),
                  "blocked_tet_edges": float(blocked_edges),
                  "min_spacing": float(placement.min_spacing), "rays": float(tracer.rays_cast - rays_before)}
-        return Result(products={"light_probes": cloud}, outputs=cloud_records(cloud, scene.origin), stats=stats)
+        return Result(products={ProbeCloud: cloud}, outputs=cloud_records(cloud, scene.origin), stats=stats)

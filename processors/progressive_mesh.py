@@ -56,6 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import Context, Params, Primvar, Processor, Result, param
+from ..core.products import ProgressiveMeshProduct
 from ..geometry.mesh import receiver_prims
 from ..core.scene import Scene
 
@@ -216,8 +217,7 @@ class ProgressiveMesh(Processor):
     version = "1"
     summary = "Progressive meshes by half-edge collapse: stream order and vertex lookup table per mesh."
     facets = ("geometry",)
-    provides = ("progressive_mesh",)
-    uses_tracer = False
+    provides = (ProgressiveMeshProduct,)
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -232,7 +232,7 @@ class ProgressiveMesh(Processor):
     def run(self, ctx: Context) -> Result:
         scene, p = ctx.scene, ctx.params
         receivers = receiver_prims(scene)
-        result = Result(products={"progressive_mesh": {}})
+        result = Result(products={ProgressiveMeshProduct: ProgressiveMeshProduct({})})
         skipped = []
         for done, prim in enumerate(receivers):
             sl = scene.prim_points(prim)
@@ -244,7 +244,7 @@ class ProgressiveMesh(Processor):
             mine = (scene.tri_prim == prim) & (scene.tri_instance < 0)
             rank, collapse_to = progressive_order(points, scene.tri_vertices[mine] - start)
             path = scene.prim_paths[prim]
-            result.products["progressive_mesh"][path] = (rank, collapse_to)
+            result.products[ProgressiveMeshProduct].orders[path] = (rank, collapse_to)
             result.outputs.append(Primvar(path, "bake:pmRank", rank, "int", "vertex"))
             result.outputs.append(Primvar(path, "bake:pmCollapseTo", collapse_to, "int", "vertex"))
             ctx.progress((done + 1) / len(receivers))

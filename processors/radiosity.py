@@ -77,6 +77,7 @@ import numpy as np
 import warp as wp
 
 from ..core import Context, Params, Primvar, Processor, Result, param
+from ..core.products import FormFactorProduct, RadiosityProduct
 from ..geometry.mesh import receiver_prims, vertex_normals
 from ..kernels.bc1 import bc1_palette_byte, bc1_third, expand565
 from ..kernels.lighting import cone_direction, distant_solid_angle
@@ -827,8 +828,8 @@ class Radiosity(Processor):
     name = "radiosity"
     version = "1"
     summary = "Direct + multi-bounce indirect irradiance per vertex from the compressed form-factor operator."
-    requires = ("form_factors",)
-    provides = ("radiosity",)
+    requires = (FormFactorProduct,)
+    provides = (RadiosityProduct,)
     facets = ("geometry", "materials", "lights")
 
     @dataclass(frozen=True)
@@ -858,20 +859,20 @@ class Radiosity(Processor):
         rays_before = ctx.tracer.rays_cast
         receivers = receiver_prims(scene)
         point_ids = np.flatnonzero(np.isin(scene.point_prim, receivers))
-        solved = solve(ctx.tracer, scene, ctx.products["form_factors"], p, point_ids, progress=ctx.progress)
+        solved = solve(ctx.tracer, scene, ctx.products[FormFactorProduct], p, point_ids, progress=ctx.progress)
         e0_vertex = np.zeros((scene.num_points, 3), np.float32)
         e_ind_vertex = np.zeros((scene.num_points, 3), np.float32)
         e0_vertex[point_ids] = solved["vertex_direct"]
         e_ind_vertex[point_ids] = solved["vertex_indirect"]
-        patches = ctx.products["form_factors"].patches
+        patches = ctx.products[FormFactorProduct].patches
         e0_patch, e_ind_patch = solved["patch_direct"], solved["patch_indirect"]
         radiosity = patches.patch_albedo * (e0_patch + e_ind_patch) + math.pi * patches.patch_emission
-        result = Result(products={"radiosity": {
-            "patch_centroids": patches.patch_centroids, "patch_normals": patches.patch_normals,
-            "patch_areas": patches.patch_areas, "patch_irradiance_direct": e0_patch.astype(np.float32),
-            "patch_irradiance_indirect": e_ind_patch, "patch_radiosity": radiosity.astype(np.float32),
-            "vertex_irradiance_direct": e0_vertex, "vertex_irradiance_indirect": e_ind_vertex,
-        }})
+        result = Result(products={RadiosityProduct: RadiosityProduct(
+            patch_centroids=patches.patch_centroids, patch_normals=patches.patch_normals,
+            patch_areas=patches.patch_areas, patch_irradiance_direct=e0_patch.astype(np.float32),
+            patch_irradiance_indirect=e_ind_patch, patch_radiosity=radiosity.astype(np.float32),
+            vertex_irradiance_direct=e0_vertex, vertex_irradiance_indirect=e_ind_vertex,
+        )})
         for prim in receivers:
             sl = scene.prim_points(prim)
             result.outputs.append(Primvar(scene.prim_paths[prim], "bake:irradianceDirect", e0_vertex[sl],

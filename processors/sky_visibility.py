@@ -75,6 +75,7 @@ import numpy as np
 import warp as wp
 
 from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
+from ..core.products import SkyVisibilityProduct
 from ..geometry.mesh import receiver_prims
 from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame, triangle_point
 from ..kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
@@ -255,64 +256,7 @@ def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, p
 # The product
 
 
-@dataclass(frozen=True)
-class SkyVisibilityProduct:
-    """The refined receiver mesh and its per-face sky visibility factors (product ``sky_visibility``)."""
 
-    face_points: np.ndarray
-    """(P, 3) float64 refined mesh vertices relative to Scene.origin."""
-    face_vertices: np.ndarray
-    """(F, 3) int32 indices into face_points (scene winding)."""
-    face_normals: np.ndarray
-    """(F, 3) float32 unit normals (those of the source triangles)."""
-    face_areas: np.ndarray
-    """(F,) float32."""
-    face_source: np.ndarray
-    """(F,) int32 source triangle (index into the Scene's triangles)."""
-    face_prim: np.ndarray
-    """(F,) int32 prim index (Scene.prim_paths)."""
-    face_face: np.ndarray
-    """(F,) int32 authored face of the source prim."""
-    face_level: np.ndarray
-    """(F,) int32 area halvings below the source triangle."""
-    visibility: np.ndarray
-    """(F, N) uint8 V_ij * 255 (rounded)."""
-    visibility_scale: float
-    """V = visibility * visibility_scale."""
-    exposure: np.ndarray
-    """(F,) float32 sum_j V_ij dw_j / pi."""
-    patches: SkyPatches
-    to_world: np.ndarray
-    """(3, 3) float64 ENU -> scene frame for the stage's up axis (north = the layout's north)."""
-    up_axis: str
-    prims: np.ndarray
-    """(R,) int32 receiver prims (faces of prim prims[r] are face_prim == prims[r], in order)."""
-    _cache: dict = field(default_factory=dict, compare=False, repr=False)
-
-    @property
-    def num_faces(self) -> int:
-        return len(self.face_vertices)
-
-    def visibility_float(self) -> np.ndarray:
-        """(F, N) float32 dequantized V, computed once and kept (4 bytes per factor)."""
-        if "float" not in self._cache:
-            self._cache["float"] = self.visibility.astype(np.float32) * np.float32(self.visibility_scale)
-        return self._cache["float"]
-
-    def visibility_patch_major(self) -> np.ndarray:
-        """(N, F) float32 dequantized V, patch-major (the layout ``daylight.relight`` streams fastest)."""
-        if "patch_major" not in self._cache:
-            self._cache["patch_major"] = np.ascontiguousarray(self.visibility.T, np.float32) * np.float32(
-                self.visibility_scale)
-        return self._cache["patch_major"]
-
-    def __getstate__(self):
-        state = dict(self.__dict__)
-        state["_cache"] = {}
-        return state
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
 
 
 def _areas_normals(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -476,7 +420,7 @@ class SkyVisibility(Processor):
     version = "2"
     summary = "Per-face sky patch visibility with adaptive crack-free refinement (Bosch et al.)."
     facets = ("geometry",)
-    provides = ("sky_visibility",)
+    provides = (SkyVisibilityProduct,)
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -514,7 +458,7 @@ class SkyVisibility(Processor):
             ctx.tracer, scene, patches=patches, samples=p.samples, tolerance=p.tolerance,
             min_area=p.min_area, max_level=p.max_level, max_triangles=p.max_triangles, seed=p.seed,
             criterion=p.criterion, progress=ctx.progress)
-        result = Result(products={"sky_visibility": product}, stats=stats)
+        result = Result(products={SkyVisibilityProduct: product}, stats=stats)
         directions = (patches.patch_directions @ product.to_world.T).astype(np.float32)
         n_patch = len(patches)
         for prim in product.prims:

@@ -2,7 +2,7 @@
 
 The processors are defined here at module scope but NOT registered on import:
 tests register the ones they need through a fixture and remove them from
-``base._REGISTRY`` afterwards, so broken graphs never leak into other tests.
+the registry afterwards, so broken graphs never leak into other tests.
 ``CALLS`` counts ``run`` calls per processor name, so tests can assert what
 ran and what was reused from the cache.
 """
@@ -20,13 +20,43 @@ from usdbake.core.scene import Scene
 CALLS: Counter = Counter()
 
 
+@dataclass(frozen=True)
+class ProductA:
+    values: np.ndarray
+
+
+@dataclass(frozen=True)
+class ProductB:
+    values: np.ndarray
+
+
+@dataclass(frozen=True)
+class LightCount:
+    count: int
+
+
+class ProductNA:
+    """Never made (its producer does not apply)."""
+
+
+class ProductNobodyMakes:
+    """Required, never provided."""
+
+
+class ProductC:
+    """Half of a cycle."""
+
+
+class ProductD:
+    """The other half."""
+
+
 class FakeA(Processor):
     """Reads geometry, provides product 'a' (x coordinate of each point times scale)."""
 
     name = "fake_a"
-    provides = ("a",)
+    provides = (ProductA,)
     facets = ("geometry",)
-    uses_tracer = False
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -34,17 +64,16 @@ class FakeA(Processor):
 
     def run(self, ctx):
         CALLS[self.name] += 1
-        return Result(products={"a": ctx.scene.points[:, 0] * ctx.params.scale})
+        return Result(products={ProductA: ProductA(ctx.scene.points[:, 0] * ctx.params.scale)})
 
 
 class FakeB(Processor):
     """Requires 'a', provides 'b' and a vertex primvar on the first prim."""
 
     name = "fake_b"
-    requires = ("a",)
-    provides = ("b",)
+    requires = (ProductA,)
+    provides = (ProductB,)
     facets = ("geometry",)
-    uses_tracer = False
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -54,9 +83,9 @@ class FakeB(Processor):
 
     def run(self, ctx):
         CALLS[self.name] += 1
-        values = (ctx.products["a"] * ctx.params.gain).astype(np.float32)
+        values = (ctx.products[ProductA].values * ctx.params.gain).astype(np.float32)
         prim = ctx.scene.prim_points(0)
-        return Result(products={"b": values},
+        return Result(products={ProductB: ProductB(values)},
                       outputs=[Primvar(ctx.scene.prim_paths[0], "bake:fakeB", values[prim], "float", "vertex")])
 
 
@@ -64,19 +93,17 @@ class FakeLights(Processor):
     """Reads only the lights facet: geometry edits must not invalidate it."""
 
     name = "fake_lights"
-    provides = ("l",)
+    provides = (LightCount,)
     facets = ("lights",)
-    uses_tracer = False
 
     def run(self, ctx):
         CALLS[self.name] += 1
-        return Result(products={"l": len(ctx.scene.lights)})
+        return Result(products={LightCount: LightCount(len(ctx.scene.lights))})
 
 
 class FakeNotApplicable(Processor):
     name = "fake_na"
-    provides = ("na",)
-    uses_tracer = False
+    provides = (ProductNA,)
 
     def applies(self, ctx):
         return False, "no lights in the scene"
@@ -88,8 +115,7 @@ class FakeNotApplicable(Processor):
 
 class FakeAfterNA(Processor):
     name = "fake_after_na"
-    requires = ("na",)
-    uses_tracer = False
+    requires = (ProductNA,)
 
     def run(self, ctx):  # pragma: no cover - must never run
         CALLS[self.name] += 1
@@ -98,8 +124,7 @@ class FakeAfterNA(Processor):
 
 class FakeBoom(Processor):
     name = "fake_boom"
-    requires = ("a",)
-    uses_tracer = False
+    requires = (ProductA,)
 
     def run(self, ctx):
         CALLS[self.name] += 1
@@ -113,30 +138,26 @@ class FakeDuplicateA(Processor):
     """A second producer of 'a'."""
 
     name = "fake_dup_a"
-    provides = ("a",)
-    uses_tracer = False
+    provides = (ProductA,)
 
 
 class FakeOrphan(Processor):
     """Requires a product nobody provides."""
 
     name = "fake_orphan"
-    requires = ("nobody_makes_this",)
-    uses_tracer = False
+    requires = (ProductNobodyMakes,)
 
 
 class FakeCycleC(Processor):
     name = "fake_cycle_c"
-    requires = ("d",)
-    provides = ("c",)
-    uses_tracer = False
+    requires = (ProductD,)
+    provides = (ProductC,)
 
 
 class FakeCycleD(Processor):
     name = "fake_cycle_d"
-    requires = ("c",)
-    provides = ("d",)
-    uses_tracer = False
+    requires = (ProductC,)
+    provides = (ProductD,)
 
 
 # Scenes and stages ----------------------------------------------------------
@@ -225,7 +246,6 @@ class FakeSamePrimvar(Processor):
 
     name = "fake_same_primvar"
     facets = ("geometry",)
-    uses_tracer = False
 
     def run(self, ctx):
         prim = ctx.scene.prim_points(0)

@@ -140,7 +140,7 @@ def test_list_json_has_each_param_with_default_and_doc(capsys):
     assert code == 0
     rows = {row["name"]: row for row in json.loads(out)}
     ao = rows["ambient_occlusion"]
-    assert ao["provides"] == ["ao"] and ao["summary"]
+    assert ao["provides"] == ["AmbientOcclusionProduct"] and ao["summary"]
     params = {p["name"]: p for p in ao["params"]}
     assert set(params) == {"samples", "max_distance", "per_face", "connect_occlusion", "seed"}
     assert params["samples"]["default"] == 256

@@ -7,6 +7,7 @@ import numpy as np
 from stage_builders import base_context
 import pytest
 
+from usdbake.core.products import DisplacementFieldSet
 from usdbake import core
 from usdbake.processors.displacement_fields import (MAX_HIT_CODE, MISS_CODE, DisplacementFields, build_field,
                                                     choose_prototypes, field_atlas, field_from_atlas,
@@ -268,7 +269,7 @@ def test_applies_and_param_validation():
 
 def test_run_writes_texture_and_applied_schema_on_the_prototype():
     result = run_processor(DisplacementFields, _props_scene(), {"positional_samples": 64, "direction_map_size": 8})
-    fields = result.products["displacement_fields"]
+    fields = result.products[DisplacementFieldSet].fields
     assert list(fields) == ["/World/Scatter/Prototypes/Ball"]
     prims = [r for r in result.outputs if isinstance(r, core.Prim)]
     assert prims == [core.Prim("/World/Scatter/Prototypes/Ball", api_schemas=("DisplacementFieldAPI",))]
@@ -287,5 +288,5 @@ def test_degenerate_prototype_is_skipped_with_a_reason():
     scene = build_scene([("/World/Floor", *grid(1, 1))], [("/World/P/Dot", point, np.array([[0, 1, 2]], np.int32))],
                         [(0, translate(0, 0, 0)), (0, translate(1, 0, 0))])
     result = run_processor(DisplacementFields, scene, {"positional_samples": 16, "direction_map_size": 8})
-    assert result.products["displacement_fields"] == {}
+    assert result.products[DisplacementFieldSet].fields == {}
     assert any("no extent" in message for message in result.messages)

@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from usdbake.core.products import FormFactorProduct
 from usdbake.processors import form_factors as ff
 from usdbake.core import File, Prim
 from usdbake.core.scene import Lights, Scene
@@ -293,7 +294,7 @@ def test_processor_outputs_patch_prim_and_files(tmp_path):
     proc = ff.FormFactors()
     params = ff.FormFactors.Params(target_patches=150, rays=64)
     result = proc.run(Context(scene=scene, params=params, tracer=Tracer.from_scene(scene)))
-    product = result.products["form_factors"]
+    product = result.products[FormFactorProduct]
     assert 100 < product.patches.count < 220
     prims = [r for r in result.outputs if isinstance(r, Prim)]
     assert any(r.type_name == "RadiosityPatches" and r.path == ff.PATCHES_PRIM for r in prims)

@@ -112,12 +112,10 @@ from usdbake.core import Primvar, Processor, Result
 class FakeProcessor(Processor):
     name = "fake_ep"
     summary = "a processor from another distribution"
-    provides = ("ep",)
-    uses_tracer = False
 
     def run(self, ctx):
         scene = ctx.scene
-        result = Result(products={"ep": np.full(scene.num_points, 0.25, np.float32)})
+        result = Result()
         for prim, path in enumerate(scene.prim_paths):
             values = np.full(scene.prim_points(prim).stop - scene.prim_points(prim).start, 0.25, np.float32)
             result.outputs.append(Primvar(path, "bake:ep", values, "float", "vertex"))

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from test_displacement_fields import build_scene, grid, icosphere, run_processor, translate
 
+from usdbake.core.products import AmbientOcclusionProduct, DisplacementFieldSet, InstanceOcclusionProduct
 from usdbake import core
 from usdbake.processors import instance_ao as ia
 from usdbake.processors.ambient_occlusion import AmbientOcclusion
@@ -37,13 +38,13 @@ INSIDE_RMS = 0.05
 def exact_ao(scene, samples=256, **params) -> np.ndarray:
     ctx = core.Context(scene=scene, params=AmbientOcclusion.Params(samples=samples, **params),
                        tracer=Tracer.from_scene(scene))
-    return AmbientOcclusion().run(ctx).products["ao"]
+    return AmbientOcclusion().run(ctx).products[AmbientOcclusionProduct].point_ao
 
 
 def field_ao(scene, fields_params=None, ao_params=None, fields=None):
     if fields is None:
-        fields = run_processor(DisplacementFields, scene, fields_params).products["displacement_fields"]
-    result = run_processor(InstanceAO, scene, ao_params, {"displacement_fields": fields})
+        fields = run_processor(DisplacementFields, scene, fields_params).products[DisplacementFieldSet].fields
+    result = run_processor(InstanceAO, scene, ao_params, {DisplacementFieldSet: DisplacementFieldSet(fields)})
     return result, fields
 
 
@@ -64,7 +65,7 @@ def props():
 
     stage = Usd.Stage.Open(str(SAMPLES / "instanced_props.usda"))
     scene = extract_scene(stage)
-    fields = run_processor(DisplacementFields, scene).products["displacement_fields"]  # 4225 x 32x32 uint8
+    fields = run_processor(DisplacementFields, scene).products[DisplacementFieldSet].fields  # 4225 x 32x32 uint8
     return stage, scene, fields
 
 
@@ -73,7 +74,7 @@ def test_field_ao_matches_exact_ao_on_instanced_props(props):
     assert sorted(fields) == ["/World/Scatter/Prototypes/Crate", "/World/Scatter/Prototypes/Vase"]
     assert all(f.side ** 2 == 4225 and f.map_size == 32 and f.encoding == "uint8" for f in fields.values())
     result, _ = field_ao(scene, fields=fields)
-    ao = result.products["instance_ao"][None]
+    ao = result.products[InstanceOcclusionProduct].point_ao_by_frame[None]
     reference = exact_ao(scene)
     rms = receiver_rms(scene, ao, reference)
     assert rms <= AO_RMS_FIGURE, rms
@@ -100,7 +101,7 @@ def test_frames_give_time_samples_without_rebuilding_the_bvh(props, monkeypatch)
     monkeypatch.setattr(ia, "Tracer", CountingTracer)
     result, _ = field_ao(scene, ao_params={"frames": "1:3"}, fields=fields)
     assert len(built) == 1 + len(fields)  # the scene BVH and one per prototype (self-occlusion), not per frame
-    by_frame = result.products["instance_ao"]
+    by_frame = result.products[InstanceOcclusionProduct].point_ao_by_frame
     assert sorted(by_frame) == [1.0, 2.0, 3.0]
     assert sorted(r.time for r in result.outputs) == [1.0, 2.0, 3.0]
     # the props move 15 cm per frame: frame 3 differs from frame 1, and matches the exact AO at time 3
@@ -152,7 +153,7 @@ def test_without_fields_instance_ao_is_ambient_occlusion():
     scene = _balls_scene()
     result, fields = field_ao(scene, {"forbid": "Ball,Dumbbell"}, {"samples": 64})
     assert fields == {}
-    np.testing.assert_array_equal(result.products["instance_ao"][None], exact_ao(scene, samples=64))
+    np.testing.assert_array_equal(result.products[InstanceOcclusionProduct].point_ao_by_frame[None], exact_ao(scene, samples=64))
 
 
 def test_instance_inside_another_instances_sphere_and_receivers_inside_spheres():
@@ -163,7 +164,7 @@ def test_instance_inside_another_instances_sphere_and_receivers_inside_spheres()
     assert np.linalg.norm(centers[4] - centers[5]) < 0.3  # the ball sits inside the dumbbell's sphere
     result, fields = field_ao(scene, {"force": "Ball,Dumbbell"}, {"samples": 256})  # 4225 x 32x32
     assert len(fields) == 2
-    ao = result.products["instance_ao"][None]
+    ao = result.products[InstanceOcclusionProduct].point_ao_by_frame[None]
     reference = exact_ao(scene, samples=256)
     assert np.isfinite(ao).all() and (ao >= 0).all() and (ao <= 1).all()
     assert receiver_rms(scene, ao, reference) <= AO_RMS_FIGURE
@@ -180,7 +181,7 @@ def test_singular_instances_are_traced_as_triangles():
     assert invertible(scene.instances.instance_transforms).tolist() == [True] * 4 + [False]
     result, _ = field_ao(scene, SMALL_FIELDS, {"samples": 64})
     assert result.stats["traced_triangles"] == 2 * 24 * 24 + 1280
-    ao = result.products["instance_ao"][None]
+    ao = result.products[InstanceOcclusionProduct].point_ao_by_frame[None]
     assert np.isfinite(ao).all()
     assert receiver_rms(scene, ao, exact_ao(scene, samples=64)) <= SYNTHETIC_RMS
 
@@ -307,7 +308,7 @@ def test_instances_receive_self_and_mutual_occlusion_per_frame():
     scene = build_scene([("/World/Ground", ground, ground_tris)], prototypes, [(0, m) for m in at_rest],
                         times=[1.0, 2.0], transforms_at_times=[at_rest, moved])
     result, fields = field_ao(scene, SMALL_FIELDS, {"samples": 256, "frames": "all", "instances": True})
-    per_instance = result.products["instance_ao_per_instance"]
+    per_instance = result.products[InstanceOcclusionProduct].instance_ao_by_frame
     records = [r for r in result.outputs if r.prim == "/World/Scatter"]
     assert [(r.name, r.interpolation, r.time, len(r.values)) for r in records] == [
         ("bake:ao", "vertex", 1.0, 3), ("bake:ao", "vertex", 2.0, 3)]

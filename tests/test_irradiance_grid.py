@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 from stage_builders import base_context
 import pytest
+from usdbake.core.products import IrradianceGridProduct
+from usdbake.processors.irradiance_grid import dequantize_vectors
 from usdbake.processors import irradiance_grid as ig
 from usdbake.formats import streaming
 from usdbake.core import Context, ParamError
@@ -228,7 +230,7 @@ def test_sunlit_ground_end_to_end_matches_the_closed_form():
     scene = make_scene(ground_p, ground_t, albedo=0.3,
                        lights=make_lights((LIGHT_DISTANT, [4, 4, 4], (0, 0, 0), -w, (0, 0))))
     result, _ = run(scene, vertices=200, rays=16)
-    grid = result.products["irradiance_grid"]
+    grid = result.products[IrradianceGridProduct]
     assert grid.vertex_valid.all()
     (primvar,) = [r for r in result.outputs if getattr(r, "name", "") == "bake:irradianceGrid"]
     assert primvar.interpolation == "vertex" and primvar.type_name == "color3f"
@@ -262,7 +264,7 @@ def test_vertices_inside_closed_geometry_are_flagged_and_filled():
     scene = make_scene(points, tris, albedo=0.5,
                        lights=make_lights((LIGHT_SPHERE, [50, 50, 50], (2, 2, 2), (0, 0, -1), (0.2, 0))))
     result, _ = run(scene, cell_size=0.5, rays=64)
-    grid = result.products["irradiance_grid"]
+    grid = result.products[IrradianceGridProduct]
     positions = grid.layout.positions()
     inside_block = (np.abs(positions) < 0.99).all(axis=1)
     outside_room = (np.abs(positions) > 3.01).any(axis=1)
@@ -272,7 +274,7 @@ def test_vertices_inside_closed_geometry_are_flagged_and_filled():
     assert grid.vertex_valid[outside_room].mean() > 0.9
     assert grid.vertex_valid[free & (np.abs(positions) > 1.01).any(axis=1) & (np.abs(positions) < 2.99).all(axis=1)
                              ].all()
-    decoded = grid.decoded()
+    decoded = dequantize_vectors(grid.directions, grid.colors)
     assert np.isfinite(decoded).all()
     # Filled vertices lie within the range of the computed ones (push-pull is a convex fill).
     valid = decoded[grid.vertex_valid]
@@ -286,7 +288,7 @@ def test_determinism_across_thread_counts():
     scene = make_scene(*room, lights=make_lights((LIGHT_SPHERE, [20, 20, 20], (1, 1, 1), (0, 0, -1), (0.2, 0))))
     one, _ = run(scene, threads=1, vertices=12000, rays=4)
     two, _ = run(scene, threads=2, vertices=12000, rays=4)
-    a, b = one.products["irradiance_grid"], two.products["irradiance_grid"]
+    a, b = one.products[IrradianceGridProduct], two.products[IrradianceGridProduct]
     assert a.layout.count > 8192
     np.testing.assert_array_equal(a.directions, b.directions)
     np.testing.assert_array_equal(a.colors, b.colors)
@@ -304,7 +306,8 @@ def test_degenerate_geometry_gives_finite_outputs():
         values = getattr(record, "values", getattr(record, "value", None))
         if isinstance(values, np.ndarray) and values.dtype.kind == "f":
             assert np.isfinite(values).all(), record.name
-    assert np.isfinite(result.products["irradiance_grid"].decoded()).all()
+    grid = result.products[IrradianceGridProduct]
+    assert np.isfinite(dequantize_vectors(grid.directions, grid.colors)).all()
 
 
 def test_applies_and_params():

@@ -9,6 +9,7 @@ import numpy as np
 from stage_builders import base_context
 import pytest
 
+from usdbake.core.products import ProbeCloud
 from usdbake.processors import light_probes as lp
 from usdbake.geometry import tetrahedra
 from usdbake.core import Context, ParamError
@@ -230,7 +231,7 @@ def room_with_boxes():
 def test_probes_never_inside_closed_geometry():
     scene, boxes = room_with_boxes()
     result, _ = run(scene, probes=128, rays=64, placement_rays=16, iterations=3)
-    cloud = result.products["light_probes"]
+    cloud = result.products[ProbeCloud]
     positions = cloud.probe_positions
     assert len(positions) >= 20
     for lo, hi in boxes:
@@ -270,7 +271,7 @@ def test_determinism_across_thread_counts():
     scene, _ = room_with_boxes()
     one, _ = run(scene, threads=1, probes=64, rays=400, placement_rays=256)
     two, _ = run(scene, threads=2, probes=64, rays=400, placement_rays=256)
-    a, b = one.products["light_probes"], two.products["light_probes"]
+    a, b = one.products[ProbeCloud], two.products[ProbeCloud]
     np.testing.assert_array_equal(a.probe_positions, b.probe_positions)
     np.testing.assert_array_equal(a.probe_sh, b.probe_sh)
     np.testing.assert_array_equal(a.tet_vertices, b.tet_vertices)
@@ -389,7 +390,7 @@ def test_outputs_cover_the_schema():
     names = {getattr(r, "name", None) for r in result.outputs}
     assert {"probePositions", "shCoefficients", "tetrahedra", "tetNeighbors", "shOrder", "shBasis",
             "bake:tetBlockedEdges"} <= names
-    cloud = result.products["light_probes"]
+    cloud = result.products[ProbeCloud]
     assert np.isfinite(cloud.probe_sh).all()
     assert cloud.tet_vertices.shape[1] == 4 and cloud.tet_neighbors.shape == cloud.tet_vertices.shape
 
@@ -480,7 +481,7 @@ def test_scale_invariance(factor):
     scene, _ = room_with_boxes()
     base, _ = run(scene, probes=64, rays=64, placement_rays=16)
     big, _ = run(scaled(scene, factor), probes=64, rays=64, placement_rays=16)
-    a, b = base.products["light_probes"], big.products["light_probes"]
+    a, b = base.products[ProbeCloud], big.products[ProbeCloud]
     assert len(a.probe_positions) == len(b.probe_positions)
     np.testing.assert_allclose(b.probe_positions / factor, a.probe_positions, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(b.probe_sh, a.probe_sh, rtol=1e-5, atol=1e-5 * np.abs(a.probe_sh).max())
@@ -493,7 +494,7 @@ def test_grid_placement_at_other_scales(factor):
     scene, _ = room_with_boxes()
     base, _ = run(scene, probes=64, rays=64, placement_rays=16, iterations=0)
     big, _ = run(scaled(scene, factor), probes=64, rays=64, placement_rays=16, iterations=0)
-    a, b = base.products["light_probes"], big.products["light_probes"]
+    a, b = base.products[ProbeCloud], big.products[ProbeCloud]
     assert len(a.probe_positions) == len(b.probe_positions)
     np.testing.assert_allclose(b.probe_positions / factor, a.probe_positions, atol=1e-5)  # float32 of ~5: 5e-7
     # Same directions (seeded per ray); a hit point moved by float32 rounding could flip one shadow ray
@@ -508,5 +509,5 @@ def test_degenerate_triangles_do_not_produce_nan():
     tris = np.concatenate([scene.tri_vertices, [[n, n + 1, n + 2], [n + 3, n + 4, n + 5]]])  # a point, a line
     hostile = make_scene(points, tris, lights=scene.lights)
     result, _ = run(hostile, probes=48, rays=16, placement_rays=16)
-    cloud = result.products["light_probes"]
+    cloud = result.products[ProbeCloud]
     assert np.isfinite(cloud.probe_sh).all() and np.isfinite(cloud.probe_positions).all()

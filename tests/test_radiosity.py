@@ -6,6 +6,7 @@ import numpy as np
 from stage_builders import base_context
 import pytest
 from test_form_factors import box_parts, make_scene, quad
+from usdbake.core.products import FormFactorProduct, RadiosityProduct
 from usdbake.processors import form_factors as ff
 from usdbake.processors import radiosity as rad
 from usdbake.core import Context, Primvar
@@ -118,7 +119,7 @@ def lit_box():
     scene = make_scene(parts, albedo=(0.6, 0.5, 0.4), lights=lights(light))
     tracer = Tracer.from_scene(scene)
     params = ff.FormFactors.Params(target_patches=300, rays=256)
-    product = ff.FormFactors().run(Context(scene=scene, params=params, tracer=tracer)).products["form_factors"]
+    product = ff.FormFactors().run(Context(scene=scene, params=params, tracer=tracer)).products[FormFactorProduct]
     return scene, tracer, product
 
 
@@ -126,7 +127,7 @@ def test_processor_end_to_end(lit_box):
     scene, tracer, product = lit_box
     params = rad.Radiosity.Params(light_samples=16, gather_rays=64)
     result = rad.Radiosity().run(Context(scene=scene, params=params, tracer=tracer,
-                                         products={"form_factors": product}))
+                                         products={FormFactorProduct: product}))
     primvars = [r for r in result.outputs if isinstance(r, Primvar)]
     assert {r.name for r in primvars} == {"bake:irradianceDirect", "bake:irradianceIndirect"}
     assert len(primvars) == 2 * len(scene.prim_paths)
@@ -135,10 +136,10 @@ def test_processor_end_to_end(lit_box):
         assert record.values.shape == (scene.prim_points(scene.prim_paths.index(record.prim)).stop
                                        - scene.prim_points(scene.prim_paths.index(record.prim)).start, 3)
         assert np.isfinite(record.values).all() and (record.values >= 0).all()
-    radiosity = result.products["radiosity"]
+    radiosity = result.products[RadiosityProduct]
     n = product.patches.count
-    assert radiosity["patch_radiosity"].shape == (n, 3)
-    direct, indirect = radiosity["patch_irradiance_direct"], radiosity["patch_irradiance_indirect"]
+    assert radiosity.patch_radiosity.shape == (n, 3)
+    direct, indirect = radiosity.patch_irradiance_direct, radiosity.patch_irradiance_indirect
     assert indirect.min() >= 0 and indirect.sum() > 0
     # The ceiling faces away from the light: no direct light, only indirect.
     ceiling = product.patches.patch_normals[:, 2] < -0.5

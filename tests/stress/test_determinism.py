@@ -6,10 +6,8 @@ are far below tracer.MIN_CHUNK (4096), so it is lowered to 8 here: launch_chunke
 time, and every processor launches through it (Tracer.launch, or launch_chunked directly in
 form_factors). Each run builds a fresh Pipeline with no cache, so everything is recomputed.
 
-Thread counts reach the kernels through Pipeline(threads=...) -> the shared Tracer. Known
-exceptions (they still must be deterministic, which this checks): displacement_fields builds its
-field tracer and instance_ao its prototype/receiver tracers with the default thread count (one per
-core), not ctx.tracer.threads.
+Thread counts reach the kernels through Pipeline(threads=...) -> the shared Tracer, and -> ctx.threads for
+the processors that build BVHs of their own (displacement_fields, instance_ao).
 """
 
 from __future__ import annotations
@@ -103,8 +101,7 @@ def test_bit_identical_across_runs_and_threads(name, scene_name, scenes, small_c
             (("threads=1", 1), ("threads=2", 2), ("threads=2 again", 2))}
     reference = runs["threads=1"]
     assert reference, f"{name} produced nothing to compare"
-    if name not in NO_KERNELS and (core.registry.get(name).uses_tracer or tracer.default_threads() > 1):
-        # own-tracer processors (uses_tracer False) split with the default thread count only
+    if name not in NO_KERNELS:
         assert small_chunks and max(small_chunks) > 1, f"{name}: no launch was split across threads"
     assert sum(a.size for a in reference.values()) > 0
     for label, other in runs.items():

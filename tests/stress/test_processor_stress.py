@@ -16,6 +16,7 @@ import pytest
 import usdbake
 from pxr import Gf, Sdf, Usd, UsdGeom
 from stress.stage_builders_stress import FAST_PARAMS, hostile_lit_stage, small_lit_stage
+from usdbake.core.products import FormFactorProduct, ProbeCloud
 from usdbake import core
 from usdbake.processors.form_factors import decompress_operator
 from usdbake.kernels.sh import sh_basis_np
@@ -166,7 +167,7 @@ def test_form_factor_rows_sum_to_at_most_one(hostile_scene):
     sum_{h<=k} rho_max^h (|F rho|_inf <= rho_max, submultiplicative); decoded with row correction, the
     same bound up to float32 rounding."""
     steps = Pipeline.build(["form_factors"], FAST_PARAMS["form_factors"]).run(hostile_scene)
-    product = steps[-1].result.products["form_factors"]
+    product = steps[-1].result.products[FormFactorProduct]
     checks = product.checks
     assert checks["row_sum_min"] >= 0
     assert checks["row_sum_max"] <= 1 + FLOAT_TOLERANCE, checks
@@ -191,7 +192,7 @@ def test_light_probe_sh_irradiance_is_non_negative(lights, hostile_scene):
         stage.RemovePrim("/World/Sky")
         scene = extract_scene(stage)
     steps = Pipeline.build(["light_probes"], FAST_PARAMS["light_probes"]).run(scene)
-    cloud = steps[-1].result.products["light_probes"]
+    cloud = steps[-1].result.products[ProbeCloud]
     sh = cloud.probe_sh.astype(np.float64)  # (P, 9, 3) irradiance SH
     assert len(sh) >= 4 and np.isfinite(sh).all()
     normals = np.random.default_rng(3).normal(size=(4096, 3))
