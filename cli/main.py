@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 import time
@@ -26,6 +25,7 @@ from rich.table import Table
 
 from ..core import registry
 from ..core.errors import UsageError
+from ..core.params import TABLE_COLUMNS
 from ..core.pipeline import DEFAULT_PROCESSORS, Pipeline, ProcessorFailed
 from ..stages.bake_layer import open_source
 
@@ -235,31 +235,29 @@ def _summary_table(steps, *, planned: bool = False) -> Table:
 
 
 def cmd_list(args, console: Console) -> int:
-    rows = []
-    for name, cls in sorted(registry.registry().items()):
-        rows.append({"name": name, "summary": cls.summary, "requires": list(cls.requires),
-                     "provides": list(cls.provides), "params": cls.Params.describe()})
+    """Every processor and its parameters: ``Params.describe()`` rows for --json, ``Params.table_rows()``
+    (the same cells as the docs' generated tables) for people."""
+    names = getattr(args, "names", None)  # `usdbake list [NAME ...]`, once the parser takes names
+    processors = [(name, registry.get(name)) for name in names] if names else sorted(registry.registry().items())
     if args.json:
+        rows = [{"name": name, "summary": cls.summary, "requires": [_product_name(p) for p in cls.requires],
+                 "provides": [_product_name(p) for p in cls.provides], "params": cls.Params.describe()}
+                for name, cls in processors]
         print(json.dumps(rows, indent=2, default=str))
         return EXIT_OK
-    for row in rows:
-        table = Table(title=f"{row['name']}: {row['summary']}", title_justify="left")
-        for column in ("param", "type", "default", "range", "meaning"):
-            table.add_column(column)
-        for p in row["params"]:
-            bounds = p["choices"] or (f"[{_fmt(p['low'])}, {_fmt(p['high'])}]"
-                                      if p["low"] is not None or p["high"] is not None else "")
-            table.add_row(p["name"], p["type"], _fmt(p["default"]), str(bounds), p["doc"])
+    for name, cls in processors:
+        table = Table(title=f"{name}: {cls.summary}", title_justify="left")
+        for column in TABLE_COLUMNS:
+            table.add_column(column, overflow="fold")  # a long default (a time interval) wraps, never cut
+        for cells in cls.Params.table_rows():
+            table.add_row(*cells)
         console.print(table)
     return EXIT_OK
 
 
-def _fmt(value) -> str:
-    if value is None:
-        return "-"
-    if isinstance(value, float) and math.isinf(value):
-        return "inf"
-    return str(value)
+def _product_name(product) -> str:
+    """A product as --json names it: a product type by its class name, a plain string as it is."""
+    return product if isinstance(product, str) else getattr(product, "__name__", str(product))
 
 
 def cmd_inspect(args, console: Console) -> int:

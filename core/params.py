@@ -2,7 +2,10 @@
 
 ``param()`` gives each field a default, optional bounds or choices and one
 line of doc; ``Params.describe()`` is the one description that feeds
-``usdbake list``, the tables in the docs and their drift test.
+``usdbake list``, the tables in the docs and their drift test:
+``Params.table_rows()`` formats it for people (the table ``usdbake list``
+prints) and ``Params.markdown_table()`` renders the same rows as the Markdown
+that ``python -m usdbake.cli.docs_tables`` writes into docs/.
 """
 
 from __future__ import annotations
@@ -58,6 +61,29 @@ class Params:
         return rows
 
     @classmethod
+    def table_rows(cls) -> list[tuple[str, str, str, str, str]]:
+        """``describe()`` formatted for people: one (param, type, default, range, meaning) per field.
+
+        Defaults are written as a user types them on ``--set`` or in TOML
+        (``true``, ``inf``, ``''`` for an empty string); the range is the
+        choices, ``[low, high]``, ``>= low`` or ``<= high``, or empty.
+        """
+        return [(row["name"], row["type"], format_value(row["default"]), format_range(row), row["doc"])
+                for row in cls.describe()]
+
+    @classmethod
+    def markdown_table(cls) -> str:
+        """The parameter table as GitHub Markdown: the rows of ``table_rows()``, names, defaults and
+        choices as code, ``|`` escaped; no trailing newline."""
+        lines = ["| " + " | ".join(TABLE_COLUMNS) + " |", "|" + "---|" * len(TABLE_COLUMNS)]
+        for row, (name, type_name, default, allowed, doc) in zip(cls.describe(), cls.table_rows()):
+            if row["choices"] is not None:
+                allowed = ", ".join(_code(format_value(choice)) for choice in row["choices"])
+            cells = (_code(name), type_name, _code(default), allowed, doc)
+            lines.append("| " + " | ".join(_cell(text) for text in cells) + " |")
+        return "\n".join(lines)
+
+    @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "Params":
         """Build from user values (strings from the CLI are converted to the field type)."""
         known = {f.name: f for f in dataclasses.fields(cls)}
@@ -70,6 +96,46 @@ class Params:
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+TABLE_COLUMNS = ("param", "type", "default", "range", "meaning")
+"""Column headers of ``Params.table_rows()`` and ``Params.markdown_table()``."""
+
+
+def format_value(value: Any) -> str:
+    """A default or bound as a user would type it: ``true``, ``inf``, ``0.5``, ``''``."""
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        return value if value else "''"
+    return str(value)
+
+
+def format_range(row: dict) -> str:
+    """The allowed values of a ``describe()`` row: its choices, or its bounds, or ''."""
+    if row["choices"] is not None:
+        return ", ".join(format_value(choice) for choice in row["choices"])
+    low, high = row["low"], row["high"]
+    if low is not None and high is not None:
+        return f"[{format_value(low)}, {format_value(high)}]"
+    if low is not None:
+        return f">= {format_value(low)}"
+    if high is not None:
+        return f"<= {format_value(high)}"
+    return ""
+
+
+def _code(text: str) -> str:
+    return f"`{text}`" if text else ""
+
+
+def _cell(text: str) -> str:
+    """One Markdown table cell: a pipe would end the cell, a newline the row."""
+    return " ".join(str(text).split()).replace("|", "\\|")
 
 
 def _type_name(annotation) -> str:

@@ -9,11 +9,16 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 from stage_builders import add_mesh, add_preview_material, new_stage
 
 import usdbake
-from usdbake.preview import render
 from usdbake.cli import main as cli
 from usdbake.core.errors import UsageError
+from usdbake.kernels.rgb9e5 import decode_rgb9e5
+from usdbake.preview.camera import auto_camera
+from usdbake.preview.channels import read_channel
+from usdbake.preview.color import VIRIDIS, aces_fitted, false_color, luminance, srgb_decode
+from usdbake.preview.compose import preview, sh_irradiance
+from usdbake.preview.legend import text_mask
+from usdbake.preview.raycast import polygon_edges
 from usdbake.stages.extract import extract_scene
-from usdbake.preview.compose import decode_rgb9e5, preview, read_channel, sh_irradiance
 
 PIXEL_TOLERANCE = 1.0
 """A projected point and the centroid of the pixels a small quad covers agree within one pixel: the
@@ -104,7 +109,7 @@ def test_unoccluded_face_renders_brighter_than_occluded(ao_stage, tmp_path):
         report = preview(ao_stage, str(tmp_path / f"{style}.png"), camera="/World/Cam", channel="ao",
                          size=(width, height), style=style, legend=False, exposure=0.0)
         display = report["image"].display
-        lum = render.luminance(render.srgb_decode(display))
+        lum = luminance(srgb_decode(display))
         (tx, ty), (fx, fy) = (project_with_gf(ao_stage, "/World/Cam", p, width, height) for p in (top, foot))
         top_lum = lum[int(ty), int(tx)]
         foot_lum = lum[int(fy), int(fx)]
@@ -123,14 +128,14 @@ def test_false_color_legend_range_matches_data(ao_stage, tmp_path):
     assert report["range"] == [legend.lo, legend.hi]
     # The bar runs from the map's first colour (bottom) to its last (top).
     x = (legend.bar_x[0] + legend.bar_x[1]) // 2 - 1
-    np.testing.assert_allclose(image.display[legend.bar_top, x], render.VIRIDIS[255], atol=1e-6)
-    np.testing.assert_allclose(image.display[legend.bar_bottom, x], render.VIRIDIS[0], atol=1e-6)
+    np.testing.assert_allclose(image.display[legend.bar_top, x], VIRIDIS[255], atol=1e-6)
+    np.testing.assert_allclose(image.display[legend.bar_bottom, x], VIRIDIS[0], atol=1e-6)
     assert image.display.shape[1] == 160 and image.view_width < 160
     # A surface pixel's colour is the map of its interpolated value on that scale.
     frame_value = image.value[..., 0]
     hit = image.coverage > 0
     y, x = np.argwhere(hit)[len(np.argwhere(hit)) // 2]
-    np.testing.assert_allclose(image.display[y, x], render.false_color(frame_value[y, x], legend.lo, legend.hi),
+    np.testing.assert_allclose(image.display[y, x], false_color(frame_value[y, x], legend.lo, legend.hi),
                                atol=1e-6)
 
 
@@ -155,7 +160,7 @@ def test_stage_camera_is_honoured(tmp_path, offset):
     width, height = 128, 96
     stage, center = bright_quad_stage(offset)
     report = preview(stage, str(tmp_path / "cam.png"), camera="/World/Cam", size=(width, height), exposure=0.0)
-    lum = render.luminance(render.srgb_decode(report["image"].display))
+    lum = luminance(srgb_decode(report["image"].display))
     ys, xs = np.nonzero(lum > 0.3)
     assert len(xs) >= 4, "the marker is not visible"
     centroid = np.array([xs.mean() + 0.5, ys.mean() + 0.5])
@@ -213,13 +218,13 @@ def test_wire_marks_polygon_edges_not_triangulation_diagonals(tmp_path):
     add_camera(stage, "/World/Top", eye=(0.5, 2.0, -0.5), target=(0.5, 0.0, -0.5), up=(0, 0, -1),
                aperture=(36.0, 36.0))
     scene = extract_scene(stage)
-    mask = render.polygon_edges(scene.tri_vertices, scene.tri_prim, scene.tri_face)
+    mask = polygon_edges(scene.tri_vertices, scene.tri_prim, scene.tri_face)
     assert sorted(np.unpackbits(mask.astype(np.uint8)[:, None], axis=1)[:, -3:].sum(axis=1)) == [2, 2]
     size = 64
     frame_report = preview(stage, str(tmp_path / "w.png"), camera="/World/Top", size=(size, size), wire=True)
     corners = [project_with_gf(stage, "/World/Top", p, size, size) for p in ((0, 0, 0), (1, 0, -1))]
     (x0, y0), (x1, y1) = corners
-    lum = render.luminance(render.srgb_decode(frame_report["image"].display))
+    lum = luminance(srgb_decode(frame_report["image"].display))
     dark = lum < 0.05
     # Pixels along the quad's border are wire; pixels along its diagonal (away from the border) are not.
     mid_y = int((y0 + y1) / 2)
@@ -287,7 +292,7 @@ def test_probes_are_drawn_as_spheres_where_they_project(tmp_path):
     report = preview(stage, str(tmp_path / "p.png"), camera="/World/Cam", size=(width, height), probes=True,
                      exposure=0.0)
     assert report["spheres"] == 2
-    lum = render.luminance(render.srgb_decode(report["image"].display))
+    lum = luminance(srgb_decode(report["image"].display))
     for p in positions:
         x, y = project_with_gf(stage, "/World/Cam", p, width, height)
         assert lum[int(y), int(x)] > 0.1  # a lit sphere over the dark floor
@@ -312,7 +317,7 @@ def test_auto_camera_frames_every_corner():
         hi = lo + rng.uniform(0.01, 50, 3)
         width, height = int(rng.integers(16, 800)), int(rng.integers(16, 800))
         for up in ("Y", "Z"):
-            camera = render.auto_camera(lo, hi, up, width, height).conformed(width, height)
+            camera = auto_camera(lo, hi, up, width, height).conformed(width, height)
             corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
             pixels, depth = camera.project(corners, width, height)
             assert (depth > 0).all()
@@ -323,16 +328,16 @@ def test_auto_camera_frames_every_corner():
 def test_viridis_table_matches_matplotlib():
     matplotlib = pytest.importorskip("matplotlib")
     reference = matplotlib.colormaps["viridis"](np.linspace(0, 1, 256))[:, :3]
-    np.testing.assert_allclose(render.VIRIDIS, reference, atol=VIRIDIS_TOLERANCE)
-    lightness = render.luminance(render.srgb_decode(render.VIRIDIS))
+    np.testing.assert_allclose(VIRIDIS, reference, atol=VIRIDIS_TOLERANCE)
+    lightness = luminance(srgb_decode(VIRIDIS))
     assert (np.diff(lightness) > 0).all()  # brighter means larger: the property the AO test relies on
 
 
 def test_tone_curve_and_font():
     x = np.linspace(0, 20, 200)
-    y = render.aces_fitted(x)
+    y = aces_fitted(x)
     assert (np.diff(y) >= 0).all() and y[0] == 0 and y[-1] == pytest.approx(1.0, abs=0.01)
-    mask = render.text_mask("0.25", 2)
+    mask = text_mask("0.25", 2)
     assert mask.shape == (10, 30) and mask.any()
 
 
