@@ -9,6 +9,7 @@ import numpy as np
 from usdbake.processors.irradiance_grid import dequantize_vectors
 
 from . import harness
+from .references import point_irradiance
 
 NAME = "irradiance_grid"
 DESCRIPTION = (
@@ -62,22 +63,22 @@ def run(quick: bool = False) -> dict:
             {"rays": reference_rays, "seed": 99, "points": count, "version": ig.IrradianceGrid.version,
              "include_direct": direct, "light_model": "sampled area lights, emission seen only without UsdLux"},
             lambda direct=direct: {
-                "surface": ig.compute_point_irradiance(tracer, scene, points, normals, rays=reference_rays,
+                "surface": point_irradiance(tracer, scene, points, normals, rays=reference_rays,
                                                        seed=99, include_direct=direct),
-                "vertices": ig.compute_point_irradiance(tracer, scene, scene.points, vertex_n, rays=reference_rays,
+                "vertices": point_irradiance(tracer, scene, scene.points, vertex_n, rays=reference_rays,
                                                         seed=99, include_direct=direct)})
     lo, hi = scene.bounds
     ig.bake_grid(tracer, scene, ig.grid_layout(lo, hi, vertices=64), rays=4)  # compile outside the timing
-    ig.compute_point_irradiance(tracer, scene, points[:10], normals[:10], rays=4)
+    point_irradiance(tracer, scene, points[:10], normals[:10], rays=4)
     # The reference's own noise: the same estimator at the same rays with another seed (heavy-tailed:
     # one light sample per bounce hit, large for hits close to the big ceiling light).
     reference_noise = {}
     for mode, direct in (("total", True), ("indirect", False)):
-        again = ig.compute_point_irradiance(tracer, scene, points, normals, rays=reference_rays, seed=7,
+        again = point_irradiance(tracer, scene, points, normals, rays=reference_rays, seed=7,
                                             include_direct=direct)
         reference_noise[mode] = round(_relative_rms(again, references[mode]["surface"]), 4)
     # The per-point ray-casting noise floor at the default rays (what the grid's sampling competes with).
-    direct_noise = _relative_rms(ig.compute_point_irradiance(tracer, scene, points, normals, rays=DEFAULT_RAYS,
+    direct_noise = _relative_rms(point_irradiance(tracer, scene, points, normals, rays=DEFAULT_RAYS,
                                                              seed=1), references["total"]["surface"])
 
     settings = [(2000, 256), (8000, 256), (20000, 64), (20000, 256)] if quick else \

@@ -36,13 +36,14 @@ def run(quick: bool = False) -> dict:
     from usdbake.processors import light_probes as lp
     from usdbake.core import Context
     from usdbake.kernels.sh import sh_basis_np
+    from usdbake.kernels.lights import scene_lighting
     from usdbake.kernels.tracer import Tracer
     from usdbake.stages.extract import extract_scene
 
     sample = harness.SAMPLES / "atrium.usda"
     scene = extract_scene(Usd.Stage.Open(str(sample)))
     tracer = Tracer.from_scene(scene)
-    lighting = lp.Lighting(tracer, scene)
+    lighting = scene_lighting(scene, tracer.device)
     count = 150 if quick else 600
     points = _free_points(lp, tracer, lighting, scene, count)
     basis = sh_basis_np(lp.PROBE_DIRECTIONS)  # (26, 9)

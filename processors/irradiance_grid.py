@@ -123,37 +123,17 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ..formats import streaming
-from ..core import (
-    Attribute,
-    Context,
-    File,
-    Params,
-    Prim,
-    Primvar,
-    Processor,
-    Result,
-    param,
-)
+from ..core import Attribute, Context, File, Params, Prim, Primvar, Processor, Result, param
 from ..core.products import IrradianceGridProduct
+from ..core.scene import Scene
+from ..formats import streaming
 from ..geometry.mesh import receiver_prims, vertex_normals
-from ..kernels.lighting import (
-    Lighting,
-    cone_direction,
-    direct_at,
-    has_light,
-    use_emissive,
-)
+from ..kernels.lights import (Lights, SceneLighting, Surfaces, emissive_lights, has_light, hit_radiance,
+                              light_sample_at, light_sample_count, scene_lighting, shadow_visible)
 from ..kernels.octahedral import AXES, decode_hemisphere, encode_hemisphere
 from ..kernels.rgb9e5 import decode_rgb9e5, encode_rgb9e5
-from ..kernels.sampling import (
-    concentric_disk,
-    cosine_hemisphere,
-    stratified_pair,
-    tangent_frame,
-)
+from ..kernels.sampling import strata_for, stratified_pair
 from ..kernels.sh import uniform_sphere
-from ..core.scene import Scene
 
 wp.set_module_options({"enable_backward": False})
 
@@ -169,60 +149,6 @@ MAX_GRID_VERTICES = 50_000_000
 
 # ---------------------------------------------------------------------------
 # Warp
-
-
-@wp.func
-def sample_light(mesh: wp.uint64, p: wp.vec3, kind: int, axis: wp.vec3, position: wp.vec3, size: wp.vec2,
-                 u1: float, u2: float, min_d2: float) -> wp.vec4:
-    """One sample of a non-dome light seen from p: (w, weight * V) with w the unit direction to the
-    sample and weight the solid angle it stands for, so ``L weight w`` estimates the light's vector
-    irradiance ``integral L w dw`` (W/m^2). Distant: a direction in the cone ``angle`` (weight
-    Omega; angle 0: w = -axis, weight 1, the intensity read as irradiance); sphere: a direction in the
-    subtended cone (weight Omega); rect/disk: a point q on the emitter (weight A cos' / d^2)."""
-    w = -axis
-    weight = float(0.0)
-    max_t = float(3.0e38)
-    if kind == 0:
-        half = wp.min(wp.radians(size[0]) * 0.5, wp.pi)
-        weight = 1.0
-        if half > 0.0:
-            w = cone_direction(-axis, wp.cos(half), u1, u2)
-            weight = 2.0 * wp.pi * (1.0 - wp.cos(half))
-    elif kind == 2:
-        r = size[0]
-        to_c = position - p
-        d = wp.length(to_c)
-        if d > r > 0.0:
-            cos_max = wp.sqrt(wp.max(0.0, 1.0 - r * r / (d * d)))
-            w = cone_direction(to_c / d, cos_max, u1, u2)
-            weight = 2.0 * wp.pi * (1.0 - cos_max)
-            b = wp.dot(w, to_c)
-            max_t = b - wp.sqrt(wp.max(0.0, b * b - (d * d - r * r)))
-    elif kind == 3 or kind == 4:
-        frame = tangent_frame(axis)
-        tx = wp.vec3(frame[0, 0], frame[1, 0], frame[2, 0])
-        ty = wp.vec3(frame[0, 1], frame[1, 1], frame[2, 1])
-        q = position
-        area = size[0] * size[1]
-        if kind == 3:
-            q = q + tx * ((u1 - 0.5) * size[0]) + ty * ((u2 - 0.5) * size[1])
-        else:
-            area = wp.pi * size[0] * size[0]
-            dsk = concentric_disk(u1, u2)
-            q = q + tx * (dsk[0] * size[0]) + ty * (dsk[1] * size[0])
-        to_q = q - p
-        d2 = wp.dot(to_q, to_q)
-        if d2 > 0.0:
-            d = wp.sqrt(d2)
-            w = to_q / d
-            cos_l = -wp.dot(axis, w)
-            if cos_l > 0.0:
-                weight = area * cos_l / wp.max(d2, min_d2)
-                max_t = d
-    if weight > 0.0:
-        if wp.mesh_query_ray_anyhit(mesh, p, w, max_t * 0.9999):
-            weight = 0.0
-    return wp.vec4(w[0], w[1], w[2], weight)
 
 
 @wp.func
@@ -246,31 +172,20 @@ def add_to_hemispheres(m: wp.array(dtype=wp.mat33), base: int, w: wp.vec3, o: wp
 def irradiance_vectors_kernel(
     start: int,
     mesh: wp.uint64,
+    surfaces: Surfaces,
+    lights: Lights,
     positions: wp.array(dtype=wp.vec3),
     strata: int,
     seed: int,
     epsilon: float,
-    min_d2: float,
     include_direct: int,
     see_emission: int,
-    points: wp.array(dtype=wp.vec3),
-    tri_vertices: wp.array(dtype=wp.vec3i),
-    tri_normals: wp.array(dtype=wp.vec3),
-    tri_albedo: wp.array(dtype=wp.vec3),
-    tri_emission: wp.array(dtype=wp.vec3),
-    tri_double_sided: wp.array(dtype=int),
-    dome_radiance: wp.vec3,
-    light_kind: wp.array(dtype=int), light_radiance: wp.array(dtype=wp.vec3),
-    light_position: wp.array(dtype=wp.vec3), light_direction: wp.array(dtype=wp.vec3),
-    light_size: wp.array(dtype=wp.vec2),
-    emitter_vertices: wp.array(dtype=wp.vec3), emitter_normal: wp.array(dtype=wp.vec3),
-    emitter_radiance: wp.array(dtype=wp.vec3), emitter_area: wp.array(dtype=float),
-    emitter_two_sided: wp.array(dtype=int), emitter_cdf: wp.array(dtype=float),
     vectors: wp.array(dtype=wp.mat33),
     back_hits: wp.array(dtype=int),
 ):
-    """Vertex i: the six hemisphere irradiance vectors (eq. 1), rows = RGB channels, by strata^2
-    stratified uniform sphere rays (weight 4 pi / N), plus the small lights as point sources."""
+    """Vertex i: the six hemisphere irradiance vectors (paper eq. 1), I = integral L(w) w dw over each
+    hemisphere, rows = RGB channels, by strata^2 stratified uniform sphere rays (weight 4 pi / N) whose
+    hits return ``hit_radiance``, plus the small lights sampled directly (``light_sample_at``)."""
     i = start + wp.tid()
     p = positions[i]
     state = wp.rand_init(seed, i)
@@ -285,128 +200,26 @@ def irradiance_vectors_kernel(
         q = wp.mesh_query_ray(mesh, p, d, 3.0e38)
         if not q.result:
             if include_direct != 0:
-                value = dome_radiance
+                value = lights.dome_radiance
         else:
-            tri = q.face
-            n = tri_normals[tri]
-            front = wp.dot(n, d) < 0.0
-            two_sided = tri_double_sided[tri] != 0
-            if (not front) and (not two_sided):
+            if wp.dot(surfaces.tri_normals[q.face], d) >= 0.0 and surfaces.tri_double_sided[q.face] == 0:
                 back += 1
-            if (front or two_sided) and wp.length(n) > 0.5:
-                if not front:
-                    n = -n
-                x = p + d * q.t
-                e = direct_at(mesh, x, n, light_kind, light_radiance, light_position, light_direction,
-                              light_size, emitter_vertices, emitter_normal, emitter_radiance, emitter_area,
-                              emitter_two_sided, emitter_cdf, epsilon, min_d2, state)
-                value = wp.cw_mul(tri_albedo[tri], e) / wp.pi
-                if see_emission != 0:
-                    value = value + tri_emission[tri]
+            value = hit_radiance(mesh, surfaces, lights, p, d, q.face, q.t, see_emission, epsilon,
+                                 wp.rand_init(wp.int32(state), samples + k))
         if wp.length_sq(value) > 0.0:
             add_to_hemispheres(vectors, base, d, wp.outer(value * weight, d))
     back_hits[i] = back
     if include_direct == 0:
         return
-    for l in range(light_kind.shape[0]):
-        kind = light_kind[l]
-        if kind == 1:  # dome: seen by the escaped rays above
+    for l in range(lights.light_kind.shape[0]):
+        if lights.light_kind[l] == 1:  # dome: seen by the escaped rays above
             continue
-        size = light_size[l]
-        count = samples
-        if kind == 0 and size[0] <= 0.0:
-            count = 1  # a delta light needs one sample
-        for s in range(count):
-            u = wp.vec2(0.5, 0.5)
-            if count > 1:
-                u = stratified_pair(s, strata, state)
-            v = sample_light(mesh, p, kind, light_direction[l], light_position[l], size, u[0], u[1], min_d2)
-            if v[3] > 0.0:
-                w = wp.vec3(v[0], v[1], v[2])
-                add_to_hemispheres(vectors, base, w, wp.outer(light_radiance[l] * (v[3] / float(count)), w))
-
-
-@wp.kernel
-def point_irradiance_kernel(
-    start: int,
-    mesh: wp.uint64,
-    positions: wp.array(dtype=wp.vec3),
-    normals: wp.array(dtype=wp.vec3),
-    strata: int,
-    seed: int,
-    epsilon: float,
-    min_d2: float,
-    include_direct: int,
-    see_emission: int,
-    points: wp.array(dtype=wp.vec3),
-    tri_vertices: wp.array(dtype=wp.vec3i),
-    tri_normals: wp.array(dtype=wp.vec3),
-    tri_albedo: wp.array(dtype=wp.vec3),
-    tri_emission: wp.array(dtype=wp.vec3),
-    tri_double_sided: wp.array(dtype=int),
-    dome_radiance: wp.vec3,
-    light_kind: wp.array(dtype=int), light_radiance: wp.array(dtype=wp.vec3),
-    light_position: wp.array(dtype=wp.vec3), light_direction: wp.array(dtype=wp.vec3),
-    light_size: wp.array(dtype=wp.vec2),
-    emitter_vertices: wp.array(dtype=wp.vec3), emitter_normal: wp.array(dtype=wp.vec3),
-    emitter_radiance: wp.array(dtype=wp.vec3), emitter_area: wp.array(dtype=float),
-    emitter_two_sided: wp.array(dtype=int), emitter_cdf: wp.array(dtype=float),
-    irradiance: wp.array(dtype=wp.vec3),
-):
-    """The brute-force reference: E at point i with normal n by strata^2 cosine-weighted rays
-    (E = pi / N sum L) with the same incident radiance as the grid, plus the small lights as
-    point sources (E = L Omega cos V); ``include_direct`` 0 keeps only the one-bounce light."""
-    i = start + wp.tid()
-    n = normals[i]
-    if wp.length(n) < 0.5:
-        irradiance[i] = wp.vec3(0.0, 0.0, 0.0)
-        return
-    p = positions[i] + n * epsilon
-    state = wp.rand_init(seed, i)
-    frame = tangent_frame(n)
-    total = wp.vec3(0.0, 0.0, 0.0)
-    for k in range(strata * strata):
-        u = stratified_pair(k, strata, state)
-        d = frame * cosine_hemisphere(u[0], u[1])
-        q = wp.mesh_query_ray(mesh, p, d, 3.0e38)
-        if not q.result:
-            if include_direct != 0:
-                total = total + dome_radiance
-        else:
-            tri = q.face
-            tn = tri_normals[tri]
-            front = wp.dot(tn, d) < 0.0
-            if (front or tri_double_sided[tri] != 0) and wp.length(tn) > 0.5:
-                if not front:
-                    tn = -tn
-                x = p + d * q.t
-                e = direct_at(mesh, x, tn, light_kind, light_radiance, light_position, light_direction,
-                              light_size, emitter_vertices, emitter_normal, emitter_radiance, emitter_area,
-                              emitter_two_sided, emitter_cdf, epsilon, min_d2, state)
-                total = total + wp.cw_mul(tri_albedo[tri], e) / wp.pi
-                if see_emission != 0:
-                    total = total + tri_emission[tri]
-    result = total * (wp.pi / float(strata * strata))
-    irradiance[i] = result
-    if include_direct == 0:
-        return
-    for l in range(light_kind.shape[0]):
-        kind = light_kind[l]
-        if kind == 1:
-            continue
-        size = light_size[l]
-        count = strata * strata
-        if kind == 0 and size[0] <= 0.0:
-            count = 1
-        for s in range(count):
-            u = wp.vec2(0.5, 0.5)
-            if count > 1:
-                u = stratified_pair(s, strata, state)
-            v = sample_light(mesh, p, kind, light_direction[l], light_position[l], size, u[0], u[1], min_d2)
-            c = v[0] * n[0] + v[1] * n[1] + v[2] * n[2]
-            if v[3] > 0.0 and c > 0.0:
-                result = result + light_radiance[l] * (v[3] * c / float(count))
-    irradiance[i] = result
+        count = light_sample_count(lights, l, strata)
+        for k in range(count):
+            s = light_sample_at(lights, l, p, k, strata, state)
+            if s.weight > 0.0:
+                v = s.weight * shadow_visible(mesh, p, s.direction, s.distance, 0.0) / float(count)
+                add_to_hemispheres(vectors, base, s.direction, wp.outer(lights.light_radiance[l] * v, s.direction))
 
 
 # ---------------------------------------------------------------------------
@@ -465,19 +278,15 @@ def grid_layout(lo: np.ndarray, hi: np.ndarray, *, cell_size: float = 0.0, verti
 # Compute
 
 
-def strata_for(rays: int) -> int:
-    return max(1, int(round(math.sqrt(rays))))
-
-
 def see_emission(scene: Scene, include_direct: bool) -> int:
-    """1 when rays count the emission of the triangles they hit: direct light is wanted and the
-    stage has no UsdLux lights (a lamp modelled as a light *and* an emissive quad, as in
+    """1 when rays count the emission of the triangles they hit: direct light is wanted and emissive
+    triangles are lights (``emissive_lights``: a lamp modelled as a light *and* an emissive quad, as in
     cornell_box.usda, would otherwise count twice; its light comes from the UsdLux light)."""
-    return int(bool(include_direct) and use_emissive(scene))
+    return int(bool(include_direct) and emissive_lights(scene))
 
 
 def compute_irradiance_vectors(tracer, scene: Scene, positions: np.ndarray, *, rays: int, seed: int = 0,
-                               include_direct: bool = True, lighting: Lighting | None = None
+                               include_direct: bool = True, lighting: SceneLighting | None = None
                                ) -> tuple[np.ndarray, np.ndarray]:
     """Irradiance vectors at points (module docstring, paper eq. 1).
 
@@ -494,40 +303,17 @@ def compute_irradiance_vectors(tracer, scene: Scene, positions: np.ndarray, *, r
     count = len(positions)
     if count == 0:
         return np.zeros((0, 6, 3, 3), np.float32), np.zeros(0, np.float32)
-    lighting = lighting or Lighting(tracer, scene)
+    lighting = lighting or scene_lighting(scene, tracer.device)
     strata = strata_for(rays)
     vectors = wp.zeros(count * 6, dtype=wp.mat33, device=tracer.device)
     back = wp.zeros(count, dtype=int, device=tracer.device)
     tracer.launch(irradiance_vectors_kernel, count, [
-        tracer.mesh.id, tracer.array(positions, wp.vec3), strata, int(seed), tracer.epsilon, lighting.min_d2,
-        int(bool(include_direct)), see_emission(scene, include_direct), *lighting.geometry, lighting.dome,
-        *lighting.lights, *lighting.emitters, vectors, back,
+        tracer.mesh.id, lighting.surfaces, lighting.lights, tracer.array(positions, wp.vec3), strata, int(seed),
+        tracer.epsilon, int(bool(include_direct)), see_emission(scene, include_direct), vectors, back,
     ])
     tracer.rays_cast += count * strata * strata * (1 + lighting.shadow_rays + len(scene.lights))
     out = np.nan_to_num(vectors.numpy().reshape(count, 6, 3, 3), nan=0.0, posinf=0.0, neginf=0.0)
     return out.astype(np.float32), (back.numpy() / float(strata * strata)).astype(np.float32)
-
-
-def compute_point_irradiance(tracer, scene: Scene, positions: np.ndarray, normals: np.ndarray, *, rays: int,
-                             seed: int = 0, include_direct: bool = True, lighting: Lighting | None = None
-                             ) -> np.ndarray:
-    """Brute-force irradiance (N, 3) float32 (W/m^2) at surface points with unit normals: the
-    independent reference the grid's reconstruction is measured against (benchmarks, tests)."""
-    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
-    normals = np.ascontiguousarray(np.nan_to_num(normals), np.float32).reshape(-1, 3)
-    if len(positions) == 0:
-        return np.zeros((0, 3), np.float32)
-    lighting = lighting or Lighting(tracer, scene)
-    strata = strata_for(rays)
-    out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
-    tracer.launch(point_irradiance_kernel, len(positions), [
-        tracer.mesh.id, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3), strata, int(seed),
-        tracer.epsilon, lighting.min_d2, int(bool(include_direct)), see_emission(scene, include_direct),
-        *lighting.geometry, lighting.dome,
-        *lighting.lights, *lighting.emitters, out,
-    ])
-    tracer.rays_cast += len(positions) * strata * strata * (1 + lighting.shadow_rays)
-    return np.nan_to_num(out.numpy(), nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
 
 
 def quantize_vectors(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -131,7 +131,8 @@ from scipy.spatial import cKDTree
 from ..geometry import tetrahedra
 from ..core import Attribute, Context, Params, Prim, Processor, Result, param
 from ..core.products import ProbeCloud
-from ..kernels.lighting import Lighting, direct_at, distant_solid_angle, has_light
+from ..kernels.lights import (Lights, SceneLighting, Surfaces, has_light, hit_radiance, light_sample_at,
+                             light_sample_count, scene_lighting, shadow_visible)
 from ..kernels.sampling import strata_for, stratified_pair
 from ..kernels.sh import (COSINE_LOBE, project_kernel, sh_basis, sh_basis_np,
                          uniform_sphere)
@@ -148,6 +149,10 @@ surface sees half its sphere black and makes tetrahedra cut by the surface."""
 CONTRAST_FLOOR_RELATIVE = 1e-3
 """Irradiance luminance below this fraction of the scene's largest probe luminance counts as
 dark when contrasts are formed (E_i + E_j + floor), so noise in black areas is not variation."""
+
+LIGHT_SAMPLES = 16
+"""Stratified samples per small (non-dome) light and probe: a sphere, rect or disk light is too small
+for the uniform capture rays to find, so it is sampled directly (soft shadows at 4 x 4)."""
 
 BOUNDS_MIN_RELATIVE = 0.05
 """Each axis of the placement box is at least this fraction of the diagonal (flat scenes)."""
@@ -171,28 +176,18 @@ PROBE_DIRECTIONS = _directions_26()
 def capture_kernel(
     start: int,
     mesh: wp.uint64,
+    surfaces: Surfaces,
+    lights: Lights,
     probe_positions: wp.array(dtype=wp.vec3),
     strata: int,
     seed: int,
     epsilon: float,
-    min_d2: float,
-    points: wp.array(dtype=wp.vec3),
-    tri_vertices: wp.array(dtype=wp.vec3i),
-    tri_normals: wp.array(dtype=wp.vec3),
-    tri_albedo: wp.array(dtype=wp.vec3),
-    tri_emission: wp.array(dtype=wp.vec3),
-    tri_double_sided: wp.array(dtype=int),
-    dome_radiance: wp.vec3,
-    light_kind: wp.array(dtype=int), light_radiance: wp.array(dtype=wp.vec3),
-    light_position: wp.array(dtype=wp.vec3), light_direction: wp.array(dtype=wp.vec3),
-    light_size: wp.array(dtype=wp.vec2),
-    emitter_vertices: wp.array(dtype=wp.vec3), emitter_normal: wp.array(dtype=wp.vec3),
-    emitter_radiance: wp.array(dtype=wp.vec3), emitter_area: wp.array(dtype=float),
-    emitter_two_sided: wp.array(dtype=int), emitter_cdf: wp.array(dtype=float),
     directions: wp.array(dtype=wp.vec3),
     radiance: wp.array(dtype=wp.vec3),
 ):
-    """Ray i = probe * strata^2 + k: incident radiance L(w) at the probe from stratified direction k."""
+    """Ray i = probe * strata^2 + k: incident radiance L(w) at the probe from stratified direction k
+    (escaped rays see the dome; hits return emission + one bounce of direct light, ``hit_radiance``);
+    the Monte Carlo input of the SH projection, Sukys section 2.3 / Ramamoorthi & Hanrahan eq. 7."""
     i = start + wp.tid()
     samples = strata * strata
     probe = i // samples
@@ -203,22 +198,9 @@ def capture_kernel(
     directions[i] = d
     origin = probe_positions[probe]
     q = wp.mesh_query_ray(mesh, origin, d, 3.0e38)
-    value = wp.vec3(0.0, 0.0, 0.0)
-    if not q.result:
-        value = dome_radiance
-    else:
-        tri = q.face
-        n = tri_normals[tri]
-        front = wp.dot(n, d) < 0.0
-        two_sided = tri_double_sided[tri] != 0
-        if (front or two_sided) and wp.length(n) > 0.5:
-            if not front:
-                n = -n
-            x = origin + d * q.t
-            e = direct_at(mesh, x, n, light_kind, light_radiance, light_position, light_direction, light_size,
-                          emitter_vertices, emitter_normal, emitter_radiance, emitter_area, emitter_two_sided,
-                          emitter_cdf, epsilon, min_d2, state)
-            value = tri_emission[tri] + wp.cw_mul(tri_albedo[tri], e) / wp.pi
+    value = lights.dome_radiance
+    if q.result:
+        value = hit_radiance(mesh, surfaces, lights, origin, d, q.face, q.t, 1, epsilon, wp.rand_init(wp.int32(state), samples))
     radiance[i] = value
 
 
@@ -226,57 +208,31 @@ def capture_kernel(
 def probe_lights_kernel(
     start: int,
     mesh: wp.uint64,
+    lights: Lights,
     probe_positions: wp.array(dtype=wp.vec3),
-    min_d2: float,
-    light_kind: wp.array(dtype=int), light_radiance: wp.array(dtype=wp.vec3),
-    light_position: wp.array(dtype=wp.vec3), light_direction: wp.array(dtype=wp.vec3),
-    light_size: wp.array(dtype=wp.vec2),
+    strata: int,
+    seed: int,
     out: wp.array2d(dtype=float),
 ):
-    """Radiance SH of the non-geometric lights seen from probe i, as point sources:
-    L_k += E Y_k(w) with E the irradiance normal to w and one shadow ray to the light's centre."""
+    """Radiance SH of the non-dome lights seen from probe i: L_k += L weight V Y_k(w) / count over
+    ``light_sample_at`` samples (a small light is too concentrated for the uniform capture rays)."""
     i = start + wp.tid()
     p = probe_positions[i]
-    for l in range(light_kind.shape[0]):
-        kind = light_kind[l]
-        if kind == 1:
+    state = wp.rand_init(seed, i)
+    for l in range(lights.light_kind.shape[0]):
+        if lights.light_kind[l] == 1:
             continue
-        axis = light_direction[l]
-        size = light_size[l]
-        w = -axis
-        max_t = float(3.0e38)
-        e = float(0.0)
-        if kind == 0:
-            e = distant_solid_angle(size[0])
-        else:
-            to_c = light_position[l] - p
-            d = wp.length(to_c)
-            if d <= 0.0:
-                continue
-            w = to_c / d
-            d2 = wp.max(d * d, min_d2)
-            if kind == 2:
-                r = size[0]
-                if d <= r:
-                    continue
-                e = 2.0 * wp.pi * (1.0 - wp.sqrt(wp.max(0.0, 1.0 - r * r / (d * d))))
-                max_t = d - r
-            else:
-                area = size[0] * size[1]
-                if kind == 4:
-                    area = wp.pi * size[0] * size[0]
-                e = area * wp.max(0.0, -wp.dot(axis, w)) / d2
-                max_t = d
-        if e > 0.0:
-            if wp.mesh_query_ray_anyhit(mesh, p, w, max_t * 0.9999):
-                e = 0.0
-        if e > 0.0:
-            y = sh_basis(w)
-            c = light_radiance[l] * e
-            for k in range(9):
-                out[i, 3 * k + 0] = out[i, 3 * k + 0] + y[k] * c[0]
-                out[i, 3 * k + 1] = out[i, 3 * k + 1] + y[k] * c[1]
-                out[i, 3 * k + 2] = out[i, 3 * k + 2] + y[k] * c[2]
+        count = light_sample_count(lights, l, strata)
+        for k in range(count):
+            s = light_sample_at(lights, l, p, k, strata, state)
+            if s.weight > 0.0:
+                c = lights.light_radiance[l] * (s.weight * shadow_visible(mesh, p, s.direction, s.distance, 0.0)
+                                                / float(count))
+                y = sh_basis(s.direction)
+                for j in range(9):
+                    out[i, 3 * j + 0] = out[i, 3 * j + 0] + y[j] * c[0]
+                    out[i, 3 * j + 1] = out[i, 3 * j + 1] + y[j] * c[1]
+                    out[i, 3 * j + 2] = out[i, 3 * j + 2] + y[j] * c[2]
 
 
 @wp.kernel
@@ -285,8 +241,7 @@ def inside_kernel(
     mesh: wp.uint64,
     positions: wp.array(dtype=wp.vec3),
     directions: wp.array(dtype=wp.vec3),
-    tri_normals: wp.array(dtype=wp.vec3),
-    tri_double_sided: wp.array(dtype=int),
+    surfaces: Surfaces,
     back_minus_front: wp.array(dtype=int),
     nearest: wp.array(dtype=float),
 ):
@@ -300,8 +255,8 @@ def inside_kernel(
         q = wp.mesh_query_ray(mesh, p, d, 3.0e38)
         if q.result:
             near = wp.min(near, q.t)
-            if tri_double_sided[q.face] == 0:
-                if wp.dot(tri_normals[q.face], d) > 0.0:
+            if surfaces.tri_double_sided[q.face] == 0:
+                if wp.dot(surfaces.tri_normals[q.face], d) > 0.0:
                     votes += 1
                 else:
                     votes -= 1
@@ -314,7 +269,7 @@ def inside_kernel(
 
 
 def compute_probe_sh(tracer, scene: Scene, positions: np.ndarray, *, rays: int, seed: int = 0,
-                     lighting: Lighting | None = None) -> np.ndarray:
+                     lighting: SceneLighting | None = None) -> np.ndarray:
     """Irradiance SH (P, 9, 3) float32 (W/m^2) at probe positions (P, 3) in the scene frame.
 
     Radiance by one-bounce ray casting (module docstring), projected on L2 SH, plus the
@@ -324,27 +279,28 @@ def compute_probe_sh(tracer, scene: Scene, positions: np.ndarray, *, rays: int, 
     count = len(positions)
     if count == 0:
         return np.zeros((0, 9, 3), np.float32)
-    lighting = lighting or Lighting(tracer, scene)
+    lighting = lighting or scene_lighting(scene, tracer.device)
     strata = strata_for(rays)
     samples = strata * strata
     probes_wp = tracer.array(positions, wp.vec3)
     directions = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
     radiance = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
     tracer.launch(capture_kernel, count * samples, [
-        tracer.mesh.id, probes_wp, strata, int(seed), tracer.epsilon, lighting.min_d2, *lighting.geometry,
-        lighting.dome, *lighting.lights, *lighting.emitters, directions, radiance,
+        tracer.mesh.id, lighting.surfaces, lighting.lights, probes_wp, strata, int(seed), tracer.epsilon,
+        directions, radiance,
     ])
     coefficients = wp.zeros((count, 27), dtype=float, device=tracer.device)
     tracer.launch(project_kernel, count, [directions, radiance, samples, coefficients])
-    tracer.launch(probe_lights_kernel, count, [tracer.mesh.id, probes_wp, lighting.min_d2, *lighting.lights,
-                                               coefficients])
-    tracer.rays_cast += count * samples * (1 + lighting.shadow_rays) + count * len(scene.lights)
+    light_strata = strata_for(LIGHT_SAMPLES)
+    tracer.launch(probe_lights_kernel, count, [tracer.mesh.id, lighting.lights, probes_wp, light_strata,
+                                               int(seed) + 1, coefficients])
+    tracer.rays_cast += count * samples * (1 + lighting.shadow_rays) + count * len(scene.lights) * LIGHT_SAMPLES
     radiance_sh = np.nan_to_num(coefficients.numpy().reshape(count, 9, 3).astype(np.float64),
                                 nan=0.0, posinf=0.0, neginf=0.0)
     return (radiance_sh * COSINE_LOBE[None, :, None]).astype(np.float32)
 
 
-def classify_points(tracer, lighting: Lighting, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def classify_points(tracer, lighting: SceneLighting, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(inside (N,) bool, nearest hit distance (N,) float32) by the 26-ray back-face vote."""
     positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
     n = len(positions)
@@ -352,8 +308,8 @@ def classify_points(tracer, lighting: Lighting, positions: np.ndarray) -> tuple[
     nearest = wp.zeros(n, dtype=float, device=tracer.device)
     if n:
         tracer.launch(inside_kernel, n, [tracer.mesh.id, tracer.array(positions, wp.vec3),
-                                         tracer.array(PROBE_DIRECTIONS, wp.vec3), lighting.tri_normals,
-                                         lighting.tri_double_sided, votes, nearest])
+                                         tracer.array(PROBE_DIRECTIONS, wp.vec3), lighting.surfaces, votes,
+                                         nearest])
         tracer.rays_cast += n * len(PROBE_DIRECTIONS)
     return votes.numpy() > 0, nearest.numpy()
 
@@ -480,11 +436,11 @@ class Placement:
 
 def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0, iterations: int = 3,
                  contrast: float = 0.25, placement_rays: int = 64, seed: int = 0,
-                 leak_probes: bool = True, lighting: Lighting | None = None,
+                 leak_probes: bool = True, lighting: SceneLighting | None = None,
                  progress=lambda f: None) -> Placement:
     """Probe positions in the empty space of the scene (module docstring, Sukys 3.1)."""
     reserve = probes // 4 if leak_probes else 0  # room kept for the probes beside blockers
-    lighting = lighting or Lighting(tracer, scene)
+    lighting = lighting or scene_lighting(scene, tracer.device)
     rng = np.random.default_rng(seed)  # seeded: the placement is reproducible
     lo, hi = placement_box(scene)
     spacing = grid_spacing(lo, hi, max(8, probes // 2))
@@ -726,7 +682,7 @@ class LightProbes(Processor):
     def run(self, ctx: Context) -> Result:
         scene, p, tracer = ctx.scene, ctx.params, ctx.tracer
         ctx.progress(0.0)
-        lighting = Lighting(tracer, scene)
+        lighting = scene_lighting(scene, tracer.device)
         rays_before = tracer.rays_cast
         placement = place_probes(tracer, scene, probes=p.probes, min_spacing=p.min_spacing,
                                  iterations=p.iterations, contrast=p.contrast, placement_rays=p.placement_rays,

@@ -6,23 +6,11 @@ The apply half of Shcherbakov (MSU 2017), section 5: for the current lights,
    several stratified points per patch and at every mesh vertex, with shadow
    rays through the shared BVH:
 
-   - rect / disk lights: uniform points on the emitter (its plane is normal to
-     the light's -Z; the in-plane axes come from a tangent frame of that
-     direction, so a non-square rect light's rotation about its axis is not
-     honoured), ``E = L A cos_x cos_l / d^2`` averaged;
-   - sphere lights: uniform directions in the cone the sphere subtends,
-     ``E = L Omega <cos_x V>``;
-   - distant lights: ``light_radiance`` is the radiance over the cone of full
-     apex angle ``angle`` (E = L Omega <cos V>), or, for angle 0, the
-     irradiance on a surface facing the light (a delta light) -- the
-     convention of processors/kernels/lighting.py, shared with light_probes;
-   - dome lights: uniform sky radiance L, ``E = pi L <V>`` over cosine-weighted
-     directions (texture files are ignored);
-   - emissive triangles (``emissiveColor`` as radiance): area lights, one-sided
-     (front = triangle normal) unless double-sided; by default only when the
-     stage has no UsdLux lights (``emissive_lights``), so a fixture modelled
-     both as a RectLight and as an emissive quad is not counted twice. Emitted
-     light always enters the outgoing radiosity product.
+   ``direct_irradiance`` of the shared light model (kernels/lights.py:
+   UsdLux distant, dome, sphere, rect and disk lights, and emissive
+   triangles picked by power, ``light_samples`` stratified samples per light
+   and ``sky_samples`` rays per dome). Emitted light always enters the
+   outgoing radiosity product.
 
 2. **Indirect irradiance** at the patches, ``E_ind = M E0`` with the
    multi-bounce operator of ``form_factors``: the relight kernel decodes the
@@ -80,237 +68,41 @@ from ..core import Context, Params, Primvar, Processor, Result, param
 from ..core.products import FormFactorProduct, RadiosityProduct
 from ..geometry.mesh import receiver_prims, vertex_normals
 from ..kernels.bc1 import bc1_palette_byte, bc1_third, expand565
-from ..kernels.lighting import cone_direction, distant_solid_angle
+from ..core.scene import Scene
+from ..kernels.lights import Lights, direct_irradiance, has_light, light_bundle, shadow_rays_per_point
 from ..kernels.patches import fragment_of_hit
-from ..kernels.sampling import (
-    concentric_disk,
-    cosine_hemisphere,
-    stratified_pair,
-    tangent_frame,
-)
-from ..core.scene import LIGHT_DOME, Scene
+from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
 from ..kernels.tracer import launch_chunked
 
 wp.set_module_options({"enable_backward": False})
 
-MIN_DISTANCE_RELATIVE = 1e-4
-"""Light-sample distances are clamped to this fraction of the scene diagonal: bounds the 1/d^2
-spike of an area-light sample landing next to the shaded point (a bias only within that distance)."""
-
 
 # ---------------------------------------------------------------------------
-# Direct light
-
-
-@wp.func
-def shadow_visible(mesh: wp.uint64, origin: wp.vec3, direction: wp.vec3, distance: float, epsilon: float) -> float:
-    """1 if nothing lies along the ray within ``distance``. The origin also steps ``epsilon`` along the
-    ray: a vertex on the seam of two meshes (a floor corner under a wall) would otherwise hit the
-    neighbouring surface at t = 0."""
-    if distance <= epsilon:
-        return 1.0
-    if wp.mesh_query_ray_anyhit(mesh, origin + direction * epsilon, direction, distance - epsilon):
-        return 0.0
-    return 1.0
-
-
-@wp.func
-def area_sample(mesh: wp.uint64, p: wp.vec3, n: wp.vec3, origin: wp.vec3, q: wp.vec3, emit_normal: wp.vec3,
-                two_sided: int, area: float, epsilon: float, min_d2: float) -> float:
-    """One sample of E from an emitter point q (per unit radiance): A cos_x cos_l / d^2 * V."""
-    v = q - p
-    d2 = wp.dot(v, v)
-    if d2 <= 0.0:
-        return 0.0
-    d = wp.sqrt(d2)
-    w = v / d
-    cos_x = wp.dot(n, w)
-    cos_l = -wp.dot(emit_normal, w)
-    if two_sided != 0:
-        cos_l = wp.abs(cos_l)
-    if cos_x <= 0.0 or cos_l <= 0.0:
-        return 0.0
-    vis = shadow_visible(mesh, origin, w, d * (1.0 - 1e-4) - 2.0 * epsilon, epsilon)
-    return area * cos_x * cos_l / wp.max(d2, min_d2) * vis
-
-
-@wp.func
-def direct_irradiance_at(
-    mesh: wp.uint64,
-    p: wp.vec3,
-    n: wp.vec3,
-    light_kind: wp.array(dtype=int),
-    light_radiance: wp.array(dtype=wp.vec3),
-    light_position: wp.array(dtype=wp.vec3),
-    light_direction: wp.array(dtype=wp.vec3),
-    light_size: wp.array(dtype=wp.vec2),
-    emitter_vertices: wp.array(dtype=wp.vec3),
-    emitter_normal: wp.array(dtype=wp.vec3),
-    emitter_radiance: wp.array(dtype=wp.vec3),
-    emitter_area: wp.array(dtype=float),
-    emitter_two_sided: wp.array(dtype=int),
-    strata: int,
-    sky_strata: int,
-    epsilon: float,
-    min_d2: float,
-    state: wp.uint32,
-) -> wp.vec3:
-    """Direct irradiance E0 (W/m^2) at p with unit normal n from all lights and emissive triangles,
-    with strata^2 (sky_strata^2 for domes) shadow-ray samples per light."""
-    e = wp.vec3(0.0, 0.0, 0.0)
-    origin = p + n * epsilon
-    samples = strata * strata
-    inv = 1.0 / float(samples)
-    for l in range(light_kind.shape[0]):
-        kind = light_kind[l]
-        radiance = light_radiance[l]
-        axis = light_direction[l]
-        size = light_size[l]
-        acc = float(0.0)
-        if kind == 0:  # distant: radiance over the cone (E = L Omega <cos V>); angle 0: L is the irradiance
-            half = wp.radians(size[0]) * 0.5
-            if half <= 0.0:
-                w = -axis
-                c = wp.dot(n, w)
-                if c > 0.0:
-                    acc = c * shadow_visible(mesh, origin, w, 3.0e38, epsilon)
-            else:
-                cos_max = wp.cos(wp.min(half, wp.pi))
-                omega = distant_solid_angle(size[0])
-                for k in range(samples):
-                    u = stratified_pair(k, strata, state)
-                    w = cone_direction(-axis, cos_max, u[0], u[1])
-                    c = wp.dot(n, w)
-                    if c > 0.0:
-                        acc += omega * c * shadow_visible(mesh, origin, w, 3.0e38, epsilon) * inv
-        elif kind == 1:  # dome: uniform radiance over the sphere, E = pi L <V>
-            frame = tangent_frame(n)
-            sky = sky_strata * sky_strata
-            for k in range(sky):
-                u = stratified_pair(k, sky_strata, state)
-                w = frame * cosine_hemisphere(u[0], u[1])
-                acc += shadow_visible(mesh, origin, w, 3.0e38, epsilon) * (wp.pi / float(sky))
-        elif kind == 2:  # sphere
-            r = size[0]
-            to_c = light_position[l] - p
-            d = wp.length(to_c)
-            if d <= r:
-                acc = wp.pi
-            elif r > 0.0:
-                cos_max = wp.sqrt(wp.max(0.0, 1.0 - r * r / (d * d)))
-                omega = 2.0 * wp.pi * (1.0 - cos_max)
-                for k in range(samples):
-                    u = stratified_pair(k, strata, state)
-                    w = cone_direction(to_c / d, cos_max, u[0], u[1])
-                    c = wp.dot(n, w)
-                    if c > 0.0:
-                        b = wp.dot(w, to_c)
-                        t = b - wp.sqrt(wp.max(0.0, b * b - (d * d - r * r)))
-                        acc += omega * c * shadow_visible(mesh, origin, w, t - 2.0 * epsilon, epsilon) * inv
-        else:  # rect (3) or disk (4): emitter plane normal to the light's -Z
-            frame = tangent_frame(axis)
-            tx = wp.vec3(frame[0, 0], frame[1, 0], frame[2, 0])
-            ty = wp.vec3(frame[0, 1], frame[1, 1], frame[2, 1])
-            area = size[0] * size[1]
-            if kind == 4:
-                area = wp.pi * size[0] * size[0]
-            for k in range(samples):
-                u = stratified_pair(k, strata, state)
-                q = light_position[l]
-                if kind == 3:
-                    q = q + tx * ((u[0] - 0.5) * size[0]) + ty * ((u[1] - 0.5) * size[1])
-                else:
-                    dsk = concentric_disk(u[0], u[1])
-                    q = q + tx * (dsk[0] * size[0]) + ty * (dsk[1] * size[0])
-                acc += area_sample(mesh, p, n, origin, q, axis, 0, area, epsilon, min_d2) * inv
-        e += radiance * acc
-    for t in range(emitter_area.shape[0]):
-        va = emitter_vertices[3 * t]
-        vb = emitter_vertices[3 * t + 1]
-        vc = emitter_vertices[3 * t + 2]
-        acc = float(0.0)
-        for k in range(samples):
-            u = stratified_pair(k, strata, state)
-            s = wp.sqrt(u[0])
-            q = va * (1.0 - s) + vb * (s * (1.0 - u[1])) + vc * (s * u[1])
-            acc += area_sample(mesh, p, n, origin, q, emitter_normal[t], emitter_two_sided[t], emitter_area[t],
-                               epsilon, min_d2) * inv
-        e += emitter_radiance[t] * acc
-    return e
+# Direct light (the shared light model, kernels/lights.py)
 
 
 @wp.kernel
 def direct_kernel(
     start: int,
     mesh: wp.uint64,
+    lights: Lights,
     positions: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
-    light_kind: wp.array(dtype=int),
-    light_radiance: wp.array(dtype=wp.vec3),
-    light_position: wp.array(dtype=wp.vec3),
-    light_direction: wp.array(dtype=wp.vec3),
-    light_size: wp.array(dtype=wp.vec2),
-    emitter_vertices: wp.array(dtype=wp.vec3),
-    emitter_normal: wp.array(dtype=wp.vec3),
-    emitter_radiance: wp.array(dtype=wp.vec3),
-    emitter_area: wp.array(dtype=float),
-    emitter_two_sided: wp.array(dtype=int),
     strata: int,
     sky_strata: int,
     epsilon: float,
-    min_d2: float,
     seed: int,
     irradiance: wp.array(dtype=wp.vec3),
 ):
-    """Direct irradiance at point i (zero for a point without a normal)."""
+    """E0 at point i (zero for a point without a normal): the first term of the radiosity equation's
+    right-hand side, thesis section 5 step 1, by ``direct_irradiance``."""
     i = start + wp.tid()
     n = normals[i]
     if wp.length(n) < 0.5:
         irradiance[i] = wp.vec3(0.0, 0.0, 0.0)
         return
     state = wp.rand_init(seed, i)
-    irradiance[i] = direct_irradiance_at(mesh, positions[i], n, light_kind, light_radiance, light_position,
-                                         light_direction, light_size, emitter_vertices, emitter_normal,
-                                         emitter_radiance, emitter_area, emitter_two_sided, strata, sky_strata,
-                                         epsilon, min_d2, state)
-
-
-def use_emissive(scene: Scene, mode: str) -> bool:
-    """'auto': emissive triangles light the scene only when it has no UsdLux lights (a light fixture
-    modelled twice, as a RectLight and as an emissive quad, would otherwise count twice)."""
-    return mode == "on" or (mode == "auto" and len(scene.lights) == 0)
-
-
-def emitters(scene: Scene, enabled: bool = True) -> dict[str, np.ndarray]:
-    """Emissive triangles as area lights: corners (E*3, 3), normal, radiance, area, two-sidedness."""
-    emissive = (scene.tri_emission.max(axis=1, initial=0.0) > 0) & (scene.tri_areas > 0)
-    tris = np.flatnonzero(emissive & enabled)
-    return {
-        "vertices": scene.points[scene.tri_vertices[tris]].reshape(-1, 3).astype(np.float32),
-        "normal": scene.tri_normals[tris].astype(np.float32), "radiance": scene.tri_emission[tris].astype(np.float32),
-        "area": scene.tri_areas[tris].astype(np.float32), "two_sided": scene.tri_double_sided[tris].astype(np.int32),
-    }
-
-
-def light_arrays(tracer, scene: Scene, emissive: str = "auto") -> list:
-    """Device arrays for direct_irradiance_at: the UsdLux lights, then the emissive triangles."""
-    lights = scene.lights
-    em = emitters(scene, use_emissive(scene, emissive))
-
-    def arr(values, dtype, shape):
-        return tracer.array(np.asarray(values, np.int32 if dtype is int else np.float32).reshape(shape), dtype)
-
-    return [
-        arr(lights.light_kind, int, (-1,)), arr(lights.light_radiance, wp.vec3, (-1, 3)),
-        arr(lights.light_position, wp.vec3, (-1, 3)), arr(lights.light_direction, wp.vec3, (-1, 3)),
-        arr(lights.light_size, wp.vec2, (-1, 2)),
-        arr(em["vertices"], wp.vec3, (-1, 3)), arr(em["normal"], wp.vec3, (-1, 3)),
-        arr(em["radiance"], wp.vec3, (-1, 3)), arr(em["area"], float, (-1,)), arr(em["two_sided"], int, (-1,)),
-    ]
-
-
-def min_distance_squared(scene: Scene) -> float:
-    return float((MIN_DISTANCE_RELATIVE * scene.diagonal) ** 2)
+    irradiance[i] = direct_irradiance(mesh, lights, positions[i], n, strata, sky_strata, epsilon, state)
 
 
 def compute_direct_irradiance(tracer, scene: Scene, positions: np.ndarray, normals: np.ndarray, *,
@@ -322,19 +114,14 @@ def compute_direct_irradiance(tracer, scene: Scene, positions: np.ndarray, norma
     """
     positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
     normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
-    lights = scene.lights
-    em = emitters(scene, use_emissive(scene, emissive))
-    strata = max(1, int(round(math.sqrt(light_samples))))
-    sky_strata = max(1, int(round(math.sqrt(sky_samples))))
+    strata, sky_strata = strata_for(light_samples), strata_for(sky_samples)
     out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
     tracer.launch(direct_kernel, len(positions), [
-        tracer.mesh.id, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3),
-        *light_arrays(tracer, scene, emissive),
-        strata, sky_strata, tracer.epsilon, min_distance_squared(scene), seed, out,
+        tracer.mesh.id, light_bundle(scene, tracer.device, emissive=emissive), tracer.array(positions, wp.vec3),
+        tracer.array(normals, wp.vec3), strata, sky_strata, tracer.epsilon, seed, out,
     ])
-    per_point = (len(lights) - int((lights.light_kind == LIGHT_DOME).sum())) * strata ** 2 \
-        + int((lights.light_kind == LIGHT_DOME).sum()) * sky_strata ** 2 + len(em["area"]) * strata ** 2
-    tracer.rays_cast += len(positions) * per_point
+    tracer.rays_cast += len(positions) * shadow_rays_per_point(scene, strata=strata, sky_strata=sky_strata,
+                                                               emissive=emissive)
     return np.nan_to_num(out.numpy(), nan=0.0, posinf=0.0, neginf=0.0)
 
 
@@ -618,23 +405,13 @@ def gather_kernel(
 def gather_direct_kernel(
     start: int,
     mesh: wp.uint64,
+    lights: Lights,
     positions: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
     tri_normals: wp.array(dtype=wp.vec3),
     tri_albedo: wp.array(dtype=wp.vec3),
-    light_kind: wp.array(dtype=int),
-    light_radiance: wp.array(dtype=wp.vec3),
-    light_position: wp.array(dtype=wp.vec3),
-    light_direction: wp.array(dtype=wp.vec3),
-    light_size: wp.array(dtype=wp.vec2),
-    emitter_vertices: wp.array(dtype=wp.vec3),
-    emitter_normal: wp.array(dtype=wp.vec3),
-    emitter_radiance: wp.array(dtype=wp.vec3),
-    emitter_area: wp.array(dtype=float),
-    emitter_two_sided: wp.array(dtype=int),
     strata: int,
     epsilon: float,
-    min_d2: float,
     seed: int,
     irradiance: wp.array(dtype=wp.vec3),
 ):
@@ -661,10 +438,7 @@ def gather_direct_kernel(
         if q.result:
             hn = tri_normals[q.face]
             if wp.dot(w, hn) < 0.0:
-                y = origin + w * q.t
-                e0 = direct_irradiance_at(mesh, y, hn, light_kind, light_radiance, light_position, light_direction,
-                                          light_size, emitter_vertices, emitter_normal, emitter_radiance,
-                                          emitter_area, emitter_two_sided, 1, 1, epsilon, min_d2, state)
+                e0 = direct_irradiance(mesh, lights, origin + w * q.t, hn, 1, 1, epsilon, state)
                 e += wp.cw_mul(tri_albedo[q.face], e0)
     irradiance[i] = e / float(rays)
 
@@ -672,22 +446,23 @@ def gather_direct_kernel(
 def gather_first_bounce(tracer, scene: Scene, positions: np.ndarray, normals: np.ndarray, *, rays: int,
                         seed: int = 0, emissive: str = "auto") -> np.ndarray:
     """(N, 3) float32 first-bounce irradiance at points, direct light evaluated at each gather hit."""
-    strata = max(1, int(round(math.sqrt(rays))))
+    strata = strata_for(rays)
     out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
     tracer.launch(gather_direct_kernel, len(positions), [
-        tracer.mesh.id, tracer.array(np.ascontiguousarray(positions, np.float32), wp.vec3),
+        tracer.mesh.id, light_bundle(scene, tracer.device, emissive=emissive),
+        tracer.array(np.ascontiguousarray(positions, np.float32), wp.vec3),
         tracer.array(np.ascontiguousarray(normals, np.float32), wp.vec3),
         tracer.array(scene.tri_normals, wp.vec3), tracer.array(scene.tri_albedo, wp.vec3),
-        *light_arrays(tracer, scene, emissive), strata, tracer.epsilon, min_distance_squared(scene), seed, out,
+        strata, tracer.epsilon, seed, out,
     ])
-    tracer.rays_cast += len(positions) * strata * strata * (1 + len(scene.lights))
+    tracer.rays_cast += len(positions) * strata * strata * (1 + shadow_rays_per_point(scene, emissive=emissive))
     return np.nan_to_num(out.numpy())
 
 
 def gather_irradiance(tracer, scene: Scene, patches, patch_radiosity: np.ndarray, positions: np.ndarray,
                       normals: np.ndarray, *, rays: int, seed: int = 0) -> np.ndarray:
     """(N, 3) float32 irradiance at points from the patches' radiosity (one final-gather bounce)."""
-    strata = max(1, int(round(math.sqrt(rays))))
+    strata = strata_for(rays)
     out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
     tracer.launch(gather_kernel, len(positions), [
         tracer.mesh.id, tracer.array(np.ascontiguousarray(positions, np.float32), wp.vec3),
@@ -756,10 +531,6 @@ def transfer_to_vertices(positions: np.ndarray, normals: np.ndarray, patch_centr
 
 # ---------------------------------------------------------------------------
 # Processor
-
-
-def has_light(scene: Scene) -> bool:
-    return len(scene.lights) > 0 or bool((scene.tri_emission.max(axis=1, initial=0.0) > 0).any())
 
 
 def _patch_points(patches, points_per_patch: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

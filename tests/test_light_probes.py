@@ -10,6 +10,7 @@ from stage_builders import base_context
 import pytest
 
 from usdbake.core.products import ProbeCloud
+from usdbake.kernels.lights import scene_lighting
 from usdbake.processors import light_probes as lp
 from usdbake.geometry import tetrahedra
 from usdbake.core import Context, ParamError
@@ -168,8 +169,18 @@ def normals_eval(coefficients, normals):
     return sh.sh_basis_np(normals) @ np.asarray(coefficients, np.float64)
 
 
-def test_sphere_light_point_source_and_shadow():
-    """A sphere light seen from a probe: the SH is E Y(w) with E = L Omega; behind a wall, zero."""
+def cone_directions(axis_z_half_angle: float, n: int = 400) -> np.ndarray:
+    """(n*n, 3) equal-solid-angle midpoints of a cone of the given half-angle around +z."""
+    u = (np.arange(n) + 0.5) / n
+    z = 1.0 - u[:, None] * (1.0 - math.cos(axis_z_half_angle))
+    phi = 2.0 * math.pi * u[None, :]
+    r = np.sqrt(1.0 - z * z)
+    return np.stack(np.broadcast_arrays(r * np.cos(phi), r * np.sin(phi), z), axis=-1).reshape(-1, 3)
+
+
+def test_sphere_light_is_its_cone_of_radiance_and_a_wall_shadows_it():
+    """A sphere light seen from a probe: its radiance SH is L times the SH integral over the cone it
+    subtends (computed here by dense quadrature); behind a wall, zero."""
     radius, distance, radiance = 0.1, 3.0, 50.0
     wall_points, wall_tris = quad([1.5, -5, -5], [0, 10, 0], [0, 0, 10])
     scene = make_scene(wall_points, wall_tris, albedo=0.0, lights=make_lights(
@@ -177,9 +188,15 @@ def test_sphere_light_point_source_and_shadow():
     tracer = Tracer.from_scene(scene)
     probes = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]])  # the second one has the wall (x = 1.5) between
     got = lp.compute_probe_sh(tracer, scene, probes, rays=16, seed=1)
-    omega = 2 * math.pi * (1 - math.sqrt(1 - (radius / distance) ** 2))
-    expected = sh.irradiance_sh_np(radiance * omega * sh.sh_basis_np([[0, 0, 1]])[0])
-    np.testing.assert_allclose(got[0, :, 0], expected, rtol=1e-4)
+    half = math.asin(radius / distance)
+    omega = 2 * math.pi * (1 - math.cos(half))
+    basis = sh.sh_basis_np(cone_directions(half))
+    expected = sh.irradiance_sh_np(radiance * omega * basis.mean(axis=0))
+    # 16 stratified samples of the cone: each coefficient is off by at most L Omega A_l times the spread
+    # of its basis function over the cone, plus float32 rounding of the sums (1e-4 of band 0).
+    spread = radiance * omega * sh.COSINE_LOBE * (basis.max(axis=0) - basis.min(axis=0))
+    np.testing.assert_array_less(np.abs(got[0, :, 0] - expected), spread + 1e-4 * expected[0])
+    np.testing.assert_allclose(got[0, 0, 0], expected[0], rtol=1e-4)  # band 0 is exact: L Omega Y_00
     # probe 2 at (3, 0, 0): the line to the lamp (0, 0, 3) crosses x = 1.5 at z = 1.5, inside the wall
     np.testing.assert_allclose(got[1], 0.0, atol=1e-6)
 
@@ -240,7 +257,7 @@ def test_probes_never_inside_closed_geometry():
     # inside the room's bounds, and clear of every surface by the clearance
     assert (positions >= [-5, -5, 0]).all() and (positions <= [5, 5, 4]).all()
     tracer = Tracer.from_scene(scene)
-    _, nearest = lp.classify_points(tracer, lp.Lighting(tracer, scene), positions)
+    _, nearest = lp.classify_points(tracer, scene_lighting(scene, tracer.device), positions)
     assert nearest.min() >= lp.CLEARANCE_FRACTION * result.stats["min_spacing"] * (1 - 1e-6)
     spacing = np.linalg.norm(positions[:, None] - positions[None], axis=2) + np.eye(len(positions)) * 1e9
     # merged to min_spacing; the probes beside blockers (leak fixing) to half of it
@@ -251,7 +268,7 @@ def test_classify_points_inside_outside():
     points, tris = cube([-1, -1, -1], [1, 1, 1])
     scene = make_scene(points, tris, lights=make_lights((LIGHT_DOME, [1, 1, 1], (0, 0, 0), (0, 0, -1), (0, 0))))
     tracer = Tracer.from_scene(scene)
-    inside, nearest = lp.classify_points(tracer, lp.Lighting(tracer, scene),
+    inside, nearest = lp.classify_points(tracer, scene_lighting(scene, tracer.device),
                                          np.array([[0, 0, 0], [0.9, 0.2, -0.5], [3, 0, 0], [0, 0, -2.5]]))
     np.testing.assert_array_equal(inside, [True, True, False, False])
     assert nearest[0] == pytest.approx(1.0, rel=1e-5)  # the axis rays meet the faces at distance 1

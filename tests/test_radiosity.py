@@ -11,6 +11,7 @@ from usdbake.processors import form_factors as ff
 from usdbake.processors import radiosity as rad
 from usdbake.core import Context, Primvar
 from usdbake.geometry.mesh import vertex_normals
+from usdbake.kernels.lights import emissive_lights
 from usdbake.core.scene import (
     LIGHT_DISK,
     LIGHT_DISTANT,
@@ -82,7 +83,7 @@ def test_emissive_triangles_light_like_a_rect_when_no_usdlux_lights():
     x = size / (2 * height)
     f = 2 / math.pi * (2 * x / math.sqrt(1 + x * x) * math.atan(x / math.sqrt(1 + x * x)))
     np.testing.assert_allclose(direct_at_origin(scene), radiance * math.pi * f, rtol=DIRECT_TOLERANCE)
-    assert rad.use_emissive(scene, "auto") and not rad.use_emissive(scene, "off")
+    assert emissive_lights(scene, "auto") and not emissive_lights(scene, "off")
 
 
 def test_blocker_casts_a_shadow():
@@ -150,7 +151,7 @@ def test_processor_end_to_end(lit_box):
 
 
 def test_vertex_indirect_agrees_with_a_path_tracer(lit_box):
-    from usdbake.benchmarks.bench_radiosity import path_traced_indirect
+    from usdbake.benchmarks.references import path_traced_indirect
 
     scene, tracer, product = lit_box
     ids = np.arange(scene.num_points)

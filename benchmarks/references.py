@@ -1,0 +1,151 @@
+"""Independent references the benchmarks and tests measure processors against.
+
+They share the light model (kernels/lights.py) with the processors, so they
+check the transport, not the reading of lights: a path tracer for multi-bounce
+indirect irradiance, and a brute-force ray cast of one-bounce irradiance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+from usdbake.kernels.lights import (Lights, Surfaces, direct_irradiance, emissive_lights, hit_radiance, light_bundle,
+                                    light_sample_at, light_sample_count, shadow_visible, surface_bundle)
+from usdbake.kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
+
+wp.set_module_options({"enable_backward": False})
+
+PATH_CHUNKS = 16
+"""Work items per point of the path tracer: paths are split so long runs use every thread."""
+
+
+@wp.kernel
+def indirect_paths_kernel(
+    start: int,
+    mesh: wp.uint64,
+    lights: Lights,
+    positions: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    tri_normals: wp.array(dtype=wp.vec3),
+    tri_albedo: wp.array(dtype=wp.vec3),
+    paths_per_item: int,
+    chunks: int,
+    bounces: int,
+    epsilon: float,
+    seed: int,
+    out: wp.array(dtype=wp.vec3),
+):
+    """Sum over paths of the indirect irradiance estimate at point item // chunks.
+
+    A cosine-weighted path x -> y1 -> y2 ...: the estimate of E_ind(x) is
+    sum_h (rho(y1) ... rho(yh)) E0(yh), with E0 by one next-event sample per light
+    (the Neumann series of the radiosity equation, truncated after ``bounces`` terms).
+    """
+    item = start + wp.tid()
+    v = item // chunks
+    n = normals[v]
+    total = wp.vec3(0.0, 0.0, 0.0)
+    if wp.length(n) < 0.5:
+        out[item] = total
+        return
+    state = wp.rand_init(seed, item)
+    for path in range(paths_per_item):
+        p = positions[v]
+        normal = n
+        throughput = wp.vec3(1.0, 1.0, 1.0)
+        for h in range(bounces):
+            w = tangent_frame(normal) * cosine_hemisphere(wp.randf(state), wp.randf(state))
+            q = wp.mesh_query_ray(mesh, p + normal * epsilon, w, 3.0e38)
+            if not q.result:
+                break
+            hn = tri_normals[q.face]
+            if wp.dot(w, hn) >= 0.0 or wp.length(hn) < 0.5:
+                break  # back face: absorbed, as in the form factors
+            p = p + normal * epsilon + w * q.t
+            normal = hn
+            throughput = wp.cw_mul(throughput, tri_albedo[q.face])
+            total += wp.cw_mul(throughput, direct_irradiance(mesh, lights, p, normal, 1, 1, epsilon, state))
+    out[item] = total
+
+
+def path_traced_indirect(tracer, scene, positions, normals, *, paths: int, bounces: int = 3, seed: int = 7):
+    """(N, 3) indirect irradiance (W/m^2) at points with unit normals, by path tracing."""
+    per_item = max(1, paths // PATH_CHUNKS)
+    out = wp.zeros(len(positions) * PATH_CHUNKS, dtype=wp.vec3, device=tracer.device)
+    tracer.launch(indirect_paths_kernel, len(positions) * PATH_CHUNKS, [
+        tracer.mesh.id, light_bundle(scene, tracer.device), tracer.array(positions, wp.vec3),
+        tracer.array(normals, wp.vec3), tracer.array(scene.tri_normals, wp.vec3),
+        tracer.array(scene.tri_albedo, wp.vec3), per_item, PATH_CHUNKS, bounces, tracer.epsilon, seed, out])
+    return out.numpy().reshape(len(positions), PATH_CHUNKS, 3).sum(axis=1) / (per_item * PATH_CHUNKS)
+
+
+@wp.kernel
+def point_irradiance_kernel(
+    start: int,
+    mesh: wp.uint64,
+    surfaces: Surfaces,
+    lights: Lights,
+    positions: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    strata: int,
+    seed: int,
+    epsilon: float,
+    include_direct: int,
+    see_emission: int,
+    irradiance: wp.array(dtype=wp.vec3),
+):
+    """E at point i with normal n by strata^2 cosine-weighted rays, E = pi / N sum L, with the incident
+    radiance the irradiance grid sees (``hit_radiance`` at hits, the dome on escape), plus the small
+    lights sampled directly as in the grid; ``include_direct`` 0 keeps only the one-bounce light."""
+    i = start + wp.tid()
+    n = normals[i]
+    if wp.length(n) < 0.5:
+        irradiance[i] = wp.vec3(0.0, 0.0, 0.0)
+        return
+    p = positions[i] + n * epsilon
+    state = wp.rand_init(seed, i)
+    frame = tangent_frame(n)
+    samples = strata * strata
+    total = wp.vec3(0.0, 0.0, 0.0)
+    for k in range(samples):
+        u = stratified_pair(k, strata, state)
+        d = frame * cosine_hemisphere(u[0], u[1])
+        q = wp.mesh_query_ray(mesh, p, d, 3.0e38)
+        if not q.result:
+            if include_direct != 0:
+                total = total + lights.dome_radiance
+        else:
+            total = total + hit_radiance(mesh, surfaces, lights, p, d, q.face, q.t, see_emission, epsilon,
+                                         wp.rand_init(wp.int32(state), samples + k))
+    result = total * (wp.pi / float(samples))
+    if include_direct != 0:
+        for l in range(lights.light_kind.shape[0]):
+            if lights.light_kind[l] == 1:
+                continue
+            count = light_sample_count(lights, l, strata)
+            for k in range(count):
+                s = light_sample_at(lights, l, p, k, strata, state)
+                c = wp.dot(n, s.direction)
+                if s.weight > 0.0 and c > 0.0:
+                    v = shadow_visible(mesh, p, s.direction, s.distance, 0.0)
+                    result = result + lights.light_radiance[l] * (s.weight * c * v / float(count))
+    irradiance[i] = result
+
+
+def point_irradiance(tracer, scene, positions: np.ndarray, normals: np.ndarray, *, rays: int, seed: int = 0,
+                     include_direct: bool = True) -> np.ndarray:
+    """(N, 3) float32 irradiance (W/m^2) at surface points with unit normals by brute-force ray casting:
+    the reference the irradiance grid's reconstruction is measured against."""
+    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+    normals = np.ascontiguousarray(np.nan_to_num(normals), np.float32).reshape(-1, 3)
+    if len(positions) == 0:
+        return np.zeros((0, 3), np.float32)
+    see_emission = int(bool(include_direct) and emissive_lights(scene))
+    strata = strata_for(rays)
+    out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
+    tracer.launch(point_irradiance_kernel, len(positions), [
+        tracer.mesh.id, surface_bundle(scene, tracer.device), light_bundle(scene, tracer.device),
+        tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3), strata, int(seed), tracer.epsilon,
+        int(bool(include_direct)), see_emission, out,
+    ])
+    return np.nan_to_num(out.numpy(), nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)

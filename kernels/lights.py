@@ -1,0 +1,418 @@
+"""The one light model: a Scene's lights on the device and direct irradiance from them.
+
+Every processor that lights surfaces (radiosity, light_probes,
+irradiance_grid) and the benchmarks' references call these functions, so a
+light is read the same way everywhere. Conventions (UsdLux, radiance in
+W/(m^2 sr), irradiance in W/m^2):
+
+- distant: ``light_radiance`` is the radiance over the cone of full apex
+  angle ``angle``, ``E = L Omega <cos V>``; for angle 0 it is the irradiance
+  on a surface facing the light (a delta light, ``E = L cos V``);
+- dome: uniform radiance L over the sphere, ``E = pi L <V>`` with
+  cosine-weighted directions (texture files are ignored); rays that escape
+  the scene see ``dome_radiance``, the sum of the dome lights;
+- sphere: directions uniform in the subtended cone, ``E = L Omega <cos V>``
+  (a point inside the sphere gets ``E = pi L``);
+- rect / disk: uniform points q on the emitter, whose plane is normal to the
+  light's -Z (in-plane axes from a tangent frame, so a non-square rect
+  light's roll about its axis is not honoured), ``E = L A <cos cos' / d^2 V>``;
+- emissive triangles (``emissiveColor`` as radiance): area lights picked in
+  proportion to their power, one-sided unless double-sided. By default they
+  light the scene only when it has no UsdLux lights (a fixture modelled as a
+  RectLight *and* an emissive quad would count twice); their emission is
+  always *seen* by rays that hit them.
+
+The 1/d^2 of a sample next to the shaded point is bounded by
+``min_d2 = (MIN_DISTANCE_RELATIVE * diagonal)^2``. Shadow rays start at
+``p + n epsilon`` and step ``epsilon`` along the ray (``shadow_visible``), so a
+point on the seam of two meshes (a floor corner under a wall) does not hit
+the neighbouring surface at t = 0.
+
+References: Pharr, Jakob & Humphreys, Physically Based Rendering (4th ed.),
+ch. 12 (light sources) and 13.4 (direct lighting, sampling lights by power);
+the UsdLux schema for each light's quantities.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Scene
+from .sampling import concentric_disk, cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
+
+wp.set_module_options({"enable_backward": False})
+
+MIN_DISTANCE_RELATIVE = 1e-4
+"""Light-sample distances are clamped to this fraction of the scene diagonal: bounds the 1/d^2 spike
+of an area-light sample landing next to the shaded point (a bias only within that distance)."""
+
+AREA_SHADOW_SHORTENING = 1e-4
+"""Shadow rays towards a point on an area light stop this fraction short of it, so the emitter's own
+surface (a quad modelled at the light) does not occlude its light."""
+
+NO_HIT = 3.0e38
+"""Shadow-ray length for lights at infinity (float32 max is 3.4e38)."""
+
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+"""Rec. 709 luminance weights: the power an emissive triangle is picked by."""
+
+EMISSIVE_MODES = ("auto", "on", "off")
+
+
+@wp.struct
+class Lights:
+    """A Scene's UsdLux lights and emissive triangles on the device, one bundle for every kernel."""
+
+    light_kind: wp.array(dtype=int)
+    """(L,) one of core.scene.LIGHT_DISTANT .. LIGHT_DISK."""
+    light_radiance: wp.array(dtype=wp.vec3)
+    light_position: wp.array(dtype=wp.vec3)
+    light_direction: wp.array(dtype=wp.vec3)
+    """(L,) unit emission direction (the light's -Z)."""
+    light_size: wp.array(dtype=wp.vec2)
+    """(L,) radius (sphere, disk), width/height (rect) or apex angle in degrees (distant)."""
+    dome_radiance: wp.vec3
+    """Sum of the dome lights' radiance: what a ray that escapes the scene sees."""
+    emitter_vertices: wp.array(dtype=wp.vec3)
+    """(3E,) corners of the emissive triangles that act as lights."""
+    emitter_normal: wp.array(dtype=wp.vec3)
+    emitter_radiance: wp.array(dtype=wp.vec3)
+    emitter_area: wp.array(dtype=float)
+    emitter_two_sided: wp.array(dtype=int)
+    emitter_cdf: wp.array(dtype=float)
+    """(E,) running sum of the emitters' power (luminance * area * sides)."""
+    min_d2: float
+
+
+@wp.struct
+class Surfaces:
+    """What a ray hit shows: per-triangle normal, albedo, emitted radiance and sidedness."""
+
+    tri_normals: wp.array(dtype=wp.vec3)
+    tri_albedo: wp.array(dtype=wp.vec3)
+    tri_emission: wp.array(dtype=wp.vec3)
+    tri_double_sided: wp.array(dtype=int)
+
+
+@wp.struct
+class LightSample:
+    """One sample of a light seen from a point: E = L * weight * cos * V estimates its irradiance."""
+
+    direction: wp.vec3
+    """Unit direction from the point towards the sample."""
+    weight: float
+    """Solid angle the sample stands for (sr): Omega for cones, A cos' / d^2 for area lights; 0: none."""
+    distance: float
+    """Length of the shadow ray that tests the sample."""
+
+
+# ---------------------------------------------------------------------------
+# Device functions
+
+
+@wp.func
+def cone_direction(axis: wp.vec3, cos_max: float, u1: float, u2: float) -> wp.vec3:
+    """Uniform direction in the cone of half-angle acos(cos_max) around unit axis (PBRT 4e, 12.4)."""
+    z = 1.0 - u1 * (1.0 - cos_max)
+    r = wp.sqrt(wp.max(0.0, 1.0 - z * z))
+    phi = 2.0 * wp.pi * u2
+    return tangent_frame(axis) * wp.vec3(r * wp.cos(phi), r * wp.sin(phi), z)
+
+
+@wp.func
+def distant_solid_angle(angle_degrees: float) -> float:
+    """Solid angle (sr) of a distant light's cone of full apex angle ``angle``, 2 pi (1 - cos(angle/2));
+    1 for angle 0 (the intensity of a zero-angle distant light is read as the irradiance it gives)."""
+    half = wp.min(wp.radians(angle_degrees) * 0.5, wp.pi)
+    if half <= 0.0:
+        return 1.0
+    return 2.0 * wp.pi * (1.0 - wp.cos(half))
+
+
+@wp.func
+def shadow_visible(mesh: wp.uint64, origin: wp.vec3, direction: wp.vec3, distance: float, epsilon: float) -> float:
+    """V: 1 if nothing lies along the ray within ``distance``. The origin also steps ``epsilon`` along the
+    ray: a point on the seam of two meshes would otherwise hit the neighbouring surface at t = 0."""
+    if distance <= epsilon:
+        return 1.0
+    if wp.mesh_query_ray_anyhit(mesh, origin + direction * epsilon, direction, distance - epsilon):
+        return 0.0
+    return 1.0
+
+
+@wp.func
+def is_delta_light(lights: Lights, l: int) -> bool:
+    """A zero-angle distant light: one direction, one sample, no random numbers."""
+    return lights.light_kind[l] == 0 and lights.light_size[l][0] <= 0.0
+
+
+@wp.func
+def area_light_sample(p: wp.vec3, q: wp.vec3, emit_normal: wp.vec3, two_sided: int, area: float,
+                      min_d2: float) -> LightSample:
+    """Point q on an emitter of area A facing emit_normal: weight A cos' / max(d^2, min_d2) (PBRT 4e, 12.2)."""
+    s = LightSample()
+    s.direction = wp.vec3(0.0, 0.0, 1.0)
+    s.weight = 0.0
+    s.distance = 0.0
+    v = q - p
+    d2 = wp.dot(v, v)
+    if d2 > 0.0:
+        d = wp.sqrt(d2)
+        s.direction = v / d
+        cos_l = -wp.dot(emit_normal, s.direction)
+        if two_sided != 0:
+            cos_l = wp.abs(cos_l)
+        if cos_l > 0.0:
+            s.weight = area * cos_l / wp.max(d2, min_d2)
+            s.distance = d * (1.0 - AREA_SHADOW_SHORTENING)
+    return s
+
+
+@wp.func
+def sample_light(lights: Lights, l: int, p: wp.vec3, u1: float, u2: float) -> LightSample:
+    """One sample of non-dome light l seen from p (conventions in the module docstring); weight 0 for a
+    dome light and for a point inside a sphere light."""
+    kind = lights.light_kind[l]
+    axis = lights.light_direction[l]
+    size = lights.light_size[l]
+    s = LightSample()
+    s.direction = -axis
+    s.weight = 0.0
+    s.distance = NO_HIT
+    if kind == 0:  # distant: a direction in the cone `angle`, weight Omega (angle 0: -axis, weight 1)
+        s.weight = distant_solid_angle(size[0])
+        half = wp.radians(size[0]) * 0.5
+        if half > 0.0:
+            s.direction = cone_direction(-axis, wp.cos(wp.min(half, wp.pi)), u1, u2)
+    elif kind == 2:  # sphere: a direction in the subtended cone, weight Omega
+        r = size[0]
+        to_c = lights.light_position[l] - p
+        d = wp.length(to_c)
+        if d > r and r > 0.0:
+            cos_max = wp.sqrt(wp.max(0.0, 1.0 - r * r / (d * d)))
+            s.direction = cone_direction(to_c / d, cos_max, u1, u2)
+            s.weight = 2.0 * wp.pi * (1.0 - cos_max)
+            b = wp.dot(s.direction, to_c)
+            s.distance = b - wp.sqrt(wp.max(0.0, b * b - (d * d - r * r)))
+    elif kind == 3 or kind == 4:  # rect / disk: a point on the emitter, weight A cos' / d^2
+        frame = tangent_frame(axis)
+        tx = wp.vec3(frame[0, 0], frame[1, 0], frame[2, 0])
+        ty = wp.vec3(frame[0, 1], frame[1, 1], frame[2, 1])
+        q = lights.light_position[l]
+        area = size[0] * size[1]
+        if kind == 3:
+            q = q + tx * ((u1 - 0.5) * size[0]) + ty * ((u2 - 0.5) * size[1])
+        else:
+            area = wp.pi * size[0] * size[0]
+            dsk = concentric_disk(u1, u2)
+            q = q + tx * (dsk[0] * size[0]) + ty * (dsk[1] * size[0])
+        s = area_light_sample(p, q, axis, 0, area, lights.min_d2)
+    return s
+
+
+@wp.func
+def light_sample_count(lights: Lights, l: int, strata: int) -> int:
+    """strata^2 stratified samples per light; 1 for a delta light."""
+    if is_delta_light(lights, l):
+        return 1
+    return strata * strata
+
+
+@wp.func
+def light_sample_at(lights: Lights, l: int, p: wp.vec3, k: int, strata: int, state: wp.uint32) -> LightSample:
+    """Sample k of light l from p: stratified cell k of a strata x strata grid (a delta light uses none)."""
+    u = wp.vec2(0.5, 0.5)
+    if not is_delta_light(lights, l):
+        u = stratified_pair(k, strata, state)
+    return sample_light(lights, l, p, u[0], u[1])
+
+
+@wp.func
+def pick_emitter(lights: Lights, u: float) -> int:
+    """Index of the emissive triangle whose power-CDF interval holds u * total power (binary search)."""
+    count = lights.emitter_area.shape[0]
+    target = u * lights.emitter_cdf[count - 1]
+    lo = int(0)
+    hi = count - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if lights.emitter_cdf[mid] < target:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@wp.func
+def emitter_pmf(lights: Lights, t: int) -> float:
+    """Probability of picking emissive triangle t (its share of the total power)."""
+    below = float(0.0)
+    if t > 0:
+        below = lights.emitter_cdf[t - 1]
+    return (lights.emitter_cdf[t] - below) / lights.emitter_cdf[lights.emitter_area.shape[0] - 1]
+
+
+@wp.func
+def direct_irradiance(mesh: wp.uint64, lights: Lights, p: wp.vec3, n: wp.vec3, strata: int, sky_strata: int,
+                      epsilon: float, state: wp.uint32) -> wp.vec3:
+    """Direct irradiance E0 (W/m^2) at p with unit normal n: E0 = sum_l L_l <weight cos V> over strata^2
+    stratified samples per light (sky_strata^2 cosine-weighted rays per dome light, E = pi L <V>) plus
+    strata^2 emissive-triangle samples picked by power (weight / pmf). Unbiased; ``state`` must differ
+    between calls that should be independent (the samples are drawn from generators seeded by it)."""
+    e = wp.vec3(0.0, 0.0, 0.0)
+    origin = p + n * epsilon
+    for l in range(lights.light_kind.shape[0]):
+        acc = float(0.0)
+        if lights.light_kind[l] == 1:  # dome
+            frame = tangent_frame(n)
+            sky = sky_strata * sky_strata
+            for k in range(sky):
+                u = stratified_pair(k, sky_strata, state)
+                w = frame * cosine_hemisphere(u[0], u[1])
+                acc += shadow_visible(mesh, origin, w, NO_HIT, epsilon) * (wp.pi / float(sky))
+        elif lights.light_kind[l] == 2 and wp.length(lights.light_position[l] - p) <= lights.light_size[l][0]:
+            acc = wp.pi  # inside a sphere light: radiance from every direction of the hemisphere
+        else:
+            count = light_sample_count(lights, l, strata)
+            inv = 1.0 / float(count)
+            for k in range(count):
+                s = light_sample_at(lights, l, p, k, strata, state)
+                c = wp.dot(n, s.direction)
+                if s.weight > 0.0 and c > 0.0:
+                    acc += s.weight * c * shadow_visible(mesh, origin, s.direction, s.distance - 2.0 * epsilon,
+                                                         epsilon) * inv
+        e += lights.light_radiance[l] * acc
+    if lights.emitter_area.shape[0] > 0:
+        samples = strata * strata
+        pick_state = wp.rand_init(wp.int32(state), -1)
+        for k in range(samples):
+            t = pick_emitter(lights, wp.randf(pick_state))
+            pmf = emitter_pmf(lights, t)
+            if pmf > 0.0:
+                u = stratified_pair(k, strata, state)
+                q = triangle_point(lights.emitter_vertices[3 * t], lights.emitter_vertices[3 * t + 1],
+                                   lights.emitter_vertices[3 * t + 2], u[0], u[1])
+                s = area_light_sample(p, q, lights.emitter_normal[t], lights.emitter_two_sided[t],
+                                      lights.emitter_area[t], lights.min_d2)
+                c = wp.dot(n, s.direction)
+                if s.weight > 0.0 and c > 0.0:
+                    v = shadow_visible(mesh, origin, s.direction, s.distance - 2.0 * epsilon, epsilon)
+                    e += lights.emitter_radiance[t] * (s.weight * c * v / (pmf * float(samples)))
+    return e
+
+
+@wp.func
+def hit_radiance(mesh: wp.uint64, surfaces: Surfaces, lights: Lights, origin: wp.vec3, d: wp.vec3, tri: int,
+                 t: float, see_emission: int, epsilon: float, state: wp.uint32) -> wp.vec3:
+    """Radiance L(origin, -d) leaving the surface a ray hit, one bounce: L_e + rho E0 / pi for a
+    Lambertian surface with E0 by ``direct_irradiance`` (one sample per light); zero on the back of a
+    single-sided triangle (the rendering equation truncated after the first bounce). The ray
+    origin + t d hit triangle ``tri``."""
+    n = surfaces.tri_normals[tri]
+    front = wp.dot(n, d) < 0.0
+    value = wp.vec3(0.0, 0.0, 0.0)
+    if (front or surfaces.tri_double_sided[tri] != 0) and wp.length(n) > 0.5:
+        if not front:
+            n = -n
+        e = direct_irradiance(mesh, lights, origin + d * t, n, 1, 1, epsilon, state)
+        value = wp.cw_mul(surfaces.tri_albedo[tri], e) / wp.pi
+        if see_emission != 0:
+            value = value + surfaces.tri_emission[tri]
+    return value
+
+
+# ---------------------------------------------------------------------------
+# Host
+
+
+def emissive_lights(scene: Scene, mode: str = "auto") -> bool:
+    """Whether emissive triangles act as lights: 'on', 'off', or 'auto' = only when the stage has no
+    UsdLux lights (a fixture modelled as a light and as an emissive quad would count twice)."""
+    if mode not in EMISSIVE_MODES:
+        raise ValueError(f"emissive mode {mode!r} is not one of {list(EMISSIVE_MODES)}")
+    return mode == "on" or (mode == "auto" and len(scene.lights) == 0)
+
+
+def has_light(scene: Scene) -> bool:
+    """The scene holds a UsdLux light or an emissive triangle with positive radiance."""
+    emissive = bool((scene.tri_emission.max(axis=1, initial=0.0) > 0).any()) if scene.num_triangles else False
+    lit = bool((np.asarray(scene.lights.light_radiance).max(axis=1, initial=0.0) > 0).any()) \
+        if len(scene.lights) else False
+    return emissive or lit
+
+
+def emitter_triangles(scene: Scene, mode: str = "auto") -> np.ndarray:
+    """(E,) int32 triangles that act as area lights."""
+    if not emissive_lights(scene, mode) or not scene.num_triangles:
+        return np.zeros(0, np.int32)
+    return np.flatnonzero((scene.tri_emission.max(axis=1) > 0) & (scene.tri_areas > 0)).astype(np.int32)
+
+
+def light_bundle(scene: Scene, device, *, emissive: str = "auto") -> Lights:
+    """The scene's lights as a ``Lights`` struct on ``device``."""
+    lights = scene.lights
+    tris = emitter_triangles(scene, emissive)
+    emission = scene.tri_emission[tris].astype(np.float64)
+    power = (emission @ LUMINANCE) * scene.tri_areas[tris] * np.where(scene.tri_double_sided[tris], 2.0, 1.0)
+    dome = np.asarray(lights.light_kind) == LIGHT_DOME
+    bundle = Lights()
+    bundle.light_kind = _array(lights.light_kind, int, device)
+    bundle.light_radiance = _array(lights.light_radiance, wp.vec3, device)
+    bundle.light_position = _array(lights.light_position, wp.vec3, device)
+    bundle.light_direction = _array(lights.light_direction, wp.vec3, device)
+    bundle.light_size = _array(lights.light_size, wp.vec2, device)
+    bundle.dome_radiance = wp.vec3(*np.asarray(lights.light_radiance, np.float64)[dome].sum(axis=0).tolist()) \
+        if dome.any() else wp.vec3(0.0, 0.0, 0.0)
+    bundle.emitter_vertices = _array(scene.points[scene.tri_vertices[tris]].reshape(-1, 3), wp.vec3, device)
+    bundle.emitter_normal = _array(scene.tri_normals[tris], wp.vec3, device)
+    bundle.emitter_radiance = _array(scene.tri_emission[tris], wp.vec3, device)
+    bundle.emitter_area = _array(scene.tri_areas[tris], float, device)
+    bundle.emitter_two_sided = _array(scene.tri_double_sided[tris], int, device)
+    bundle.emitter_cdf = _array(np.cumsum(np.maximum(power, 0.0)), float, device)
+    bundle.min_d2 = float((MIN_DISTANCE_RELATIVE * max(scene.diagonal, 1e-30)) ** 2)
+    return bundle
+
+
+def surface_bundle(scene: Scene, device) -> Surfaces:
+    """The scene's per-triangle materials as a ``Surfaces`` struct on ``device``."""
+    surfaces = Surfaces()
+    surfaces.tri_normals = _array(scene.tri_normals, wp.vec3, device)
+    surfaces.tri_albedo = _array(scene.tri_albedo, wp.vec3, device)
+    surfaces.tri_emission = _array(scene.tri_emission, wp.vec3, device)
+    surfaces.tri_double_sided = _array(scene.tri_double_sided, int, device)
+    return surfaces
+
+
+@dataclass(frozen=True)
+class SceneLighting:
+    """A scene's surfaces and lights on one device, built once per run and passed to every launch."""
+
+    surfaces: Surfaces
+    lights: Lights
+    shadow_rays: int
+    """Shadow rays of one ``direct_irradiance`` call with one sample per light."""
+
+
+def scene_lighting(scene: Scene, device, *, emissive: str = "auto") -> SceneLighting:
+    return SceneLighting(surface_bundle(scene, device), light_bundle(scene, device, emissive=emissive),
+                         shadow_rays_per_point(scene, emissive=emissive))
+
+
+def shadow_rays_per_point(scene: Scene, *, strata: int = 1, sky_strata: int = 1, emissive: str = "auto") -> int:
+    """Shadow rays ``direct_irradiance`` casts at one point (for the rays-per-second figures)."""
+    kind = np.asarray(scene.lights.light_kind)
+    delta = (kind == LIGHT_DISTANT) & (np.asarray(scene.lights.light_size).reshape(-1, 2)[:, 0] <= 0)
+    domes = int((kind == LIGHT_DOME).sum())
+    sampled = int(np.isin(kind, (LIGHT_DISTANT, LIGHT_SPHERE, LIGHT_RECT, LIGHT_DISK)).sum()) - int(delta.sum())
+    emitters = strata * strata if len(emitter_triangles(scene, emissive)) else 0
+    return int(delta.sum()) + sampled * strata * strata + domes * sky_strata * sky_strata + emitters
+
+
+def _array(values, dtype, device) -> wp.array:
+    numpy_type = np.int32 if dtype is int else np.float32
+    width = {wp.vec3: 3, wp.vec2: 2}.get(dtype)
+    values = np.ascontiguousarray(np.asarray(values, numpy_type).reshape((-1, width) if width else (-1,)))
+    return wp.array(values, dtype=dtype, device=device)
