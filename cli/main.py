@@ -65,6 +65,7 @@ def make_parser() -> argparse.ArgumentParser:
     bench.add_argument("--quick", action="store_true", help="small sweeps (< 3 minutes in all)")
     bench.add_argument("--results", metavar="DIR", help="write results and report to DIR, not the checkout")
     listing = commands.add_parser("list", help="list processors and their parameters")
+    listing.add_argument("names", nargs="*", metavar="NAME", help="processors to list (default: all)")
     listing.add_argument("--json", action="store_true")
     inspect = commands.add_parser("inspect", help="show the baked data a layer holds")
     inspect.add_argument("output")

@@ -95,23 +95,9 @@ and on every writable mesh ``primvars:bake:irradianceGrid`` (color3f[],
 vertex): the reconstructed irradiance E at its points with the area-weighted
 vertex normals (``usdbake preview --channel irradianceGrid``).
 
-Product ``irradiance_grid``: an ``IrradianceGridProduct`` (scene frame).
+Product: an ``IrradianceGridProduct`` (core/products.py; scene frame).
 
-Parameters
-----------
-================ ===== ======= =============================================================
-name             type  default meaning
-================ ===== ======= =============================================================
-cell_size        float 0       cell size in stage units; 0 = from ``vertices``
-vertices         int   20000   target vertex count when cell_size is 0 (an upper bound)
-rays             int   256     rays per grid vertex (rounded to a square for stratification)
-include_direct   bool  True    store direct light too (false: one-bounce indirect only)
-normal_offset    float 0.5     reconstruction point moved this many cells along the normal
-reconstruction   str   paper   ``paper``: E = I_n . n; ``normalized``: divided by sum |n_a|^3
-behind_cutoff    bool  False   reconstruction ignores grid vertices behind the surface's plane
-smooth           bool  True    pyramidal smoothing in the push-pull fill of invalid vertices
-seed             int   0       random seed (results are identical across thread counts)
-================ ===== ======= =============================================================
+Parameters: ``usdbake list irradiance_grid`` or docs/irradiance_grid.md, both generated from ``Params`` below.
 """
 
 from __future__ import annotations

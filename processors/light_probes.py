@@ -99,25 +99,9 @@ bake:tetBlockedEdges   uchar[]     6-bit blocked-edge mask per tetrahedron
 bake:shQuantity        token       irradiance (uniform)
 ====================== =========== ============================================
 
-Product ``light_probes``: a ``ProbeCloud`` (positions in the scene frame).
+Product: a ``ProbeCloud`` (core/products.py; positions in the scene frame).
 
-Parameters
-----------
-================ ===== ======= =============================================================
-name             type  default meaning
-================ ===== ======= =============================================================
-probes           int   1024    probe budget (the initial grid has at most half of it, a
-                               quarter is kept for the probes beside blockers)
-min_spacing      float 0       probes closer than this (stage units) merge; 0 = auto (half the
-                               initial grid spacing)
-iterations       int   3       rounds of gradient ascent + spawn + merge (0: the grid only)
-contrast         float 0.25    edge contrast above which a probe is spawned at the midpoint
-rays             int   256     capture rays per probe (rounded to a square)
-placement_rays   int   64      capture rays per probe while placing
-leak_fix         bool  True    wall probes, ray-cast tetrahedron edges, stop interpolation across
-                               blockers
-seed             int   0       random seed (results are identical across thread counts)
-================ ===== ======= =============================================================
+Parameters: ``usdbake list light_probes`` or docs/light_probes.md, both generated from ``Params`` below.
 """
 
 from __future__ import annotations

@@ -35,25 +35,11 @@ primvars:bake:irradianceDirect    color3f[] vertex        direct irradiance E0 (
 primvars:bake:irradianceIndirect  color3f[] vertex        indirect irradiance, k bounces
 ================================= ========= ============= ==============================
 
-Product ``radiosity`` (for later processors): patch centroids, normals, areas,
+Product ``RadiosityProduct`` (core/products.py, for later processors): patch centroids, normals, areas,
 direct and indirect irradiance, and outgoing radiosity ``B = rho (E0 + E_ind)
 + pi L_e`` (W/m^2), one row per patch.
 
-Parameters
-----------
-============== ====== ======= ==========================================================
-name           type   default meaning
-============== ====== ======= ==========================================================
-light_samples  int    16      shadow-ray samples per light (and per emissive triangle)
-sky_samples    int    64      cosine-weighted rays for dome lights
-patch_points   int    16      stratified points per patch for the patch direct light
-gather_rays    int    256     final-gather rays per vertex for the first bounce (0: interpolate all)
-neighbors      int    8       nearest patches blended per vertex
-normal_cos     float  0.5     a patch contributes to a vertex if n_v . n_p > this
-emissive_lights str   auto    emissive triangles as area lights: auto (only when the stage
-                              has no UsdLux lights), on, off
-seed           int    0       random seed (identical results across thread counts)
-============== ====== ======= ==========================================================
+Parameters: ``usdbake list radiosity`` or docs/radiosity.md, both generated from ``Params`` below.
 """
 
 from __future__ import annotations
@@ -605,7 +591,8 @@ class Radiosity(Processor):
 
     @dataclass(frozen=True)
     class Params(Params):
-        light_samples: int = param(16, "shadow-ray samples per light and per emissive triangle", low=1, high=65536)
+        light_samples: int = param(16, "shadow-ray samples per light, and for the emissive triangles "
+                                   "(picked by power)", low=1, high=65536)
         sky_samples: int = param(64, "cosine-weighted rays for dome lights", low=1, high=65536)
         patch_points: int = param(16, "stratified points per patch for the patch direct light", low=1, high=4096)
         gather_rays: int = param(256, "final-gather rays per vertex for the first bounce; 0 = interpolate all",
