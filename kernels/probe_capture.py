@@ -1,0 +1,177 @@
+"""Light captured at points in free space: L2 SH of the incident radiance, and the inside test.
+
+Sukys (Chalmers 2014), section 2.3: a probe stores the irradiance SH of the
+radiance it sees, E_lm = A_l L_lm (Ramamoorthi & Hanrahan 2001, eq. 7-8) with
+L_lm = integral L(w) Y_lm(w) dw estimated by stratified uniform sphere rays.
+Incident radiance is one bounce of the shared light model (kernels/lights.py:
+emission + rho E0 / pi at hits, the dome on escape); small lights are sampled
+directly and projected as the cones or areas they subtend. The inside test
+(``classify_points``) votes with 26 fixed rays: a point that sees mostly the
+backs of single-sided triangles is inside geometry.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..core.scene import Scene
+from .lights import (Lights, SceneLighting, Surfaces, hit_radiance, light_sample_at, light_sample_count,
+                     scene_lighting, shadow_visible)
+from .sampling import strata_for, stratified_pair
+from .sh import COSINE_LOBE, project_kernel, sh_basis, uniform_sphere
+
+wp.set_module_options({"enable_backward": False})
+
+LIGHT_SAMPLES = 16
+"""Stratified samples per small (non-dome) light and probe: a sphere, rect or disk light is too small
+for the uniform capture rays to find, so it is sampled directly (soft shadows at 4 x 4)."""
+
+
+def _directions_26() -> np.ndarray:
+    d = np.array([(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if (x, y, z) != (0, 0, 0)],
+                 np.float64)
+    return (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+
+
+PROBE_DIRECTIONS = _directions_26()
+"""(26, 3) the inside-test rays and Sukys' 26 sampling directions of an SH (axes + pair sums)."""
+
+
+
+@wp.kernel
+def capture_kernel(
+    start: int,
+    mesh: wp.uint64,
+    surfaces: Surfaces,
+    lights: Lights,
+    probe_positions: wp.array(dtype=wp.vec3),
+    strata: int,
+    seed: int,
+    epsilon: float,
+    directions: wp.array(dtype=wp.vec3),
+    radiance: wp.array(dtype=wp.vec3),
+):
+    """Ray i = probe * strata^2 + k: incident radiance L(w) at the probe from stratified direction k
+    (escaped rays see the dome; hits return emission + one bounce of direct light, ``hit_radiance``);
+    the Monte Carlo input of the SH projection, Sukys section 2.3 / Ramamoorthi & Hanrahan eq. 7."""
+    i = start + wp.tid()
+    samples = strata * strata
+    probe = i // samples
+    k = i - probe * samples
+    state = wp.rand_init(seed, i)
+    u = stratified_pair(k, strata, state)
+    d = uniform_sphere(u[0], u[1])
+    directions[i] = d
+    origin = probe_positions[probe]
+    q = wp.mesh_query_ray(mesh, origin, d, 3.0e38)
+    value = lights.dome_radiance
+    if q.result:
+        value = hit_radiance(mesh, surfaces, lights, origin, d, q.face, q.t, 1, epsilon, wp.rand_init(wp.int32(state), samples))
+    radiance[i] = value
+
+
+@wp.kernel
+def probe_lights_kernel(
+    start: int,
+    mesh: wp.uint64,
+    lights: Lights,
+    probe_positions: wp.array(dtype=wp.vec3),
+    strata: int,
+    seed: int,
+    out: wp.array2d(dtype=float),
+):
+    """Radiance SH of the non-dome lights seen from probe i: L_k += L weight V Y_k(w) / count over
+    ``light_sample_at`` samples (a small light is too concentrated for the uniform capture rays)."""
+    i = start + wp.tid()
+    p = probe_positions[i]
+    state = wp.rand_init(seed, i)
+    for l in range(lights.light_kind.shape[0]):
+        if lights.light_kind[l] == 1:
+            continue
+        count = light_sample_count(lights, l, strata)
+        for k in range(count):
+            s = light_sample_at(lights, l, p, k, strata, state)
+            if s.weight > 0.0:
+                c = lights.light_radiance[l] * (s.weight * shadow_visible(mesh, p, s.direction, s.distance, 0.0)
+                                                / float(count))
+                y = sh_basis(s.direction)
+                for j in range(9):
+                    out[i, 3 * j + 0] = out[i, 3 * j + 0] + y[j] * c[0]
+                    out[i, 3 * j + 1] = out[i, 3 * j + 1] + y[j] * c[1]
+                    out[i, 3 * j + 2] = out[i, 3 * j + 2] + y[j] * c[2]
+
+
+@wp.kernel
+def inside_kernel(
+    start: int,
+    mesh: wp.uint64,
+    positions: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    surfaces: Surfaces,
+    back_minus_front: wp.array(dtype=int),
+    nearest: wp.array(dtype=float),
+):
+    """Back-face votes minus front-face votes of the fixed rays, and the nearest hit distance."""
+    i = start + wp.tid()
+    p = positions[i]
+    votes = int(0)
+    near = float(3.0e38)
+    for k in range(directions.shape[0]):
+        d = directions[k]
+        q = wp.mesh_query_ray(mesh, p, d, 3.0e38)
+        if q.result:
+            near = wp.min(near, q.t)
+            if surfaces.tri_double_sided[q.face] == 0:
+                if wp.dot(surfaces.tri_normals[q.face], d) > 0.0:
+                    votes += 1
+                else:
+                    votes -= 1
+    back_minus_front[i] = votes
+    nearest[i] = near
+
+
+def compute_probe_sh(tracer, scene: Scene, positions: np.ndarray, *, rays: int, seed: int = 0,
+                     lighting: SceneLighting | None = None) -> np.ndarray:
+    """Irradiance SH (P, 9, 3) float32 (W/m^2) at probe positions (P, 3) in the scene frame.
+
+    Radiance by one-bounce ray casting (module docstring), projected on L2 SH, plus the
+    non-geometric lights as visible point sources, convolved with the clamped cosine.
+    """
+    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+    count = len(positions)
+    if count == 0:
+        return np.zeros((0, 9, 3), np.float32)
+    lighting = lighting or scene_lighting(scene, tracer.device)
+    strata = strata_for(rays)
+    samples = strata * strata
+    probes_wp = tracer.array(positions, wp.vec3)
+    directions = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
+    radiance = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
+    tracer.launch(capture_kernel, count * samples, [
+        tracer.mesh.id, lighting.surfaces, lighting.lights, probes_wp, strata, int(seed), tracer.epsilon,
+        directions, radiance,
+    ])
+    coefficients = wp.zeros((count, 27), dtype=float, device=tracer.device)
+    tracer.launch(project_kernel, count, [directions, radiance, samples, coefficients])
+    light_strata = strata_for(LIGHT_SAMPLES)
+    tracer.launch(probe_lights_kernel, count, [tracer.mesh.id, lighting.lights, probes_wp, light_strata,
+                                               int(seed) + 1, coefficients])
+    tracer.rays_cast += count * samples * (1 + lighting.shadow_rays) + count * len(scene.lights) * LIGHT_SAMPLES
+    radiance_sh = np.nan_to_num(coefficients.numpy().reshape(count, 9, 3).astype(np.float64),
+                                nan=0.0, posinf=0.0, neginf=0.0)
+    return (radiance_sh * COSINE_LOBE[None, :, None]).astype(np.float32)
+
+
+def classify_points(tracer, lighting: SceneLighting, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(inside (N,) bool, nearest hit distance (N,) float32) by the 26-ray back-face vote."""
+    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+    n = len(positions)
+    votes = wp.zeros(n, dtype=int, device=tracer.device)
+    nearest = wp.zeros(n, dtype=float, device=tracer.device)
+    if n:
+        tracer.launch(inside_kernel, n, [tracer.mesh.id, tracer.array(positions, wp.vec3),
+                                         tracer.array(PROBE_DIRECTIONS, wp.vec3), lighting.surfaces, votes,
+                                         nearest])
+        tracer.rays_cast += n * len(PROBE_DIRECTIONS)
+    return votes.numpy() > 0, nearest.numpy()
