@@ -1,7 +1,8 @@
 """Relight by matrix-vector products with the compressed multi-bounce operator, decoding BC1 on the fly.
 
-Shcherbakov (MSU 2017), section 5: indirect irradiance E_ind = M E0 with M the
-k-bounce operator that ``form_factors`` compressed (section 4: top values exact
+Shcherbakov (MSU 2017), section 3.5 steps 2-4 with the operator of section 4.1:
+indirect irradiance E_ind = M E0 with M = sum_h (F^C)^h the k-bounce operator
+that ``form_factors`` compressed (section 4.2: top values exact
 in a sparse part, the rest as log-quantized codes in BC1 blocks, rows and
 columns reordered). The kernels decode each block's two endpoints into a
 4-entry palette of codes, look the codes up in a 256-entry table and never
@@ -21,6 +22,7 @@ wp.set_module_options({"enable_backward": False})
 
 @wp.func
 def lut_color(lut: wp.array(dtype=float), code: wp.vec3i) -> wp.vec3:
+    """Operator value per channel of an 8-bit log code (section 4.2: v = exp(code * scale + offset))."""
     return wp.vec3(lut[code[0]], lut[code[1]], lut[code[2]])
 
 
@@ -128,6 +130,7 @@ def code_sums_kernel(start: int, x: wp.array(dtype=wp.vec3), sums: wp.array2d(dt
 @wp.func
 def row_from_sums(sums: wp.array2d(dtype=wp.vec3), t: int, p0: wp.vec3, p1: wp.vec3, p2: wp.vec3,
                   p3: wp.vec3) -> wp.vec3:
+    """Sum over the 4 palette entries p of palette[p] * (the x_j whose code is p), for table row t."""
     return (wp.cw_mul(p0, sums[t, 0]) + wp.cw_mul(p1, sums[t, 1]) + wp.cw_mul(p2, sums[t, 2])
             + wp.cw_mul(p3, sums[t, 3]))
 

@@ -1,6 +1,6 @@
 """Light captured at points in free space: L2 SH of the incident radiance, and the inside test.
 
-Sukys (Chalmers 2014), section 2.3: a probe stores the irradiance SH of the
+Sukys (Chalmers 2014), sections 2.3-2.4: a probe stores the irradiance SH of the
 radiance it sees, E_lm = A_l L_lm (Ramamoorthi & Hanrahan 2001, eq. 7-8) with
 L_lm = integral L(w) Y_lm(w) dw estimated by stratified uniform sphere rays.
 Incident radiance is one bounce of the shared light model (kernels/lights.py:
@@ -112,7 +112,8 @@ def inside_kernel(
     back_minus_front: wp.array(dtype=int),
     nearest: wp.array(dtype=float),
 ):
-    """Back-face votes minus front-face votes of the fixed rays, and the nearest hit distance."""
+    """Back-face votes minus front-face votes of the 26 fixed rays from point i, and the nearest hit
+    distance (probes belong in free space, Sukys section 3.1.3; this vote finds those that are not)."""
     i = start + wp.tid()
     p = positions[i]
     votes = int(0)

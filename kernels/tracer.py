@@ -99,6 +99,8 @@ def closest_hit_kernel(
     hit_uv: wp.array(dtype=wp.vec2),
     hit_front: wp.array(dtype=wp.int8),
 ):
+    """Closest hit of ray i within max_t through Warp's BVH (wp.mesh_query_ray): distance t along the unit
+    direction, triangle, barycentrics and side; a miss leaves t = inf and triangle -1."""
     i = start + wp.tid()
     d = directions[i]
     length = wp.length(d)
@@ -122,6 +124,7 @@ def any_hit_kernel(
     max_t: float,
     occluded: wp.array(dtype=wp.int8),
 ):
+    """1 if anything lies along ray i within max_t (wp.mesh_query_ray_anyhit: stops at the first hit)."""
     i = start + wp.tid()
     d = directions[i]
     length = wp.length(d)

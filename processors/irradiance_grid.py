@@ -139,7 +139,8 @@ MAX_GRID_VERTICES = 50_000_000
 
 @wp.func
 def add_to_hemispheres(m: wp.array(dtype=wp.mat33), base: int, w: wp.vec3, o: wp.mat33):
-    """Add o to the (up to) three hemisphere accumulators whose half-space contains w."""
+    """Add o to the (up to) three hemisphere accumulators whose half-space contains w: the six vectors
+    of a grid vertex integrate over the +-x, +-y, +-z hemispheres (Pacanowski et al. section 3.1, eq. 1)."""
     if w[0] > 0.0:
         m[base + 0] = m[base + 0] + o
     elif w[0] < 0.0:

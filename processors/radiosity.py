@@ -79,8 +79,8 @@ def direct_kernel(
     seed: int,
     irradiance: wp.array(dtype=wp.vec3),
 ):
-    """E0 at point i (zero for a point without a normal): the first term of the radiosity equation's
-    right-hand side, thesis section 5 step 1, by ``direct_irradiance``."""
+    """E0 at point i (zero for a point without a normal) by ``direct_irradiance``: the initial
+    irradiance vector of the relight, Shcherbakov section 3.5 step 1, W/m^2."""
     i = start + wp.tid()
     n = normals[i]
     if wp.length(n) < 0.5:
@@ -130,8 +130,9 @@ def gather_kernel(
     seed: int,
     irradiance: wp.array(dtype=wp.vec3),
 ):
-    """Final gather: E(x) = sum_j F_xj B_j, estimated as the mean radiosity B (W/m^2) of the patches
-    that strata^2 cosine-weighted rays from x meet (back faces absorb, as in the form factors)."""
+    """Final gather, Shcherbakov section 3.5 step 5 (the patch solution carried to the original mesh):
+    E(x) = sum_j F_xj B_j, estimated as the mean radiosity B (W/m^2) of the patches that strata^2
+    cosine-weighted rays from x meet (back faces absorb, as in the form factors)."""
     i = start + wp.tid()
     n = normals[i]
     e = wp.vec3(0.0, 0.0, 0.0)
@@ -168,8 +169,9 @@ def gather_direct_kernel(
     seed: int,
     irradiance: wp.array(dtype=wp.vec3),
 ):
-    """First-bounce irradiance at x: mean over cosine-weighted rays of rho(y) E0(y) at the hit point y,
-    with E0 by one shadow-ray sample per light (exact first bounce, no patch averaging)."""
+    """First-bounce irradiance at x, the h = 1 term of the multi-bounce sum of Shcherbakov section 4.1
+    evaluated at x itself: mean over cosine-weighted rays of rho(y) E0(y) at the hit point y, with E0
+    by one shadow-ray sample per light (W/m^2; no patch averaging)."""
     i = start + wp.tid()
     n = normals[i]
     e = wp.vec3(0.0, 0.0, 0.0)
