@@ -1,4 +1,4 @@
-"""python -m benchmarks [NAME ...] [--quick] [--report-only]"""
+"""python -m usdbake.benchmarks [NAME ...] [--quick] [--report-only]"""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ def available() -> dict[str, object]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m usdbake.benchmarks", description=__doc__)
     parser.add_argument("names", nargs="*", help="benchmarks to run (default: all)")
     parser.add_argument("--quick", action="store_true", help="small sweeps for CI (< 3 minutes in all)")
     parser.add_argument("--report-only", action="store_true", help="only regenerate docs/benchmarks.md")

@@ -113,7 +113,7 @@ def inside_kernel(
     nearest: wp.array(dtype=float),
 ):
     """Back-face votes minus front-face votes of the 26 fixed rays from point i, and the nearest hit
-    distance (probes belong in free space, Sukys section 3.1.3; this vote finds those that are not)."""
+    distance (Sukys 3.1.3 keeps probes offset above surfaces; this vote finds those inside geometry)."""
     i = start + wp.tid()
     p = positions[i]
     votes = int(0)

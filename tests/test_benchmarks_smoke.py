@@ -1,4 +1,4 @@
-"""Smoke run of every benchmark's quick sweep (issue #6): ``python -m benchmarks --quick --results DIR``.
+"""Smoke run of every benchmark's quick sweep (issue #6): ``python -m usdbake.benchmarks --quick --results DIR``.
 
 Checks that every bench_*.py runs to completion, writes its JSON with finite figures, stays within the
 issue's 3-minute budget for ``--quick``, leaves the committed results (benchmarks/results/*.json,
@@ -68,7 +68,7 @@ def test_quick_benchmarks_run_and_write_finite_figures(tmp_path):
                          check=False, cwd=REPO, capture_output=True, text=True, timeout=600)
     elapsed = time.perf_counter() - started
     print(run.stdout[-4000:])
-    assert run.returncode == 0, f"python -m benchmarks --quick failed:\n{run.stderr[-4000:]}"
+    assert run.returncode == 0, f"python -m usdbake.benchmarks --quick failed:\n{run.stderr[-4000:]}"
     assert elapsed < QUICK_BUDGET_S, f"--quick took {elapsed:.0f} s (budget {QUICK_BUDGET_S:.0f} s)"
     assert _digest(committed) == before, "a quick run modified the committed benchmark results or report"
     assert (tmp_path / "benchmarks.md").is_file(), "the report was not written to --results"
