@@ -4,7 +4,9 @@ The renovation moved every module of the library; its promise was that no
 result changes by a single bit. ``tests/data/result_fingerprints.json`` was
 recorded by this module before the move (``python tests/result_fingerprints.py``)
 and ``test_result_fingerprints.py`` recomputes it. A deliberate change of
-results re-records it in a commit of its own that says why.
+results re-records only the cases it changes (``python tests/result_fingerprints.py
+light_probes cornell_box/radiosity``) in a commit of its own that says why and
+what was measured.
 """
 
 from __future__ import annotations
@@ -82,7 +84,21 @@ def compute(samples=None, processors=None) -> dict:
     return table
 
 
-if __name__ == "__main__":
+def main(argv: list[str]) -> None:
+    """``python tests/result_fingerprints.py`` records every case; ``... NAME [SAMPLE/NAME ...]`` re-records
+    only those (a processor on every sample, or one case) and keeps the rest as recorded."""
     sys.path.insert(0, str(HERE))
-    RECORD.write_text(json.dumps(compute(), indent=1, sort_keys=True) + "\n")
+    if not argv:
+        table = compute()
+    else:
+        table = json.loads(RECORD.read_text())
+        for case in argv:
+            sample, _, name = case.rpartition("/")
+            samples = [SAMPLES / f"{sample}.usda"] if sample else None
+            table.update(compute(samples, [name]))
+    RECORD.write_text(json.dumps(table, indent=1, sort_keys=True) + "\n")
     print(f"wrote {RECORD}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
