@@ -20,95 +20,19 @@ import time
 
 import numpy as np
 import warp as wp
+from usdbake.kernels.operator_codec import compress_operator
+from usdbake.kernels.operator_relight import Relighter, launch_rows, relight, relight_dense_kernel
 from usdbake.processors import form_factors as ff
 from usdbake.processors import radiosity as rad
 from usdbake.geometry.mesh import receiver_prims, vertex_normals
-from usdbake.kernels.sampling import cosine_hemisphere, tangent_frame
 from usdbake.kernels.tracer import Tracer
 
 from . import harness
+from .references import path_traced_indirect
 
 NAME = "radiosity"
 DESCRIPTION = ("Radiosity transfer: patch count vs indirect-irradiance error against a path tracer "
                "(cornell_box), compression, memory and relight speed (atrium)")
-
-wp.set_module_options({"enable_backward": False})
-
-
-@wp.kernel
-def indirect_paths_kernel(
-    start: int,
-    mesh: wp.uint64,
-    positions: wp.array(dtype=wp.vec3),
-    normals: wp.array(dtype=wp.vec3),
-    tri_normals: wp.array(dtype=wp.vec3),
-    tri_albedo: wp.array(dtype=wp.vec3),
-    light_kind: wp.array(dtype=int),
-    light_radiance: wp.array(dtype=wp.vec3),
-    light_position: wp.array(dtype=wp.vec3),
-    light_direction: wp.array(dtype=wp.vec3),
-    light_size: wp.array(dtype=wp.vec2),
-    emitter_vertices: wp.array(dtype=wp.vec3),
-    emitter_normal: wp.array(dtype=wp.vec3),
-    emitter_radiance: wp.array(dtype=wp.vec3),
-    emitter_area: wp.array(dtype=float),
-    emitter_two_sided: wp.array(dtype=int),
-    paths_per_item: int,
-    chunks: int,
-    bounces: int,
-    epsilon: float,
-    min_d2: float,
-    seed: int,
-    out: wp.array(dtype=wp.vec3),
-):
-    """Sum over paths of the indirect irradiance estimate at vertex item // chunks.
-
-    A cosine-weighted path x -> y1 -> y2 ...: the estimate of E_ind(x) is
-    sum_h (rho(y1) ... rho(yh)) E0(yh), with E0 by one next-event sample per light.
-    """
-    item = start + wp.tid()
-    v = item // chunks
-    n = normals[v]
-    total = wp.vec3(0.0, 0.0, 0.0)
-    if wp.length(n) < 0.5:
-        out[item] = total
-        return
-    state = wp.rand_init(seed, item)
-    for path in range(paths_per_item):
-        p = positions[v]
-        normal = n
-        throughput = wp.vec3(1.0, 1.0, 1.0)
-        for h in range(bounces):
-            w = tangent_frame(normal) * cosine_hemisphere(wp.randf(state), wp.randf(state))
-            q = wp.mesh_query_ray(mesh, p + normal * epsilon, w, 3.0e38)
-            if not q.result:
-                break
-            hn = tri_normals[q.face]
-            if wp.dot(w, hn) >= 0.0 or wp.length(hn) < 0.5:
-                break  # back face: absorbed, as in the form factors
-            p = p + normal * epsilon + w * q.t
-            normal = hn
-            throughput = wp.cw_mul(throughput, tri_albedo[q.face])
-            e0 = rad.direct_irradiance_at(mesh, p, normal, light_kind, light_radiance, light_position,
-                                          light_direction, light_size, emitter_vertices, emitter_normal,
-                                          emitter_radiance, emitter_area, emitter_two_sided, 1, 1, epsilon,
-                                          min_d2, state)
-            total += wp.cw_mul(throughput, e0)
-    out[item] = total
-
-
-def path_traced_indirect(tracer, scene, positions, normals, *, paths: int, bounces: int = 3, seed: int = 7):
-    """(N, 3) indirect irradiance at points by path tracing (the independent reference)."""
-    chunks = 16
-    per_item = max(1, paths // chunks)
-    out = wp.zeros(len(positions) * chunks, dtype=wp.vec3, device=tracer.device)
-    tracer.launch(indirect_paths_kernel, len(positions) * chunks, [
-        tracer.mesh.id, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3),
-        tracer.array(scene.tri_normals, wp.vec3), tracer.array(scene.tri_albedo, wp.vec3),
-        *rad.light_arrays(tracer, scene), per_item, chunks, bounces, tracer.epsilon,
-        rad.min_distance_squared(scene), seed, out])
-    return out.numpy().reshape(len(positions), chunks, 3).sum(axis=1) / (per_item * chunks)
-
 
 def load(name: str):
     from pxr import Usd
@@ -167,14 +91,14 @@ def cornell_sweep(quick: bool):
             "reciprocity_error": product.checks["reciprocity_error"], "row_sum_mean": product.checks["row_sum_mean"],
         })
         if target == default:
-            extra["linear"] = ff.compress_operator(dense["operator"], quantization="linear")
-            extra["no_correction"] = ff.compress_operator(dense["operator"], row_correction=False)
+            extra["linear"] = compress_operator(dense["operator"], quantization="linear")
+            extra["no_correction"] = compress_operator(dense["operator"], row_correction=False)
             extra["dense_patch"], extra["e0"] = dense_patch, e0_patch
             interp = rad.solve(tracer, scene, product, rad.Radiosity.Params(gather_rays=0), ids)
             extra["interpolation_only_error"] = rel_rms(interp["vertex_indirect"], reference)
     for key in ("linear", "no_correction"):
         if key in extra:
-            e = rad.relight(extra[key], extra["e0"], threads=tracer.threads)
+            e = relight(extra[key], extra["e0"], threads=tracer.threads)
             extra[key] = rel_rms(e, extra["dense_patch"])
     return points, extra, len(ids), paths
 
@@ -210,7 +134,7 @@ def atrium_figures(quick: bool) -> dict:
     repeat = 3 if quick else 20
     threads = tracer.threads
 
-    relighter = rad.Relighter(op, threads=threads)
+    relighter = Relighter(op, threads=threads)
     relighter.x.assign(np.vstack([x[op.permutation], np.zeros((op.padded - n, 3), np.float32)]))
     m_rgb = np.ascontiguousarray(operator)  # (3, n, n) float32
 
@@ -221,7 +145,7 @@ def atrium_figures(quick: bool) -> dict:
     x_wp, y_wp = wp.array(x, dtype=wp.vec3), wp.zeros(n, dtype=wp.vec3)
 
     def dense_warp():
-        rad.launch_rows(rad.relight_dense_kernel, n, [m_vec, x_wp, y_wp], "cpu", threads)
+        launch_rows(relight_dense_kernel, n, [m_vec, x_wp, y_wp], "cpu", threads)
 
     k = p.bounces
     albedo = product.patches.patch_albedo
@@ -254,7 +178,7 @@ def atrium_figures(quick: bool) -> dict:
     y_comp[op.permutation] = relighter.y.numpy()[:n]
     passes = {}
     for count in (0, 1, 2):
-        c = op if count == p.reorder_passes else ff.compress_operator(
+        c = op if count == p.reorder_passes else compress_operator(
             operator, exact_fraction=p.exact_fraction, reorder_passes=count)
         passes[count] = {key: c.stats[key] for key in ("error_mean", "error_max", "error_sum")}
     return {

@@ -188,7 +188,12 @@ def decode_bc1(blocks: np.ndarray, height: int, width: int) -> np.ndarray:
 
 @wp.func
 def expand565(color: int) -> wp.vec3i:
-    """RGB565 (low 16 bits of ``color``) -> 8-bit channels, round(v * 255 / 31) and round(v * 255 / 63)."""
+    """RGB565 (low 16 bits of ``color``) -> 8-bit channels, round(v * 255 / 31) and round(v * 255 / 63).
+
+    The BC1 endpoint expansion (Microsoft, "Block Compression (Direct3D 10)",
+    BC1: 5 bits red, 6 green, 5 blue, the layout Shcherbakov (MSU 2017),
+    section 4.2, step 3 describes). Values are byte codes 0..255.
+    """
     r = (color >> 11) & 31
     g = (color >> 5) & 63
     b = color & 31
@@ -198,6 +203,12 @@ def expand565(color: int) -> wp.vec3i:
 @wp.func
 def bc1_palette_byte(word0: int, code: int) -> wp.vec3i:
     """8-bit colour of palette entry ``code`` (0..3) of a block whose first word is ``word0``.
+
+    The BC1 palette (Microsoft, "Block Compression (Direct3D 10)", BC1): with
+    color0 > color1, {c0, c1, (2 c0 + c1) / 3, (c0 + 2 c1) / 3}, else {c0, c1,
+    (c0 + c1) / 2, black}, rounded to the nearest byte as OpenImageIO does.
+    The radiosity relight reads the operator's byte codes through it
+    (Shcherbakov, MSU 2017, section 4.2). Values are byte codes 0..255.
 
     ``word0`` holds color0 in its low 16 bits and color1 in its high 16 bits
     (pass the uint32 reinterpreted as int; only the low 32 bits are used).
@@ -223,19 +234,30 @@ def bc1_palette_byte(word0: int, code: int) -> wp.vec3i:
 
 @wp.func
 def bc1_third(a: wp.vec3i, b: wp.vec3i) -> wp.vec3i:
-    """round((2 a + b) / 3) per channel: the first interpolated colour of the 4-colour mode."""
+    """round((2 a + b) / 3) per channel: the first interpolated colour of the 4-colour mode.
+
+    Microsoft, "Block Compression (Direct3D 10)", BC1 (color_2 = 2/3 color_0 +
+    1/3 color_1); byte codes 0..255.
+    """
     return wp.vec3i((4 * a[0] + 2 * b[0] + 3) // 6, (4 * a[1] + 2 * b[1] + 3) // 6, (4 * a[2] + 2 * b[2] + 3) // 6)
 
 
 @wp.func
 def bc1_index(word1: int, texel: int) -> int:
-    """Palette code of texel ``texel`` (0..15, row-major) from the block's second word."""
+    """Palette code of texel ``texel`` (0..15, row-major) from the block's second word.
+
+    Two bits per texel, texel k in bits 2k..2k+1 (Microsoft, "Block Compression
+    (Direct3D 10)", BC1; Shcherbakov, MSU 2017, section 4.2, step 4).
+    """
     return (word1 >> (2 * texel)) & 3
 
 
 @wp.kernel
 def decode_bc1_kernel(start: int, words: wp.array(dtype=wp.int64), texels: wp.array(dtype=wp.vec3i)):
-    """Reference decode (tests): texels[16 * block + k] = 8-bit colour of texel k."""
+    """Reference decode (tests): texels[16 * block + k] = 8-bit colour of texel k.
+
+    BC1 decoding per Microsoft, "Block Compression (Direct3D 10)"; byte codes 0..255.
+    """
     i = start + wp.tid()
     block = i // 16
     k = i % 16

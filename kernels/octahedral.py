@@ -123,7 +123,14 @@ def decode_hemisphere(codes: np.ndarray, hemisphere: np.ndarray) -> np.ndarray:
 
 @wp.func
 def hemisphere_decode(code: int, frame: wp.mat33) -> wp.vec3:
-    """Warp twin of ``decode_hemisphere`` for one code; ``frame`` rows (t, b, delta)."""
+    """Warp twin of ``decode_hemisphere`` for one code; ``frame`` rows (t, b, delta).
+
+    Decodes the 8-bit hemi-octahedral direction of an irradiance vector
+    (usdbake's 8-bit replacement for the 24-bit direction of Pacanowski et al.
+    2008, Sec. 3.3; the hemi-octahedral map of Cigolle et al. 2014, "A survey
+    of efficient representations for independent unit vectors", JCGT 3(2)).
+    Returns a unit world direction (dimensionless).
+    """
     u = (float(code % 16) + 0.5) / 8.0 - 1.0
     v = (float(code // 16) + 0.5) / 8.0 - 1.0
     px = 0.5 * (u + v)

@@ -4,8 +4,12 @@ A triangle split into m x m congruent fragments (sub-triangles) is addressed in
 barycentric grid coordinates (a, b) = (u m, v m) of the point u v0 + v v1 +
 (1 - u - v) v2 (Warp's mesh_query_ray convention): lower cells (i, j) with
 i + j <= m - 1 are numbered row by row (j), then the upper cells (i, j) with
-i + j <= m - 2 in the same order (form_factors.fragment_template builds the same
+i + j <= m - 2 in the same order (geometry/patches.fragment_template builds the same
 order in numpy).
+
+The fragments are the pieces of the voxel clustering of Shcherbakov (MSU 2017),
+section 5, precompute step 1 (geometry/patches.py): a ray hit is credited to
+the patch of the fragment it lands in.
 """
 
 import warp as wp
@@ -16,7 +20,12 @@ wp.set_module_options({"enable_backward": False})
 @wp.func
 def fragment_of_hit(face: int, u: float, v: float, tri_subdivision: wp.array(dtype=int),
                     tri_fragment_start: wp.array(dtype=int)) -> int:
-    """Fragment id of barycentrics (u, v) on triangle ``face``."""
+    """Global fragment id of barycentrics (u, v) on triangle ``face`` (the inverse of fragment_template's order).
+
+    Maps a ray hit to the fragment, so the voxel-clustered patch, of Shcherbakov
+    (MSU 2017), section 5, precompute step 1. ``u``, ``v`` : Warp mesh_query_ray
+    barycentrics (dimensionless, clamped to [0, 1]).
+    """
     m = tri_subdivision[face]
     a = wp.clamp(u, 0.0, 1.0) * float(m)
     b = wp.clamp(v, 0.0, 1.0) * float(m)
@@ -32,9 +41,3 @@ def fragment_of_hit(face: int, u: float, v: float, tri_subdivision: wp.array(dty
         local = j * m - j * (j - 1) // 2 + i
     return tri_fragment_start[face] + local
 
-
-@wp.func
-def point_in_triangle(a: wp.vec3, b: wp.vec3, c: wp.vec3, r1: float, r2: float) -> wp.vec3:
-    """Uniform point on triangle abc from two uniform numbers (square-root warp)."""
-    s = wp.sqrt(r1)
-    return a * (1.0 - s) + b * (s * (1.0 - r2)) + c * (s * r2)

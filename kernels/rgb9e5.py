@@ -78,7 +78,15 @@ def decode_rgb9e5(packed: np.ndarray) -> np.ndarray:
 
 @wp.func
 def rgb9e5_decode(packed: wp.uint32) -> wp.vec3:
-    """Warp twin of ``decode_rgb9e5`` for one word."""
+    """Warp twin of ``decode_rgb9e5`` for one word.
+
+    value_c = mantissa_c * 2^(exponent - B - N), B = 15, N = 9: the shared
+    exponent colour conversion of OpenGL EXT_texture_shared_exponent, the
+    R9_G9_B9_E5 format Pacanowski et al. 2008, Sec. 3.3 store irradiance
+    colours in (a shared-exponent relative of Ward's RGBE, "Real pixels",
+    Graphics Gems II, 1991). The colour keeps the units it was encoded in
+    (W/m^2 for irradiance).
+    """
     r = float(int(packed & wp.uint32(0x1FF)))
     g = float(int((packed >> wp.uint32(9)) & wp.uint32(0x1FF)))
     b = float(int((packed >> wp.uint32(18)) & wp.uint32(0x1FF)))

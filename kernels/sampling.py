@@ -14,7 +14,14 @@ wp.set_module_options({"enable_backward": False})
 
 @wp.func
 def concentric_disk(u1: float, u2: float) -> wp.vec2:
-    """Shirley-Chiu concentric map of [0,1)^2 onto the unit disk (area preserving, low distortion)."""
+    """Shirley-Chiu concentric map of [0,1)^2 onto the unit disk (area preserving, low distortion).
+
+    Shirley & Chiu 1997, "A low distortion map between disk and square", JGT
+    2(3), in the branch-reduced form of Pharr, Jakob & Humphreys, "Physically
+    Based Rendering" (3rd ed.), sec. 13.6.2: concentric squares go to
+    concentric circles, so uniform (u1, u2) give uniform points on the disk
+    (pdf 1/pi per unit area). Dimensionless.
+    """
     a = 2.0 * u1 - 1.0
     b = 2.0 * u2 - 1.0
     if a == 0.0 and b == 0.0:
@@ -32,7 +39,14 @@ def concentric_disk(u1: float, u2: float) -> wp.vec2:
 
 @wp.func
 def cosine_hemisphere(u1: float, u2: float) -> wp.vec3:
-    """Malley's method: lift the concentric disk sample to the +Z hemisphere, pdf = cos(theta) / pi."""
+    """Malley's method: lift the concentric disk sample to the +Z hemisphere, pdf = cos(theta) / pi.
+
+    Malley 1988 (MS thesis, University of Utah), as in Pharr, Jakob &
+    Humphreys, "Physically Based Rendering" (3rd ed.), sec. 13.6.3: uniform
+    points on the disk projected up to the hemisphere have the density
+    cos(theta) / pi per steradian, so the mean of V over such directions is
+    E / (pi L) under a uniform radiance L. Returns a unit vector, z >= 0.
+    """
     d = concentric_disk(u1, u2)
     z = wp.sqrt(wp.max(0.0, 1.0 - d[0] * d[0] - d[1] * d[1]))
     return wp.vec3(d[0], d[1], z)
@@ -40,7 +54,12 @@ def cosine_hemisphere(u1: float, u2: float) -> wp.vec3:
 
 @wp.func
 def tangent_frame(n: wp.vec3) -> wp.mat33:
-    """Orthonormal basis with n as third column (Duff et al. 2017, branchless and continuous)."""
+    """Orthonormal basis with n as third column (Duff et al. 2017, branchless and continuous).
+
+    Duff, Burgess, Christensen, Hery, Kensler, Liani & Villemin, "Building an
+    orthonormal basis, revisited", JCGT 6(1), 2017. ``n`` must be a unit
+    vector; the frame maps local (x, y, z) to world, z along n.
+    """
     sign = wp.where(n[2] >= 0.0, 1.0, -1.0)
     a = -1.0 / (sign + n[2])
     b = n[0] * n[1] * a
@@ -52,6 +71,11 @@ def tangent_frame(n: wp.vec3) -> wp.mat33:
 @wp.func
 def stratified_pair(index: int, strata: int, state: wp.uint32) -> wp.vec2:
     """Jittered sample in cell ``index`` of a strata x strata grid over [0,1)^2.
+
+    Jittered (stratified) sampling, Cook 1986, "Stochastic sampling in computer
+    graphics", ACM TOG 5(1): one uniform point per cell of the grid, so the
+    estimate's variance falls faster than with independent points.
+    Dimensionless.
 
     The jitter comes from a generator seeded by (state, index). Warp passes
     ``state`` into a @wp.func by value, so drawing from it here would not
@@ -67,6 +91,10 @@ def stratified_pair(index: int, strata: int, state: wp.uint32) -> wp.vec2:
 @wp.func
 def triangle_point(a: wp.vec3, b: wp.vec3, c: wp.vec3, u1: float, u2: float) -> wp.vec3:
     """Uniform point on triangle abc from two uniforms (square-root warp; Osada et al. 2002).
+
+    Osada, Funkhouser, Chazelle & Dobkin, "Shape distributions", ACM TOG 21(4),
+    2002: P = (1 - sqrt(u1)) a + sqrt(u1) (1 - u2) b + sqrt(u1) u2 c has the
+    uniform density 1 / area over the triangle (area in stage units^2).
 
     The caller draws u1 and u2, so its own generator advances (see stratified_pair).
     """

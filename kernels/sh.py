@@ -66,7 +66,14 @@ vec9 = wp.types.vector(length=SH_COUNT, dtype=wp.float32)
 
 @wp.func
 def sh_basis(d: wp.vec3) -> vec9:
-    """The 9 real orthonormal L2 basis functions at unit direction d (order in the module docstring)."""
+    """The 9 real orthonormal L2 basis functions at unit direction d (order in the module docstring).
+
+    The constants of Ramamoorthi & Hanrahan 2001, "An efficient representation
+    for irradiance environment maps" (SIGGRAPH), Sec. 2 (0.282095, 0.488603,
+    1.092548, 0.315392, 0.546274), with the real, phase-free sign convention of
+    the module docstring; orthonormal over the sphere (integral of Y_i Y_j dw =
+    delta_ij).
+    """
     x = d[0]
     y = d[1]
     z = d[2]
@@ -85,7 +92,12 @@ def sh_basis(d: wp.vec3) -> vec9:
 
 @wp.func
 def uniform_sphere(u1: float, u2: float) -> wp.vec3:
-    """Archimedes' map of [0,1)^2 onto the unit sphere (area preserving, pdf = 1 / (4 pi))."""
+    """Archimedes' map of [0,1)^2 onto the unit sphere (area preserving, pdf = 1 / (4 pi)).
+
+    z uniform in [-1, 1] and azimuth uniform in [0, 2 pi) give uniform
+    directions (Archimedes' hat-box theorem; Pharr, Jakob & Humphreys,
+    "Physically Based Rendering" (3rd ed.), sec. 13.6.1). pdf in sr^-1.
+    """
     z = 1.0 - 2.0 * u1
     r = wp.sqrt(wp.max(0.0, 1.0 - z * z))
     phi = 2.0 * wp.pi * u2
@@ -103,6 +115,11 @@ def project_kernel(
     """Radiance SH of item i from its ``samples`` uniform sphere samples (rows i*samples ...).
 
     out[i, 3 k + c] = 4 pi / samples * sum_n L_c(w_n) Y_k(w_n)   (W/(m^2 sr))
+
+    The Monte Carlo estimate of L_lm = integral L(w) Y_lm(w) dw, the lighting
+    coefficients of Ramamoorthi & Hanrahan 2001, Sec. 3.1 (prefiltering),
+    from directions of pdf 1 / (4 pi) (``uniform_sphere``). Multiply by
+    ``COSINE_LOBE`` (their A-hat_l) to get irradiance SH in W/m^2.
     """
     i = start + wp.tid()
     r = vec9()

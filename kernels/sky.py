@@ -225,7 +225,16 @@ def patch_samples(patches: SkyPatches, per_side: int = 3) -> np.ndarray:
 
 @wp.func
 def sample_patch(bounds: wp.vec4, enu_to_world: wp.mat33, u1: float, u2: float) -> wp.vec3:
-    """Uniform (equal solid angle) direction inside a patch: z and azimuth uniform within its bounds."""
+    """Uniform (equal solid angle) direction inside a patch: z and azimuth uniform within its bounds.
+
+    The random samples inside a sky patch of Bosch, Besuievsky & Martin,
+    Sec. 4.1 (Fig. 2 and 4: "generate s random samples within the patch"):
+    z = sin(altitude) and azimuth uniform within the bounds give directions of
+    constant density 1 / dw_j per steradian (Archimedes' hat-box theorem), so
+    the mean over them is the patch average the visibility factor V_ij needs.
+    ``bounds`` : (z_lo, z_hi, azimuth_lo, azimuth_hi), azimuth in radians from
+    north towards east; returns a unit direction in the scene frame.
+    """
     z = bounds[0] + u1 * (bounds[1] - bounds[0])
     azimuth = bounds[2] + u2 * (bounds[3] - bounds[2])
     r = wp.sqrt(wp.max(0.0, 1.0 - z * z))
@@ -422,7 +431,12 @@ def perez_radiance(directions: np.ndarray, sun: np.ndarray, direct_normal: float
 def patch_radiance(patches: SkyPatches, model: str, sun: np.ndarray, *, turbidity: float = 3.0,
                    radiance: float = 1.0, per_side: int = 3, direct_normal: float = 0.0,
                    diffuse_horizontal: float = 0.0, day_of_year: int = 172) -> np.ndarray:
-    """(N, 3) mean radiance of each patch (model averaged over a per_side^2 grid of equal solid angle)."""
+    """(N, 3) mean radiance of each patch (model averaged over a per_side^2 grid of equal solid angle).
+
+    The patch radiance Lhat_j of Bosch, Besuievsky & Martin, Sec. 5, Eq. 1 ("the
+    average radiance of the sky patch j"), in W/(m^2 sr) (visible-equivalent
+    for the preetham and overcast models).
+    """
     directions = patch_samples(patches, per_side)
     if model == "perez":
         values = perez_radiance(directions, sun, direct_normal, diffuse_horizontal, day_of_year)

@@ -71,7 +71,19 @@ def refraction(elevation_deg: np.ndarray, pressure_mbar: float = 1010.0, tempera
 
 def sun_position(local_times, latitude: float, longitude: float, timezone: float = 0.0, *,
                  pressure_mbar: float = 1010.0, temperature_c: float = 10.0, refract: bool = True) -> SunPosition:
-    """Sun zenith and azimuth at local standard times (datetime64 or ISO strings)."""
+    """Sun zenith and azimuth at local standard times (datetime64 or ISO strings).
+
+    The NOAA Solar Calculator's low-precision algorithm after Meeus,
+    "Astronomical Algorithms": the sun's geometric mean longitude L0, mean
+    anomaly M and orbital eccentricity e in Julian centuries since J2000, the
+    equation of centre, the apparent longitude (nutation and aberration), the
+    corrected obliquity, then the declination and the equation of time
+    (Smart's series in y = tan^2(obliquity / 2), e, M and L0); the true solar
+    time gives the hour angle, and cos(zenith) = sin(lat) sin(dec) + cos(lat)
+    cos(dec) cos(H). Angles in degrees, the equation of time in minutes;
+    ``latitude`` degrees north, ``longitude`` degrees east, ``timezone`` hours
+    east of UTC.
+    """
     local = np.atleast_1d(np.asarray(local_times, "datetime64[us]"))
     utc = local - np.timedelta64(int(round(timezone * 3600e6)), "us")
     jc = (julian_day(utc) - 2451545.0) / 36525.0

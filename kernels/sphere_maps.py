@@ -45,7 +45,14 @@ wp.set_module_options({"enable_backward": False})
 
 @wp.func
 def equal_area_square_to_sphere(u: float, v: float) -> wp.vec3:
-    """Clarberg's equal-area octahedral map, [0,1]^2 -> unit sphere (pbrt-v4 EqualAreaSquareToSphere)."""
+    """Clarberg's equal-area octahedral map, [0,1]^2 -> unit sphere (pbrt-v4 EqualAreaSquareToSphere).
+
+    Clarberg, "Fast equal-area mapping of the (hemi)sphere using SIMD", JGT
+    13(3), 2008: equal areas of the square go to equal solid angles, so an N x N
+    grid gives cells of exactly 4 pi / N^2 sr. The positional samples of the
+    displacement fields (Gaitatzes, Chrysanthou & Papaioannou 2008, Sec. 3.3,
+    "Selecting Samples around the Object"; the paper uses Slater's subdivision).
+    """
     a = 2.0 * u - 1.0
     b = 2.0 * v - 1.0
     ap = wp.abs(a)
@@ -64,7 +71,12 @@ def equal_area_square_to_sphere(u: float, v: float) -> wp.vec3:
 
 @wp.func
 def equal_area_sphere_to_square(d: wp.vec3) -> wp.vec2:
-    """Inverse of equal_area_square_to_sphere: unit vector -> [0,1]^2 (O(1): one atan2, one sqrt)."""
+    """Inverse of equal_area_square_to_sphere: unit vector -> [0,1]^2 (O(1): one atan2, one sqrt).
+
+    Clarberg 2008 (JGT 13(3)); the constant-time lookup of a positional sample
+    that Slater's method provides in Gaitatzes et al. 2008, Sec. 3.3 (used by
+    the lookup of Sec. 3.2, "Displacement Field Indexing").
+    """
     x = wp.abs(d[0])
     y = wp.abs(d[1])
     z = wp.abs(d[2])
@@ -89,6 +101,9 @@ def octahedral_wrap(i: int, j: int, n: int) -> wp.vec2i:
 
     The square's border is folded onto itself ((1, v) ~ (1, -v) in [-1,1]^2), so the cell
     beyond the right edge at row j is (n-1, n-1-j); the corners chain both folds.
+    The fold is that of Clarberg's octahedral square (JGT 13(3), 2008); it finds
+    the neighbouring positional samples of Gaitatzes et al. 2008, Sec. 3.2
+    ("Displacement Field Indexing") across the border. Cell indices, no units.
     """
     ii = i
     jj = j
@@ -109,7 +124,11 @@ def octahedral_wrap(i: int, j: int, n: int) -> wp.vec2i:
 
 @wp.func
 def concentric_disk_to_square(x: float, y: float) -> wp.vec2:
-    """Inverse Shirley-Chiu concentric map: unit disk -> [0,1]^2."""
+    """Inverse Shirley-Chiu concentric map: unit disk -> [0,1]^2.
+
+    Shirley & Chiu 1997, "A low distortion map between disk and square", JGT
+    2(3) (the inverse of sampling.concentric_disk; dimensionless).
+    """
     r = wp.sqrt(x * x + y * y)
     if r <= 0.0:
         return wp.vec2(0.5, 0.5)
@@ -136,7 +155,13 @@ def concentric_disk_to_square(x: float, y: float) -> wp.vec2:
 
 @wp.func
 def malley_direction_to_square(d: wp.vec3) -> wp.vec2:
-    """Inverse of sampling.cosine_hemisphere (concentric + Malley): +Z-hemisphere unit vector -> [0,1]^2."""
+    """Inverse of sampling.cosine_hemisphere (concentric + Malley): +Z-hemisphere unit vector -> [0,1]^2.
+
+    The directional layout of Gaitatzes et al. 2008, Sec. 3.4 ("Sampling a
+    Hemisphere of Directions": the concentric map with Malley's method, the
+    best of their Figure 5): each texel of an M x M map covers an equal share
+    of the cosine-weighted hemisphere (pdf cos(theta) / pi per sr).
+    """
     x = d[0]
     y = d[1]
     r2 = x * x + y * y

@@ -1,8 +1,8 @@
 """Daylight relighting from precomputed sky visibility (Bosch, Besuievsky & Martin, Sec. 5).
 
-For each requested local time the sun position comes from ``processors.solar``
+For each requested local time the sun position comes from ``kernels/solar.py``
 (NOAA algorithm), the sky radiance per patch from a sky model
-(``processors.kernels.sky``: Preetham 1999 with turbidity, the Perez 1993
+(``kernels/sky.py``: Preetham 1999 with turbidity, the Perez 1993
 all-weather model driven by direct-normal and diffuse-horizontal irradiance as
 in Radiance's gendaylit, CIE overcast, or
 uniform), averaged over a 3 x 3 grid inside each patch. The outgoing radiance
@@ -109,7 +109,15 @@ def sun_visibility_kernel(
     seed: int,
     visible: wp.array(dtype=float),
 ):
-    """Share of rays from random points of face i toward random points of the solar disk that escape."""
+    """Share of rays from random points of face i toward random points of the solar disk that escape.
+
+    The sun's visibility S_i of Bosch, Besuievsky & Martin, Sec. 5 (they use a
+    shadow map; here rays): directions uniform in solid angle over the cone of
+    half-angle acos(``cos_half_angle``) about ``sun`` (the 0.53 degree disk;
+    uniform cone sampling, Pharr, Jakob & Humphreys, "Physically Based
+    Rendering" (3rd ed.), sec. 13.6.4), origins uniform on the face.
+    Dimensionless in [0, 1]; rays below the face's horizon count as blocked.
+    """
     i = start + wp.tid()
     n = normals[i]
     a = corners[3 * i]
@@ -134,6 +142,10 @@ def relight(visibility: np.ndarray, sky_weights: np.ndarray, *, scale: float = 1
             albedo: np.ndarray | None = None, sun: np.ndarray | None = None, patch_major: bool = False,
             chunk: int = RELIGHT_CHUNK) -> np.ndarray:
     """Paper Eq. 1 as one matrix product: (F, 3) float32 radiance (or irradiance without ``albedo``).
+
+    Bosch, Besuievsky & Martin, Sec. 5, Eq. 1, L_i = rho_i / pi * (sum_j Lhat_j V_ij
+    dw_j + E_sun,i): irradiance in W/m^2, radiance in W/(m^2 sr) with ``albedo``
+    (the 1/pi of a Lambertian BRDF, which the paper's Eq. 1 leaves in rho).
 
     Parameters
     ----------
@@ -167,7 +179,12 @@ def relight(visibility: np.ndarray, sky_weights: np.ndarray, *, scale: float = 1
 
 def compute_sun_visibility(tracer, corners: np.ndarray, normals: np.ndarray, sun: np.ndarray, *,
                            samples: int = 4, seed: int = 0) -> np.ndarray:
-    """(F,) float32 share of the solar disk visible from each face (0 for faces turned away)."""
+    """(F,) float32 share of the solar disk visible from each face (0 for faces turned away).
+
+    S_i of the module docstring (Bosch, Besuievsky & Martin, Sec. 5: the sun's
+    visibility from its current position); dimensionless, launches
+    ``sun_visibility_kernel`` on the faces not wholly turned away.
+    """
     corners = np.ascontiguousarray(corners, np.float32).reshape(-1, 3, 3)
     normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
     sun = np.asarray(sun, np.float64)
@@ -203,7 +220,14 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
                      uniform_radiance: float = 1000.0, direct_normal: float = 600.0,
                      diffuse_horizontal: float = 150.0, sun: bool = True, sun_samples: int = 4, seed: int = 0,
                      progress=lambda f: None) -> tuple[DaylightProduct, dict]:
-    """Radiance of every refined face at every time (see the module docstring)."""
+    """Radiance of every refined face at every time (see the module docstring).
+
+    Bosch, Besuievsky & Martin, Sec. 5 and 5.1: for each time, the sun position
+    (kernels/solar.py), the sky patch radiances Lhat_j (W/(m^2 sr)), the sun's
+    direct normal irradiance (W/m^2) and visibility S_i, then Eq. 1 reusing the
+    precomputed V_ij (``relight``). Returns (T, F, 3) float32 radiance in
+    W/(m^2 sr) in the product, and timing figures.
+    """
     position = sun_position(times, latitude, longitude, timezone)
     turn = enu_to_world("Z", north)  # rotation about up: site ENU -> layout ENU
     corners = product.face_points[product.face_vertices].astype(np.float32)

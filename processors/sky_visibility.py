@@ -3,7 +3,7 @@
 Bosch C., Besuievsky G., Martin I., "A hardware accelerated adaptive mesh
 subdivision for interactive daylight illumination" -- here with Warp BVH ray
 casts instead of occlusion queries. The sky dome is split into patches
-(``processors.kernels.sky``); the visibility factor of triangle i for patch j
+(``kernels/sky.py``); the visibility factor of triangle i for patch j
 is (paper, Sec. 4.1)::
 
     V_ij = 1 / (A_i dw_j) * integral_{A_i} integral_{patch j} vis(x, w) max(0, n_i . w) dw dA
@@ -28,7 +28,7 @@ V_ij: the share of the face's open-sky irradiance that changes across the
 face (0 when every patch is wholly visible or wholly hidden, 1 when half of
 the face is in shadow from the whole sky). A triangle is refined when
 ``partial_i > tolerance``, so faces that see no sky are never refined. The
-refinement is conforming (``processors.refine``: longest-edge closure, no
+refinement is conforming (``geometry/refine.py``: longest-edge closure, no
 T-junctions; watertight input stays watertight).
 
 USD written (bake layer), on each writable mesh prim (not ``bake:skip``, not instanced):
@@ -110,7 +110,17 @@ def patch_visibility_kernel(
     visible: wp.array(dtype=float),
     partial: wp.array(dtype=float),
 ):
-    """V_ij (cosine-weighted visible share) and min(visible, occluded) for pair k = i * N + j."""
+    """V_ij (cosine-weighted visible share) and min(visible, occluded) for pair k = i * N + j.
+
+    The visibility factor of Bosch, Besuievsky & Martin, Sec. 4.1 (Fig. 4:
+    V_ij += (f_v / f_c) cos theta_ik over the patch's samples k, then averaged),
+    with a ray per sample from a uniform point of the triangle instead of the
+    occlusion query's visible-fragment share f_v / f_c: V_ij = (1/s) sum_k
+    vis_k max(0, n_i . w_k), dimensionless in [0, 1]. ``partial`` feeds the
+    refinement test of Sec. 4.2 (0 < V_ij < 1 in the paper): min of the
+    visible and occluded cosine-weighted shares (``criterion = share``), or
+    their sum when both are non-zero (``any_partial``).
+    """
     k = start + wp.tid()
     i = k // num_patches
     j = k - i * num_patches
@@ -161,7 +171,14 @@ def point_sky_view_kernel(
     seed: int,
     view: wp.array(dtype=float),
 ):
-    """Brute-force reference: share of cosine-weighted rays that escape to the sky (above the horizon)."""
+    """Brute-force reference: share of cosine-weighted rays that escape to the sky (above the horizon).
+
+    Estimates E_sky / (pi L) under a uniform sky of radiance L (dimensionless),
+    the quantity Bosch, Besuievsky & Martin, Sec. 5, Eq. 1 gives as
+    sum_j V_ij dw_j / pi, without patches: Malley's cosine-weighted directions
+    (pdf cos(theta) / pi per sr), a ray counting when it escapes and points
+    above the horizon (``up``).
+    """
     i = start + wp.tid()
     n = normals[i]
     view[i] = 0.0
@@ -184,6 +201,9 @@ def compute_point_sky_view(tracer, positions: np.ndarray, normals: np.ndarray, u
                            samples: int = 4096, seed: int = 0) -> np.ndarray:
     """(N,) float32 sky irradiance / (pi L) at points under a uniform sky L, black surroundings.
 
+    Dimensionless; the reference for sum_j V_ij dw_j / pi of Bosch, Besuievsky &
+    Martin, Sec. 5, Eq. 1 with a uniform sky (launches ``point_sky_view_kernel``).
+
     The independent reference the patch factors are checked against: stratified cosine-weighted
     hemisphere rays (no patches), a ray counting when it is unoccluded and points above the horizon.
     """
@@ -204,6 +224,12 @@ def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, p
                              tri_ids: np.ndarray | None = None, criterion: str = "share"
                              ) -> tuple[np.ndarray, np.ndarray]:
     """Visibility factors of triangles for sky patches.
+
+    Bosch, Besuievsky & Martin, Sec. 4.1 (launches ``patch_visibility_kernel``):
+    V_ij = 1 / (A_i dw_j) * integral_{A_i} integral_{patch j} vis(x, w) max(0, n_i . w) dw dA,
+    dimensionless; with patch radiances Lhat_j in W/(m^2 sr), sum_j Lhat_j V_ij
+    dw_j is the sky irradiance of triangle i in W/m^2 (their Eq. 1 without the
+    reflectance).
 
     Parameters
     ----------
@@ -274,6 +300,14 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
                            prims: np.ndarray | None = None, criterion: str = "share", uniform: bool = False,
                            progress=lambda f: None) -> tuple[SkyVisibilityProduct, dict]:
     """Refine the receiver prims adaptively and compute their visibility factors.
+
+    The precompute of Bosch, Besuievsky & Martin, Sec. 3 (Fig. 2) and 4: visibility
+    factors per (triangle, sky patch) (Sec. 4.1), then triangles with partial
+    visibility, area above ``min_area`` (times the scene diagonal^2, stage
+    units^2) and fewer than ``max_level`` four-way splits below their input
+    triangle are split and traced again until nothing splits (Sec. 4.2; here
+    all patches at once rather than patch by patch, with the module docstring's
+    partial-visibility measure and a conforming longest-edge split).
 
     ``adaptive=False`` traces the input mesh only; ``uniform=True`` splits every face ``max_level`` times
     instead (the uniform subdivision the adaptive one is compared with).

@@ -4,11 +4,14 @@ import math
 
 import numpy as np
 import pytest
-from usdbake.core.products import FormFactorProduct
-from usdbake.processors import form_factors as ff
 from usdbake.core import File, Prim
+from usdbake.core.products import FormFactorProduct
 from usdbake.core.scene import Lights, Scene
+from usdbake.geometry import patches as geo_patches
+from usdbake.kernels import operator_codec as codec
+from usdbake.kernels.operator_relight import Relighter, relight
 from usdbake.kernels.tracer import Tracer
+from usdbake.processors import form_factors as ff
 
 # ---------------------------------------------------------------------------
 # Scene helpers (also used by test_radiosity)
@@ -65,8 +68,8 @@ def make_scene(parts, *, albedo=(0.5, 0.5, 0.5), emission=None, lights=None, wri
 
 def form_factors_of(scene, *, voxel, rays, seed=0):
     tracer = Tracer.from_scene(scene)
-    patches = ff.build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
-                               scene.tri_albedo, scene.tri_emission, voxel_size=voxel)
+    patches = geo_patches.build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
+                                        scene.tri_albedo, scene.tri_emission, voxel_size=voxel)
     return patches, ff.compute_form_factors(tracer, patches, scene.tri_normals, rays=rays, seed=seed)
 
 
@@ -139,8 +142,8 @@ def test_closed_box_rows_sum_to_one_and_reciprocity_holds():
 
 def test_patches_cover_the_surface_and_map_hits_to_fragments():
     scene = make_scene(box_parts(size=2.0))
-    patches = ff.build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
-                               scene.tri_albedo, scene.tri_emission, voxel_size=0.5)
+    patches = geo_patches.build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
+                                        scene.tri_albedo, scene.tri_emission, voxel_size=0.5)
     np.testing.assert_allclose(patches.patch_areas.sum(), 24.0, rtol=1e-5)
     assert (patches.tri_subdivision > 1).all()  # 2.8-long triangles split at voxel 0.5
     np.testing.assert_allclose(np.linalg.norm(patches.patch_normals, axis=1), 1.0, rtol=1e-5)
@@ -167,8 +170,8 @@ def test_patches_cover_the_surface_and_map_hits_to_fragments():
 
 def test_voxel_size_is_chosen_for_the_target_count():
     scene = make_scene(box_parts(grid=3))
-    voxel = ff.choose_voxel_size(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas, 600)
-    count = ff.count_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas, voxel)
+    voxel = geo_patches.choose_voxel_size(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas, 600)
+    count = geo_patches.count_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas, voxel)
     assert 400 < count < 900
 
 
@@ -220,7 +223,7 @@ def box_operator():
 def test_compression_keeps_top_entries_exact_and_is_small(box_operator):
     patches, operator = box_operator
     n = patches.count
-    compressed = ff.compress_operator(operator)
+    compressed = codec.compress_operator(operator)
     assert compressed.stats["memory_ratio"] <= 1 / 8
     stored = np.moveaxis(operator, 0, -1)[np.ix_(compressed.permutation, compressed.permutation)]
     rows = np.repeat(np.arange(n), np.diff(compressed.sparse_indptr))
@@ -249,12 +252,12 @@ def test_compressed_relight_matches_dense_and_permutation_is_consistent(box_oper
     dense = np.einsum("cij,jc->ic", operator, e0)
     results = {}
     for passes in (0, 2):
-        compressed = ff.compress_operator(operator, reorder_passes=passes, quantization=quantization)
-        relit = rad.relight(compressed, e0)
+        compressed = codec.compress_operator(operator, reorder_passes=passes, quantization=quantization)
+        relit = relight(compressed, e0)
         # The Warp kernel (decode on the fly) equals the numpy decode of the same data.
-        decoded = np.einsum("cij,jc->ic", ff.decompress_operator(compressed), e0)
+        decoded = np.einsum("cij,jc->ic", codec.decompress_operator(compressed), e0)
         np.testing.assert_allclose(relit, decoded, rtol=1e-4, atol=1e-7)
-        relighter = rad.Relighter(compressed)
+        relighter = Relighter(compressed)
         relighter.apply(e0)
         sums = relighter.y.numpy().copy()
         relighter.apply_stored(texel_loop=True)
@@ -268,8 +271,8 @@ def test_compressed_relight_matches_dense_and_permutation_is_consistent(box_oper
 
 def test_reordering_lowers_the_summed_error(box_operator):
     _, operator = box_operator
-    none = ff.compress_operator(operator, reorder_passes=0, row_correction=False).stats
-    two = ff.compress_operator(operator, reorder_passes=2, row_correction=False).stats
+    none = codec.compress_operator(operator, reorder_passes=0, row_correction=False).stats
+    two = codec.compress_operator(operator, reorder_passes=2, row_correction=False).stats
     assert two["error_sum"] < none["error_sum"]
 
 
@@ -278,7 +281,7 @@ def test_greedy_order_groups_similar_rows():
     base = np.stack([np.zeros(16), np.full(16, 100.0)])
     labels = rng.permutation(np.repeat([0, 1], 10))
     rows = base[labels] + rng.uniform(0, 1, (20, 16))
-    order = ff.greedy_order(rows)
+    order = codec.greedy_order(rows)
     assert sorted(order) == list(range(20))
     assert np.count_nonzero(np.diff(labels[order])) == 1  # one switch between the families
 
@@ -334,5 +337,5 @@ def test_degenerate_triangles_do_not_break_patches():
 def test_too_fine_voxels_are_refused_with_a_message():
     scene = make_scene(box_parts(size=100.0))
     with pytest.raises(ValueError, match="voxel_size=0.01"):
-        ff.build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas, scene.tri_albedo,
-                         scene.tri_emission, voxel_size=0.01)
+        geo_patches.build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
+                                  scene.tri_albedo, scene.tri_emission, voxel_size=0.01)

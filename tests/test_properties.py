@@ -33,8 +33,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 from usdbake.geometry import tetrahedra
-from usdbake.processors import form_factors
-from usdbake.kernels import bc1, rgb9e5, sh, sky
+from usdbake.kernels import bc1, operator_codec, rgb9e5, sh, sky
 from usdbake.kernels import octahedral as oct8
 
 PROPERTY = settings(derandomize=True, max_examples=100, deadline=None)
@@ -367,10 +366,10 @@ def test_log_codes_monotone_and_within_half_a_step(log10_floor, log10_vmax, frac
     vmax = 10.0 ** log10_vmax
     floor = vmax * 10.0 ** log10_floor
     values = np.sort(np.array(fractions) * vmax)
-    codes, scale, offset = form_factors.log_codes(values, floor, vmax)
+    codes, scale, offset = operator_codec.log_codes(values, floor, vmax)
     assert np.all(np.diff(codes) >= 0), "codes must be monotone in the value"
     byte_codes = np.rint(codes).astype(np.int64)
-    decoded = form_factors.code_lut(scale, offset, "log")[byte_codes].astype(np.float64)
+    decoded = operator_codec.code_lut(scale, offset, "log")[byte_codes].astype(np.float64)
     coded = values >= floor
     np.testing.assert_array_equal(decoded[~coded], 0.0, err_msg="values below the floor decode to 0")
     error = np.abs(np.log(decoded[coded]) - np.log(values[coded]))

@@ -1,0 +1,200 @@
+"""Patches by voxel clustering: triangles split into congruent fragments, clustered per voxel and normal axis.
+
+The scene simplification step of Shcherbakov (MSU 2017), section 5 (precompute
+step 1, "automatic simplification of the scene by voxelization"); the thesis
+names the step but not its rule, so the rule below is usdbake's:
+
+- a triangle whose longest edge exceeds the voxel edge is split into ``m x m``
+  congruent sub-triangles (fragments), ``m = ceil(longest edge / voxel)``
+  (at most MAX_SUBDIVISION), numbered as kernels/patches.fragment_of_hit
+  reads them back from ray hits;
+- fragments are clustered by the voxel of their centroid and by the dominant
+  signed axis of their normal (6 bins), so a voxel holding a floor and a wall
+  gives two patches;
+- a patch keeps its area (stage units^2), area-weighted centroid, unit mean
+  normal, area-weighted mean albedo and emission, and the area CDF of its
+  fragments (for sampling points on it).
+
+Pure numpy: arrays in, a ``core.products.Patches`` out.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..core.products import Patches
+
+MAX_SUBDIVISION = 64
+"""Largest m (m^2 fragments) a triangle is split into: bounds fragment counts on huge ground planes."""
+MAX_FRAGMENTS = 8_000_000
+"""Refuse voxel sizes that would split the scene into more fragments than this (~300 MB of corners)."""
+MAX_PATCHES = 16384
+"""The operator is dense: 16384 patches already need 3.2 GB as float32 RGB during the precompute."""
+
+
+def fragment_template(m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Barycentric-grid corners of the m^2 fragments of a triangle, in fragment_of_hit's order.
+
+    Returns (m^2, 3, 2) float64 corner coordinates (u, v) and (m^2,) float64 area share.
+    """
+    corners = []
+    for j in range(m):
+        for i in range(m - j):
+            corners.append([(i, j), (i + 1, j), (i, j + 1)])
+    for j in range(m - 1):
+        for i in range(m - 1 - j):
+            corners.append([(i + 1, j), (i + 1, j + 1), (i, j + 1)])
+    return np.array(corners, np.float64) / m, np.full(m * m, 1.0 / (m * m))
+
+
+def _subdivision(points: np.ndarray, tri_vertices: np.ndarray, voxel: float) -> np.ndarray:
+    corner = points[tri_vertices].astype(np.float64)
+    edges = np.linalg.norm(corner - np.roll(corner, 1, axis=1), axis=2).max(axis=1)
+    return np.clip(np.ceil(edges / voxel), 1, MAX_SUBDIVISION).astype(np.int32)
+
+
+def _fragments(points, tri_vertices, subdivision):
+    """(Fr, 3, 3) float32 fragment corners and (Fr,) int32 triangle of each, in triangle order."""
+    corner = points[tri_vertices].astype(np.float64)  # (T, 3, 3): v0, v1, v2
+    counts = subdivision.astype(np.int64) ** 2
+    start = np.zeros(len(subdivision) + 1, np.int64)
+    np.cumsum(counts, out=start[1:])
+    vertices = np.empty((int(start[-1]), 3, 3), np.float32)
+    fragment_tri = np.repeat(np.arange(len(subdivision), dtype=np.int32), counts)
+    for m in np.unique(subdivision):
+        tris = np.flatnonzero(subdivision == m)
+        uv, _ = fragment_template(int(m))  # (m^2, 3, 2)
+        w = np.concatenate([uv, 1.0 - uv.sum(-1, keepdims=True)], axis=-1)  # weights of v0, v1, v2
+        pos = np.einsum("fcw,twx->tfcx", w, corner[tris])  # (t, m^2, 3, 3)
+        rows = (start[tris][:, None] + np.arange(m * m)[None, :]).ravel()
+        vertices[rows] = pos.reshape(-1, 3, 3)
+    return vertices, fragment_tri, start
+
+
+def _cluster_keys(centres: np.ndarray, normals: np.ndarray, lo: np.ndarray, voxel: float) -> np.ndarray:
+    cell = np.floor((centres - lo) / voxel).astype(np.int64)
+    cell = np.clip(cell, 0, (1 << 20) - 1)
+    axis = np.abs(normals).argmax(axis=1)
+    sign = np.take_along_axis(normals, axis[:, None], 1)[:, 0] < 0
+    direction = axis * 2 + sign
+    return ((cell[:, 0] << 43) | (cell[:, 1] << 23) | (cell[:, 2] << 3) | direction)
+
+
+def build_patches(points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.ndarray, tri_areas: np.ndarray,
+                  tri_albedo: np.ndarray, tri_emission: np.ndarray, *, voxel_size: float) -> Patches:
+    """Cluster triangle fragments into patches per voxel and per dominant normal axis.
+
+    The voxelization of Shcherbakov (MSU 2017), section 5, precompute step 1,
+    by the rule of the module docstring. Patch areas are in stage units^2,
+    albedo dimensionless in [0, 1], emission in the units of ``tri_emission``.
+
+    Parameters
+    ----------
+    points : (P, 3) float32; tri_vertices : (T, 3) int32; tri_normals : (T, 3) float32;
+    tri_areas : (T,) float32; tri_albedo, tri_emission : (T, 3) float32
+    voxel_size : voxel edge (stage units), > 0
+    """
+    if not voxel_size > 0:
+        raise ValueError(f"voxel_size={voxel_size} must be > 0")
+    subdivision = _subdivision(points, tri_vertices, voxel_size)
+    fragments = int((subdivision.astype(np.int64) ** 2).sum())
+    if fragments > MAX_FRAGMENTS:
+        raise ValueError(f"voxel_size={voxel_size:g} splits the scene into {fragments} fragments "
+                         f"(limit {MAX_FRAGMENTS}); use a larger voxel_size")
+    vertices, fragment_tri, start = _fragments(points, tri_vertices, subdivision)
+    valid_tri = (tri_areas > 0) & (np.linalg.norm(tri_normals, axis=1) > 0.5) & np.isfinite(tri_areas)
+    valid = valid_tri[fragment_tri]
+    centres = vertices.mean(axis=1).astype(np.float64)
+    normals = tri_normals[fragment_tri].astype(np.float64)
+    areas = (tri_areas[fragment_tri] / (subdivision[fragment_tri].astype(np.float64) ** 2))
+    lo = points.min(axis=0).astype(np.float64) if len(points) else np.zeros(3)
+    keys = _cluster_keys(centres[valid], normals[valid], lo, voxel_size)
+    _, inverse = np.unique(keys, return_inverse=True)
+    if len(inverse) and int(inverse.max()) + 1 > MAX_PATCHES:
+        raise ValueError(f"voxel_size={voxel_size:g} gives {int(inverse.max()) + 1} patches (limit {MAX_PATCHES}: "
+                         f"the operator is dense, n^2 x 12 bytes); use a larger voxel_size")
+    fragment_patch = np.full(len(fragment_tri), -1, np.int32)
+    fragment_patch[valid] = inverse.astype(np.int32)
+    n = int(inverse.max()) + 1 if len(inverse) else 0
+
+    vp = fragment_patch[valid]
+    w = areas[valid]
+    area = np.bincount(vp, weights=w, minlength=n)
+    safe = np.maximum(area, 1e-300)[:, None]
+
+    def mean(values):
+        return np.stack([np.bincount(vp, weights=values[:, c] * w, minlength=n) for c in range(3)], 1) / safe
+
+    centroid = mean(centres[valid])
+    normal_sum = mean(normals[valid])
+    normal = normal_sum / np.maximum(np.linalg.norm(normal_sum, axis=1, keepdims=True), 1e-30)
+    albedo = mean(tri_albedo[fragment_tri][valid].astype(np.float64))
+    emission = mean(tri_emission[fragment_tri][valid].astype(np.float64))
+
+    order = np.flatnonzero(valid)[np.argsort(vp, kind="stable")]
+    patch_start = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(vp, minlength=n), out=patch_start[1:])
+    cdf = np.cumsum(areas[order])
+    base = np.repeat(np.concatenate([[0.0], cdf])[patch_start[:-1]], np.diff(patch_start))
+    cdf = (cdf - base) / np.repeat(np.maximum(area, 1e-300), np.diff(patch_start))
+    cdf[patch_start[1:] - 1] = 1.0  # exact ends, so the search never runs past a patch
+
+    # The fragment holding a triangle's centre: lower cell of the middle row for m = 1, else search.
+    tri_patch = np.full(len(tri_vertices), -1, np.int32)
+    centre_local = np.array([_centre_fragment(int(m)) for m in range(MAX_SUBDIVISION + 1)], np.int64)
+    tri_patch[:] = fragment_patch[start[:-1] + centre_local[subdivision]]
+    return Patches(
+        patch_centroids=centroid.astype(np.float32), patch_normals=normal.astype(np.float32),
+        patch_areas=area.astype(np.float32), patch_albedo=np.clip(albedo, 0, 1).astype(np.float32),
+        patch_emission=emission.astype(np.float32), patch_fragment_start=patch_start.astype(np.int32),
+        patch_fragments=order.astype(np.int32), patch_fragment_cdf=cdf.astype(np.float32),
+        fragment_vertices=vertices, fragment_tri=fragment_tri, fragment_patch=fragment_patch,
+        tri_subdivision=subdivision, tri_fragment_start=start.astype(np.int32), tri_patch=tri_patch,
+        voxel_size=float(voxel_size))
+
+
+def _centre_fragment(m: int) -> int:
+    """Local index of the fragment containing the barycentre (1/3, 1/3) of an m-split triangle."""
+    if m <= 0:
+        return 0
+    a = b = m / 3.0
+    i = min(int(math.floor(a)), m - 1)
+    j = min(int(math.floor(b)), m - 1)
+    if i + j > m - 1:
+        i = m - 1 - j
+    if (a - i) + (b - j) > 1.0 and i + j <= m - 2:
+        return m * (m + 1) // 2 + j * (m - 1) - j * (j - 1) // 2 + i
+    return j * m - j * (j - 1) // 2 + i
+
+
+def count_patches(points, tri_vertices, tri_normals, tri_areas, voxel: float) -> int:
+    """Number of patches build_patches would make (cheaper: no per-patch means)."""
+    subdivision = _subdivision(points, tri_vertices, voxel)
+    if int((subdivision.astype(np.int64) ** 2).sum()) > MAX_FRAGMENTS:
+        return MAX_PATCHES * 4  # far too many: the voxel search grows the voxel
+    vertices, fragment_tri, _ = _fragments(points, tri_vertices, subdivision)
+    valid = ((tri_areas > 0) & (np.linalg.norm(tri_normals, axis=1) > 0.5))[fragment_tri]
+    lo = points.min(axis=0).astype(np.float64)
+    keys = _cluster_keys(vertices.mean(axis=1)[valid].astype(np.float64),
+                         tri_normals[fragment_tri][valid].astype(np.float64), lo, voxel)
+    return len(np.unique(keys))
+
+
+def choose_voxel_size(points, tri_vertices, tri_normals, tri_areas, target: int) -> float:
+    """Voxel edge (stage units) giving about ``target`` patches (patch count ~ area / voxel^2; a few refinements)."""
+    total = float(tri_areas[np.isfinite(tri_areas)].sum())
+    if total <= 0:
+        return 1.0
+    voxel = math.sqrt(total / target)
+    best, best_err = voxel, math.inf
+    for _ in range(6):
+        count = count_patches(points, tri_vertices, tri_normals, tri_areas, voxel)
+        err = abs(math.log(max(count, 1) / target))
+        if err < best_err:
+            best, best_err = voxel, err
+        if err < 0.05:
+            break
+        voxel *= math.sqrt(max(count, 1) / target)
+    return best

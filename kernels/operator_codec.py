@@ -1,0 +1,257 @@
+"""Compression of the multi-bounce radiosity operator: exact top entries + log-quantized BC1 codes.
+
+Shcherbakov (MSU 2017), section 4.2 ("DXT compression of the form-factor
+matrix"), for a (3, n, n) operator of dimensionless transfer factors (the
+multi-bounce sum of section 4.1, eq. 7):
+
+1. the largest ``exact_fraction`` of the entries (the thesis' 4 %, by their
+   largest channel) are kept exact in a sparse CSR part and zeroed in the rest;
+2. the rest is divided by its largest value, so it lies in [0, 1], and its
+   logarithm is mapped to byte codes 0..255 (the thesis adds the constant 25
+   to ln v and scales to 0..255; here an explicit floor takes the place of
+   that constant: code 0 = below the floor = zero, codes 1..255 uniform in
+   ln v from the floor to the maximum; ``quantization="linear"`` codes v/vmax);
+3. rows and columns are reordered by the thesis' greedy nearest-neighbour
+   passes (L1 distance, "the sum of distances between the vectors'
+   coordinates"; first rows, then columns; the same permutation on both so
+   the matrix still maps patch light to patch light);
+4. the RGB codes are BC1 (DXT1) encoded in 4x4 blocks (kernels/bc1.py),
+   texel (x=j, y=i) = stored entry (i, j).
+
+Beyond the thesis: each decoded row is rescaled per channel so its sum equals
+the exact row sum of the coded part (``row_scale``, (n, 3) float32), which
+removes the bias of the quantization for smooth light; and the reordering
+compares rows by at most SIGNATURE_DIMS column-group means. The errors
+reported (``compression_errors``) are the thesis' table in 4.2: mean, maximum
+and summed absolute error of the BC1 part, relative to its largest value.
+
+Pure numpy: the relight kernel in processors/radiosity.py decodes the blocks
+on the fly with kernels/bc1.py's Warp functions; ``decompress_operator`` is the
+reference decoder for tests and benchmarks.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..core.products import CompressedOperator
+from .bc1 import blocks_to_image, decode_bc1_texels, encode_bc1
+
+AUTO_FLOOR_MASS = 1e-3
+"""Automatic log floor: the residual entries coded as zero sum to at most this share of the residual."""
+ROW_SCALE_LIMIT = 4.0
+"""Bound on the row-sum correction factor (a row whose decoded sum is off by more is left clipped)."""
+SIGNATURE_DIMS = 256
+"""Reordering compares rows by L1 distance over at most this many column groups (means), keeping
+the greedy pass O(n^2 * 256) instead of O(n^3)."""
+
+
+
+def log_codes(values: np.ndarray, floor: float, vmax: float) -> tuple[np.ndarray, float, float]:
+    """Float codes in {0} U [1, 255]: 0 below ``floor``, else 1 + 254 ln(v/floor) / ln(vmax/floor).
+
+    The logarithmic quantization of Shcherbakov (MSU 2017), section 4.2 (values
+    over the largest one, logarithm, shifted and scaled to 0..255), with the
+    explicit ``floor`` in place of the thesis' constant shift of 25. ``values``
+    are dimensionless operator entries; returns the codes (same shape, float32,
+    BC1 rounds them) and (scale, offset) with ln v = code * scale + offset.
+    """
+    span = max(math.log(vmax / floor), 1e-6)
+    scale = span / 254.0
+    offset = math.log(floor) - scale
+    with np.errstate(divide="ignore", invalid="ignore"):
+        codes = np.where(values >= floor, 1.0 + 254.0 * np.log(np.maximum(values, floor) / floor) / span, 0.0)
+    return np.clip(codes, 0.0, 255.0).astype(np.float32), scale, offset
+
+
+def linear_codes(values: np.ndarray, vmax: float) -> tuple[np.ndarray, float, float]:
+    """Float codes in [0, 255] = 255 v / vmax; value = code * scale + offset (offset 0).
+
+    usdbake's linear alternative to the log codes of Shcherbakov (MSU 2017), section 4.2.
+    """
+    return np.clip(values * (255.0 / vmax), 0.0, 255.0).astype(np.float32), vmax / 255.0, 0.0
+
+
+def code_lut(scale: float, offset: float, quantization: str = "log") -> np.ndarray:
+    """(256,) float32 byte code -> value (code 0 is exactly 0 in both schemes).
+
+    Inverts ``log_codes`` (v = exp(code * scale + offset)) or ``linear_codes``
+    (v = code * scale + offset); the relight kernel reads this table.
+    """
+    codes = np.arange(256, dtype=np.float64)
+    lut = np.exp(offset + scale * codes) if quantization == "log" else offset + scale * codes
+    lut[0] = 0.0
+    return lut.astype(np.float32)
+
+
+def auto_floor(residual_max: np.ndarray, vmax: float, mass: float = AUTO_FLOOR_MASS) -> float:
+    """Largest floor such that entries below it sum to at most ``mass`` of the residual (sampled).
+
+    usdbake's choice of the log floor (the thesis, section 4.2, uses a fixed
+    shift of 25 in ln v instead). ``residual_max`` : (n, n) float32 largest
+    channel of each coded entry.
+    """
+    flat = residual_max[residual_max > 0].astype(np.float64)
+    if len(flat) == 0:
+        return vmax * 1e-6
+    if len(flat) > 4_000_000:
+        flat = np.random.default_rng(0).choice(flat, 4_000_000, replace=False)
+    flat.sort()
+    cum = np.cumsum(flat)
+    k = int(np.searchsorted(cum, mass * cum[-1], side="right"))
+    floor = flat[min(k, len(flat) - 1)]
+    return float(min(max(floor, vmax * 1e-12), vmax * 0.5))
+
+
+def greedy_order(signatures: np.ndarray) -> np.ndarray:
+    """The thesis' greedy pass: starting at item 0, repeatedly append the nearest (L1) remaining item.
+
+    Shcherbakov (MSU 2017), section 4.2: the ordering is a travelling-salesman
+    problem over rows with the L1 distance; the greedy heuristic puts after each
+    row the closest one not yet placed. ``signatures`` : (n, d) float; returns
+    the (n,) int64 order.
+    """
+    n = len(signatures)
+    remaining = np.ones(n, bool)
+    order = np.empty(n, np.int64)
+    current = 0
+    sig = np.ascontiguousarray(signatures, np.float32)
+    idx = np.arange(n)
+    for step in range(n):
+        order[step] = current
+        remaining[current] = False
+        if step == n - 1:
+            break
+        candidates = idx[remaining]
+        dist = np.abs(sig[candidates] - sig[current]).sum(axis=1)
+        current = int(candidates[int(dist.argmin())])
+    return order
+
+
+def _signatures(codes_mean: np.ndarray) -> np.ndarray:
+    """Rows of an (n, n) code matrix reduced to at most SIGNATURE_DIMS column-group means."""
+    n = codes_mean.shape[1]
+    groups = min(n, SIGNATURE_DIMS)
+    edges = np.linspace(0, n, groups + 1).astype(np.int64)
+    sums = np.add.reduceat(codes_mean, edges[:-1], axis=1)
+    return sums / np.diff(edges)[None, :]
+
+
+def reorder(codes_mean: np.ndarray, passes: int) -> np.ndarray:
+    """(n,) permutation from ``passes`` greedy passes: rows first, then columns (same order for both).
+
+    Shcherbakov (MSU 2017), section 4.2 (fig. 6): two passes, the first on rows,
+    the second on columns; swapping rows i and j also swaps columns i and j so
+    the matrix still maps patch light to patch light. ``codes_mean`` : (n, n)
+    float32 codes averaged over the RGB channels.
+    """
+    n = len(codes_mean)
+    perm = np.arange(n)
+    for p in range(passes):
+        current = codes_mean[np.ix_(perm, perm)]
+        sig = _signatures(current if p % 2 == 0 else current.T)
+        perm = perm[greedy_order(sig)]
+    return perm
+
+
+def compress_operator(operator: np.ndarray, *, exact_fraction: float = 0.04, log_floor: float = 0.0,
+                      reorder_passes: int = 2, row_correction: bool = True,
+                      quantization: str = "log") -> CompressedOperator:
+    """Compress a (3, n, n) float32 operator: exact top entries + BC1 log codes.
+
+    Shcherbakov (MSU 2017), section 4.2 (steps 1-4 of the module docstring);
+    the operator is the dimensionless multi-bounce matrix of section 4.1, eq. 7.
+    ``stats`` of the result holds the thesis' errors (``compression_errors``)
+    before and, with ``row_correction``, after the row-sum rescaling, and the
+    memory ratio against dense float32 RGB (12 n^2 bytes).
+    """
+    _, n, _ = operator.shape
+    magnitude = operator.max(axis=0)
+    keep = int(round(exact_fraction * n * n))
+    exact = np.zeros((n, n), bool)
+    if keep > 0:
+        flat = magnitude.ravel()
+        top = np.argpartition(flat, -keep)[-keep:]
+        top = top[flat[top] > 0]
+        exact.ravel()[top] = True
+    residual = np.where(exact[None], 0.0, operator).astype(np.float32)
+    residual_max = residual.max(axis=0)
+    vmax = float(residual_max.max()) if n else 0.0
+    if vmax <= 0:
+        vmax = 1.0
+    if quantization == "log":
+        floor = log_floor * vmax if log_floor > 0 else auto_floor(residual_max, vmax)
+        codes, scale, offset = log_codes(np.moveaxis(residual, 0, -1), floor, vmax)  # (n, n, 3)
+    elif quantization == "linear":
+        floor = 0.0
+        codes, scale, offset = linear_codes(np.moveaxis(residual, 0, -1), vmax)
+    else:
+        raise ValueError(f"quantization={quantization!r} is not 'log' or 'linear'")
+    perm = reorder(codes.mean(axis=2), reorder_passes) if reorder_passes > 0 else np.arange(n)
+    n4 = (n + 3) // 4 * 4
+    image = np.zeros((n4, n4, 3), np.float32)
+    image[:n, :n] = codes[np.ix_(perm, perm)]
+    blocks = encode_bc1(image)
+
+    exact_p = exact[np.ix_(perm, perm)]
+    rows, cols = np.nonzero(exact_p)
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
+    values = np.moveaxis(operator, 0, -1)[perm[rows], perm[cols]].astype(np.float32)
+    lut = code_lut(scale, offset, quantization)
+    compressed = CompressedOperator(
+        size=n, blocks=blocks, permutation=perm.astype(np.int32), sparse_indptr=indptr.astype(np.int32),
+        sparse_indices=cols.astype(np.int32), sparse_values=values, lut=lut, log_scale=scale, log_offset=offset,
+        quantization=quantization,
+        row_scale=np.ones((n, 3), np.float32))
+    residual_stored = residual[:, perm][:, :, perm]
+    stats = compression_errors(compressed, residual_stored, vmax)
+    if row_correction:
+        # Rescale each decoded row so its sum matches the true residual row sum: removes the bias of
+        # quantization (codes rounded to 0, exp of noisy log codes) for smooth inputs; (n, 3) floats.
+        decoded_sum = decoded_residual(compressed).sum(axis=2, dtype=np.float64)  # (3, n)
+        true_sum = residual_stored.sum(axis=2, dtype=np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(decoded_sum > 0, true_sum / decoded_sum, 1.0)
+        object.__setattr__(compressed, "row_scale",
+                           np.clip(ratio, 1.0 / ROW_SCALE_LIMIT, ROW_SCALE_LIMIT).T.astype(np.float32).copy())
+        stats.update({f"corrected_{k}": v for k, v in compression_errors(compressed, residual_stored, vmax).items()})
+    stats.update({"floor": floor, "residual_max": vmax, "exact_entries": int(len(rows)),
+                  "dense_bytes": int(12 * n * n), "compressed_bytes": compressed.nbytes,
+                  "memory_ratio": compressed.nbytes / max(12 * n * n, 1)})
+    object.__setattr__(compressed, "stats", stats)
+    return compressed
+
+
+def decoded_residual(compressed: CompressedOperator) -> np.ndarray:
+    """(3, n, n) float32 BC1 part decoded in stored order, row_scale applied (tests and figures only)."""
+    n, n4 = compressed.size, compressed.padded
+    codes = blocks_to_image(decode_bc1_texels(compressed.blocks), n4, n4)[:n, :n]
+    return np.moveaxis(compressed.lut[codes] * compressed.row_scale[:, None, :], -1, 0)
+
+
+def compression_errors(compressed: CompressedOperator, residual_stored: np.ndarray, vmax: float) -> dict:
+    """Thesis-style errors of the BC1 part, normalized by the largest residual value (its [0, 1] domain).
+
+    The mean, maximum and summed absolute errors of the table in Shcherbakov
+    (MSU 2017), section 4.2 (dimensionless).
+
+    ``residual_stored`` : (3, n, n) float32 residual in stored (permuted) order.
+    """
+    err = np.abs(decoded_residual(compressed) - residual_stored) / vmax
+    return {"error_mean": float(err.mean()) if err.size else 0.0, "error_max": float(err.max()) if err.size else 0.0,
+            "error_sum": float(err.sum(dtype=np.float64))}
+
+
+def decompress_operator(compressed: CompressedOperator) -> np.ndarray:
+    """(3, n, n) float32 operator in patch order, decoded (reference for tests; relight never does this)."""
+    stored = decoded_residual(compressed)
+    n = compressed.size
+    rows = np.repeat(np.arange(n), np.diff(compressed.sparse_indptr))
+    stored[:, rows, compressed.sparse_indices] += compressed.sparse_values.T
+    out = np.empty_like(stored)
+    perm = compressed.permutation
+    out[:, perm[:, None], perm[None, :]] = stored
+    return out
