@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from lit_scenes import cube, make_lights, make_scene, merge, quad
 from stage_builders import base_context
 import pytest
 
@@ -32,68 +33,14 @@ FLOAT32_SUM = 6e-8
 # -- scenes built without pxr -------------------------------------------------------------------
 
 
-def quad(corner, u, v, *, flip=False):
-    """Two triangles of the parallelogram corner + [0,1]u + [0,1]v, normal u x v (or -)."""
-    c, u, v = (np.asarray(a, np.float32) for a in (corner, u, v))
-    points = np.array([c, c + u, c + u + v, c + v], np.float32)
-    tris = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
-    return points, tris[:, ::-1] if flip else tris
 
 
-def cube(lo, hi, *, inward=False):
-    """Closed axis-aligned box, faces outward (or inward), 12 triangles."""
-    lo, hi = np.asarray(lo, np.float32), np.asarray(hi, np.float32)
-    d = hi - lo
-    ex, ey, ez = np.diag(d).astype(np.float32)
-    faces = [
-        quad(lo, ey, ex), quad(lo + ez, ex, ey),  # -z, +z
-        quad(lo, ex, ez), quad(lo + ey, ez, ex),  # -y, +y
-        quad(lo, ez, ey), quad(lo + ex, ey, ez),  # -x, +x
-    ]
-    return merge([(p, t[:, ::-1] if inward else t) for p, t in faces])
 
 
-def merge(parts):
-    points, tris, base = [], [], 0
-    for p, t in parts:
-        points.append(p)
-        tris.append(t + base)
-        base += len(p)
-    return np.concatenate(points), np.concatenate(tris)
 
 
-def make_scene(points, tris, *, albedo=0.5, emission=None, double_sided=None, lights=None) -> Scene:
-    points = np.asarray(points, np.float32)
-    tris = np.asarray(tris, np.int32)
-    p = points[tris].astype(np.float64)
-    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    length = np.linalg.norm(cross, axis=1)
-    normals = np.divide(cross, length[:, None], out=np.zeros_like(cross), where=length[:, None] > 0)
-    t = len(tris)
-    return Scene(
-        points=points, tri_vertices=tris, tri_normals=normals.astype(np.float32),
-        tri_areas=(0.5 * length).astype(np.float32),
-        tri_albedo=np.broadcast_to(np.asarray(albedo, np.float32), (t, 3)).copy(),
-        tri_emission=np.zeros((t, 3), np.float32) if emission is None else np.asarray(emission, np.float32),
-        tri_prim=np.zeros(t, np.int32), tri_face=np.arange(t, dtype=np.int32), tri_instance=np.full(t, -1, np.int32),
-        tri_double_sided=np.zeros(t, bool) if double_sided is None else np.asarray(double_sided, bool),
-        point_prim=np.zeros(len(points), np.int32), prim_paths=("/World/Mesh",),
-        prim_point_start=np.array([0, len(points)], np.int64), prim_face_count=np.array([t], np.int32),
-        prim_writable=np.ones(1, bool), prim_skip=np.zeros(1, bool), prim_surface=("",),
-        lights=lights or Lights(),
-    )
 
 
-def make_lights(*rows) -> Lights:
-    """rows: (kind, radiance rgb, position, direction, size)."""
-    return Lights(
-        light_paths=tuple(f"/World/Light{i}" for i in range(len(rows))),
-        light_kind=np.array([r[0] for r in rows], np.int32),
-        light_radiance=np.array([r[1] for r in rows], np.float32).reshape(-1, 3),
-        light_position=np.array([r[2] for r in rows], np.float32).reshape(-1, 3),
-        light_direction=np.array([r[3] for r in rows], np.float32).reshape(-1, 3),
-        light_size=np.array([r[4] for r in rows], np.float32).reshape(-1, 2),
-    )
 
 
 def run(scene: Scene, threads: int | None = None, **params):
@@ -431,22 +378,10 @@ def read_cloud(path):
 
 
 def test_end_to_end_small_stage(tmp_path):
-    from pxr import Gf, UsdLux
-    from stage_builders import base_context, add_mesh, new_stage
-
+    from lit_scenes import lamp_room_file
     from usdbake.cli.main import main
 
-    stage = new_stage(up_axis="Z")
-    room_p, room_t = cube([-3, -3, 0], [3, 3, 3], inward=True)
-    box_p, box_t = cube([-1, -1, 0], [1, 1, 1])
-    points, tris = merge([(room_p, room_t), (box_p, box_t)])
-    add_mesh(stage, "/World/Room", points.tolist(), [3] * len(tris), tris.ravel().tolist())
-    lamp = UsdLux.SphereLight.Define(stage, "/World/Lamp")
-    lamp.CreateRadiusAttr(0.1)
-    lamp.CreateIntensityAttr(100.0)
-    lamp.AddTranslateOp().Set(Gf.Vec3d(1.5, 1.5, 2.5))
-    source = tmp_path / "room.usda"
-    stage.GetRootLayer().Export(str(source))
+    source = lamp_room_file(tmp_path)
     out = tmp_path / "room_probes.usdc"
     code = main(["bake", str(source), "-o", str(out), "-p", "light_probes", "--cache", str(tmp_path / "cache"),
                  "--set", "light_probes.probes=64", "--set", "light_probes.rays=64"])

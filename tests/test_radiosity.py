@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+from lit_scenes import make_lights
 from stage_builders import base_context
 import pytest
 from test_form_factors import box_parts, make_scene, quad
@@ -12,33 +13,16 @@ from usdbake.processors import radiosity as rad
 from usdbake.core import Context, Primvar
 from usdbake.geometry.mesh import vertex_normals
 from usdbake.kernels.lights import emissive_lights
-from usdbake.core.scene import (
-    LIGHT_DISK,
-    LIGHT_DISTANT,
-    LIGHT_DOME,
-    LIGHT_SPHERE,
-    Lights,
-)
+from usdbake.core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE
 from usdbake.kernels.tracer import Tracer
 
 DIRECT_TOLERANCE = 0.01
 """Relative error of stratified light sampling with 1024 samples on smooth unoccluded integrands."""
 
 
-def lights(*rows):
-    """Lights from (kind, radiance, position, direction, size) rows."""
-    return Lights(
-        light_paths=tuple(f"/Lights/l{k}" for k in range(len(rows))),
-        light_kind=np.array([r[0] for r in rows], np.int32),
-        light_radiance=np.array([r[1] for r in rows], np.float32).reshape(-1, 3),
-        light_position=np.array([r[2] for r in rows], np.float32).reshape(-1, 3),
-        light_direction=np.array([r[3] for r in rows], np.float32).reshape(-1, 3),
-        light_size=np.array([r[4] for r in rows], np.float32).reshape(-1, 2))
-
-
 def floor_scene(light_rows, extra_parts=()):
     floor = quad([-10, -10, 0], [20, 0, 0], [0, 20, 0])  # z = 0, normal +z
-    return make_scene([floor, *extra_parts], lights=lights(*light_rows))
+    return make_scene([floor, *extra_parts], lights=make_lights(*light_rows))
 
 
 def direct_at_origin(scene, samples=1024):
@@ -117,7 +101,7 @@ def lit_box():
     # A closed 2 m room with a disk light under the ceiling, one grey prim per face.
     parts = box_parts(size=2.0, grid=2)
     light = (LIGHT_DISK, [10, 9, 8], [1, 1, 1.9], [0, 0, -1], [0.3, 0.3])
-    scene = make_scene(parts, albedo=(0.6, 0.5, 0.4), lights=lights(light))
+    scene = make_scene(parts, albedo=(0.6, 0.5, 0.4), lights=make_lights(light))
     tracer = Tracer.from_scene(scene)
     params = ff.FormFactors.Params(target_patches=300, rays=256)
     product = ff.FormFactors().run(Context(scene=scene, params=params, tracer=tracer)).products[FormFactorProduct]
