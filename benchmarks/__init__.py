@@ -1,4 +1,4 @@
-"""Run time against error, per processor: `python -m benchmarks [NAME ...] [--quick]`.
+"""Run time against error, per processor: `python -m usdbake.benchmarks [NAME ...] [--quick]`.
 
 Each ``bench_<name>.py`` module defines ``NAME``, ``DESCRIPTION`` and
 ``run(quick: bool) -> dict`` returning a result made with

@@ -5,7 +5,8 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from usdbake.core.products import AmbientOcclusionProduct, DisplacementFieldSet, InstanceOcclusionProduct
+from usdbake.core.products import (AmbientOcclusionProduct, DisplacementField, DisplacementFieldSet,
+                                   InstanceOcclusionProduct)
 
 from . import harness
 
@@ -46,9 +47,9 @@ def run(quick: bool = False) -> dict:
 
     from usdbake import core
     from usdbake.processors.ambient_occlusion import AmbientOcclusion
-    from usdbake.processors.displacement_fields import (DisplacementField, DisplacementFields,
-                                                        compute_field_distances, encode_field, prototype_geometry,
-                                                        side_for)
+    from usdbake.kernels.displacement_field import encode_field
+    from usdbake.processors.displacement_fields import (DisplacementFields, compute_field_distances,
+                                                        prototype_geometry, side_for)
     from usdbake.processors.instance_ao import InstanceAO
     from usdbake.kernels.tracer import Tracer
     from usdbake.stages.extract import extract_scene

@@ -4,9 +4,14 @@ The reference every faster AO estimate in usdbake is checked against::
 
     AO(x) = 1/pi * integral_{H(n)} V(x, w) cos(theta) dw
 
+(Zhukov, Iones & Kronin, "An ambient light illumination model", EGWR 1998:
+their obscurance with the distance mapping a step at ``max_distance``)
 estimated with stratified cosine-weighted directions (concentric map +
-Malley), so AO is the mean visibility V of the sampled rays; V = 0 when a
-ray hits geometry closer than ``max_distance``.
+Malley; Pharr, Jakob & Humphreys, PBRT 3rd ed., Section 13.6.3), so AO is the
+mean visibility V of the sampled rays (the Monte Carlo estimator f/p of PBRT
+Section 13.2, with f/p = V); V = 0 when a ray hits geometry closer than
+``max_distance``. The estimator lives in ``kernels.occlusion``, shared with
+``instance_ao``.
 
 USD written (bake layer):
 
@@ -43,64 +48,52 @@ import warp as wp
 
 from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
 from ..core.products import AmbientOcclusionProduct
-from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame, triangle_point
+from ..kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
+from ..kernels.sampling import strata_for, tangent_frame, triangle_point
 from ..geometry.mesh import face_means, receiver_prims, vertex_normals
+from ..geometry.receivers import missing_receivers
 from ..core.scene import Scene
 
 wp.set_module_options({"enable_backward": False})
 
 
 @wp.func
-def occlusion_at(mesh: wp.uint64, origin: wp.vec3, frame: wp.mat33, strata: int, max_distance: float,
-                 state: wp.uint32) -> float:
-    """Mean visibility of strata^2 stratified cosine-weighted rays from origin."""
+def occlusion_at(rays: AORays, origin: wp.vec3, frame: wp.mat33, state: wp.uint32) -> float:
+    """AO estimate (dimensionless, [0, 1]) at ``origin``: the fraction of the strata^2 stratified
+    cosine-weighted rays around the frame's normal that hit nothing within ``max_distance`` (stage units):
+    the Monte Carlo estimate of Zhukov et al.'s integral with pdf cos(theta)/pi (PBRT 3rd ed., Sections
+    13.2 and 13.6.3; ``kernels.occlusion``)."""
     visible = int(0)
-    for k in range(strata * strata):
-        u = stratified_pair(k, strata, state)
-        direction = frame * cosine_hemisphere(u[0], u[1])
-        if not wp.mesh_query_ray_anyhit(mesh, origin, direction, max_distance):
+    for k in range(rays.strata * rays.strata):
+        if not wp.mesh_query_ray_anyhit(rays.mesh, origin, ao_direction(rays, frame, k, state), rays.max_distance):
             visible += 1
-    return float(visible) / float(strata * strata)
+    return float(visible) / float(rays.strata * rays.strata)
 
 
 @wp.kernel
-def vertex_ao_kernel(
-    start: int,
-    mesh: wp.uint64,
-    positions: wp.array(dtype=wp.vec3),
-    normals: wp.array(dtype=wp.vec3),
-    strata: int,
-    max_distance: float,
-    epsilon: float,
-    seed: int,
-    ao: wp.array(dtype=float),
-):
-    """AO at points (vertices) around their normals; a point without a normal gets 1."""
+def vertex_ao_kernel(start: int, rays: AORays, positions: wp.array(dtype=wp.vec3),
+                     normals: wp.array(dtype=wp.vec3), ao: wp.array(dtype=float)):
+    """AO (dimensionless, [0, 1]) at point i around its unit normal by ``occlusion_at`` (Zhukov et al. 1998
+    integral, PBRT 3rd ed. Section 13.6.3 rays), the origin pushed off by ``epsilon`` (stage units); a
+    point without a normal gets 1."""
     i = start + wp.tid()
     n = normals[i]
     if wp.length(n) < 0.5:
         ao[i] = 1.0
         return
-    state = wp.rand_init(seed, i)
-    ao[i] = occlusion_at(mesh, positions[i] + n * epsilon, tangent_frame(n), strata, max_distance, state)
+    state = wp.rand_init(rays.seed, i)
+    ao[i] = occlusion_at(rays, positions[i] + n * rays.epsilon, tangent_frame(n), state)
 
 
 @wp.kernel
-def face_ao_kernel(
-    start: int,
-    mesh: wp.uint64,
-    points: wp.array(dtype=wp.vec3),
-    triangles: wp.array(dtype=wp.vec3i),
-    normals: wp.array(dtype=wp.vec3),
-    strata: int,
-    max_distance: float,
-    epsilon: float,
-    seed: int,
-    ao: wp.array(dtype=float),
-):
-    """AO averaged over a triangle: each stratified direction from a uniform random point on it."""
+def face_ao_kernel(start: int, rays: AORays, points: wp.array(dtype=wp.vec3), triangles: wp.array(dtype=wp.vec3i),
+                   tri_normals: wp.array(dtype=wp.vec3), ao: wp.array(dtype=float)):
+    """AO (dimensionless, [0, 1]) averaged over triangle i's area and hemisphere: the estimator of
+    vertex_ao_kernel (Zhukov et al. 1998 integral, PBRT 3rd ed. Section 13.6.3 rays), each ray from its
+    own uniform random point on the triangle (Osada et al. 2002 square-root warp), so the mean estimates
+    (1/A) integral_A AO(x) dA."""
     i = start + wp.tid()
-    n = normals[i]
+    n = tri_normals[i]
     if wp.length(n) < 0.5:
         ao[i] = 1.0
         return
@@ -109,56 +102,49 @@ def face_ao_kernel(
     b = points[tri[1]]
     c = points[tri[2]]
     frame = tangent_frame(n)
-    state = wp.rand_init(seed, i)
+    state = wp.rand_init(rays.seed, i)
     visible = int(0)
-    for k in range(strata * strata):
-        x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))
-        u = stratified_pair(k, strata, state)
-        direction = frame * cosine_hemisphere(u[0], u[1])
-        if not wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, direction, max_distance):
+    for k in range(rays.strata * rays.strata):
+        x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))  # drawn before the direction: keep the order
+        if not wp.mesh_query_ray_anyhit(rays.mesh, x + n * rays.epsilon, ao_direction(rays, frame, k, state),
+                                        rays.max_distance):
             visible += 1
-    ao[i] = float(visible) / float(strata * strata)
+    ao[i] = float(visible) / float(rays.strata * rays.strata)
 
 
 def compute_vertex_ao(tracer, positions: np.ndarray, normals: np.ndarray, *, samples: int,
                       max_distance: float = math.inf, seed: int = 0) -> np.ndarray:
-    """AO at points with unit normals.
+    """AO at points with unit normals (vertex_ao_kernel: Zhukov et al. 1998 integral, estimated with
+    cosine-weighted rays, PBRT 3rd ed. Sections 13.2 and 13.6.3).
 
     Parameters
     ----------
     tracer : Tracer
-    positions, normals : (N, 3) float32
+    positions, normals : (N, 3) float32, stage units and unit vectors
     samples : rays per point (rounded to a square)
+    max_distance : stage units; farther hits do not occlude
 
     Returns
     -------
     (N,) float32 in [0, 1]; 1 where the normal is zero.
     """
-    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
-    normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
-    if positions.shape != normals.shape:
-        raise ValueError(f"positions {positions.shape} and normals {normals.shape} differ")
-    strata = strata_for(samples)
-    ao = wp.zeros(len(positions), dtype=float, device=tracer.device)
-    tracer.launch(vertex_ao_kernel, len(positions), [
-        tracer.mesh.id, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3),
-        strata, float(min(max_distance, 3.0e38)), tracer.epsilon, seed, ao,
-    ])
-    tracer.rays_cast += len(positions) * strata * strata
-    return ao.numpy()
+    positions, normals = as_points_and_normals(positions, normals)
+    rays = ao_rays(tracer.mesh.id, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed)
+    return launch_ao(tracer, vertex_ao_kernel, len(positions), rays,
+                     [tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3)])
 
 
 def compute_face_ao(tracer, points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.ndarray, *,
                     samples: int, max_distance: float = math.inf, seed: int = 0) -> np.ndarray:
-    """(T,) float32 AO averaged over each triangle's area and hemisphere."""
-    strata = strata_for(samples)
-    ao = wp.zeros(len(tri_vertices), dtype=float, device=tracer.device)
-    tracer.launch(face_ao_kernel, len(tri_vertices), [
-        tracer.mesh.id, tracer.array(points, wp.vec3), tracer.array(tri_vertices.astype(np.int32), wp.vec3i),
-        tracer.array(tri_normals, wp.vec3), strata, float(min(max_distance, 3.0e38)), tracer.epsilon, seed, ao,
-    ])
-    tracer.rays_cast += len(tri_vertices) * strata * strata
-    return ao.numpy()
+    """(T,) float32 AO in [0, 1] averaged over each triangle's area and hemisphere (face_ao_kernel: the
+    Zhukov et al. 1998 integral, PBRT 3rd ed. Section 13.6.3 rays).
+
+    ``points`` (P, 3) float32 stage units, ``tri_vertices`` (T, 3) int, ``tri_normals`` (T, 3) unit.
+    """
+    rays = ao_rays(tracer.mesh.id, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed)
+    return launch_ao(tracer, face_ao_kernel, len(tri_vertices), rays, [
+        tracer.array(points, wp.vec3), tracer.array(tri_vertices.astype(np.int32), wp.vec3i),
+        tracer.array(tri_normals, wp.vec3)])
 
 
 class AmbientOcclusion(Processor):
@@ -177,10 +163,8 @@ class AmbientOcclusion(Processor):
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
-        scene = ctx.scene
-        if len(receiver_prims(scene)) == 0:
-            return False, "no writable meshes (all instanced, bake:skip or empty)"
-        return True, ""
+        reason = missing_receivers(ctx.scene)
+        return not reason, reason
 
     def run(self, ctx: Context) -> Result:
         scene, p = ctx.scene, ctx.params

@@ -45,12 +45,9 @@ bake:field:directionMapping     token    concentricMalley
 =============================== ======== =======================================================
 
 The texture (8-bit grey PNG, written with OpenImageIO) is an atlas of n x n
-tiles; sample k = (row k // n, column k % n) of the octahedral grid is the
-tile at the same row and column. ``uint8``: each tile is M x M codes, texel
-(row b, column a). ``bit1``: each tile is M rows of M/8 bytes, bit a % 8
-(least significant first) of byte a // 8 is texel a (1 = hit); below the
-tiles, n more rows hold the per-sample mean hit distance codes in their
-first n columns (255 = the sample sees no hit).
+tiles, one per positional sample; the layout, the codes and the lookup are
+defined once, in ``kernels.displacement_field``, for this producer and for
+its consumer ``instance_ao``.
 
 Parameters
 ----------
@@ -73,36 +70,25 @@ import math
 import re
 import time
 from dataclasses import dataclass
-from dataclasses import field as dataclass_field
 
 import numpy as np
 import warp as wp
 
 from ..core import Attribute, Context, ParamError, Params, Prim, Processor, Result, Texture, param
 from ..core.products import DisplacementField, DisplacementFieldSet
-from ..kernels.sampling import cosine_hemisphere, tangent_frame
-from ..kernels.sphere_maps import equal_area_square_to_sphere
+from ..kernels.displacement_field import (DIRECTION_MAPPING, POSITION_MAPPING, encode_field, field_atlas,
+                                         positional_sample, texel_direction)
+from ..kernels.sampling import tangent_frame
+from ..geometry.transforms import invertible
 from ..core.scene import Scene
 from ..kernels.tracer import Tracer
 
 wp.set_module_options({"enable_backward": False})
 
-MISS_CODE = 255
-"""uint8 code of a ray that leaves the sphere without a hit."""
-MAX_HIT_CODE = 254
-"""Hit distances t / 2R in [0, 1] map to codes 0..254."""
 SPHERE_INFLATION = 1e-4
 """The bounding sphere is grown by this fraction so no vertex lies on it (rays start strictly outside)."""
-SINGULAR_DETERMINANT = 1e-12
-"""|det| of an instance's 3x3 below this (relative to its scale cubed) means a flattened instance."""
 MAX_FIELD_TEXELS = 2 ** 28
 """Rays (texels) per field: 256 MiB per 8-bit field, and kernel indices stay far inside int32."""
-POSITION_MAPPING = "octahedralEqualArea"
-DIRECTION_MAPPING = "concentricMalley"
-
-
-
-
 
 # ---------------------------------------------------------------------------
 # Kernels
@@ -117,9 +103,12 @@ def field_distances_kernel(
     radius: float,
     distances: wp.array(dtype=float),
 ):
-    """Algorithm 1: ray i = (sample k, texel (a, b)) from p_k inward; t / 2R of the first hit, or 2 (miss).
+    """Algorithm 1 of Gaitatzes et al. 2008 (Section 3.1): ray i = (sample k, texel (a, b)) from
+    p_k = R * s_k into the sphere along texel (a, b)'s direction in the frame of the inward normal -s_k
+    (layout: ``kernels.displacement_field``); writes t / 2R of the first hit (dimensionless, t and R in
+    prototype units), or 2 for a miss.
 
-    The prototype is given relative to the sphere centre, so p_k = R * s_k.
+    The prototype is given relative to the sphere centre c, so p_k = R * s_k; ``radius`` is R.
     """
     i = start + wp.tid()
     texels = map_size * map_size
@@ -127,9 +116,8 @@ def field_distances_kernel(
     t = i - k * texels
     a = t % map_size
     b = t // map_size
-    s = equal_area_square_to_sphere((float(k % side) + 0.5) / float(side), (float(k // side) + 0.5) / float(side))
-    frame = tangent_frame(-s)
-    direction = frame * cosine_hemisphere((float(a) + 0.5) / float(map_size), (float(b) + 0.5) / float(map_size))
+    s = positional_sample(k, side)
+    direction = texel_direction(tangent_frame(-s), a, b, map_size)
     diameter = 2.0 * radius
     distances[i] = 2.0
     q = wp.mesh_query_ray(mesh, s * radius, direction, diameter)
@@ -166,11 +154,9 @@ def prototype_geometry(scene: Scene, prototype: int) -> tuple[np.ndarray, np.nda
     instance : the instance used (-1 if no instance with a non-singular transform has triangles)
     """
     inst = scene.instances
-    for j in np.flatnonzero(inst.instance_prototype == prototype):
+    mine = np.flatnonzero(inst.instance_prototype == prototype)
+    for j in mine[invertible(inst.instance_transforms[mine])]:
         matrix = inst.instance_transforms[j]
-        scale = np.abs(matrix[:3, :3]).max()
-        if not np.isfinite(matrix).all() or abs(np.linalg.det(matrix[:3, :3])) <= SINGULAR_DETERMINANT * scale ** 3:
-            continue
         tris = scene.tri_vertices[scene.tri_instance == j]
         if len(tris) == 0:
             continue
@@ -183,17 +169,19 @@ def prototype_geometry(scene: Scene, prototype: int) -> tuple[np.ndarray, np.nda
 
 def compute_field_distances(points: np.ndarray, triangles: np.ndarray, *, side: int, map_size: int,
                             device: str = "cpu", threads: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
-    """Cast the field's rays: (n*n, M, M) float32 t / 2R of the first hit (2.0 = miss).
+    """Cast a field's rays (Gaitatzes et al. 2008, Algorithm 1, Section 3.1; ``field_distances_kernel``).
 
     Parameters
     ----------
-    points : (P, 3) float64 prototype-space vertices
+    points : (P, 3) float64 prototype-space vertices (stage units of the prototype)
     triangles : (T, 3) int32
-    side, map_size : n and M
+    side, map_size : n and M (n^2 positional samples, M x M directions each)
 
     Returns
     -------
-    distances, center (3,) float64, radius
+    distances : (n*n, M, M) float32 t / 2R of each ray's first hit (dimensionless; 2.0 = miss)
+    center : (3,) float64 bounding-sphere centre c, prototype space
+    radius : bounding-sphere radius R, prototype space
     """
     center, radius = bounding_sphere(points)
     if radius <= 0.0 or not np.isfinite(radius):
@@ -206,54 +194,12 @@ def compute_field_distances(points: np.ndarray, triangles: np.ndarray, *, side: 
     return distances.numpy().reshape(side * side, map_size, map_size), center, radius
 
 
-def encode_field(distances: np.ndarray, encoding: str) -> tuple[np.ndarray, np.ndarray]:
-    """(texels, mean_codes) from (K, M, M) normalised distances (>= 1.5 = miss); see DisplacementField."""
-    hit = distances <= 1.0
-    codes = np.where(hit, np.clip(np.rint(distances * MAX_HIT_CODE), 0, MAX_HIT_CODE), MISS_CODE).astype(np.uint8)
-    count = hit.reshape(len(hit), -1).sum(axis=1)
-    total = np.where(hit, distances, 0.0).reshape(len(hit), -1).sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(count > 0, total / np.maximum(count, 1), np.nan)
-    mean_codes = np.where(count > 0, np.clip(np.rint(np.nan_to_num(mean) * MAX_HIT_CODE), 0, MAX_HIT_CODE),
-                          MISS_CODE).astype(np.uint8)
-    if encoding == "uint8":
-        return codes, mean_codes
-    if encoding == "bit1":
-        return np.packbits(hit.reshape(len(hit), -1), axis=1, bitorder="little"), mean_codes
-    raise ValueError(f"unknown encoding {encoding!r}")
-
-
-def field_atlas(field: DisplacementField) -> np.ndarray:
-    """(H, W) uint8 atlas image of a field (layout in the module docstring)."""
-    n, m = field.side, field.map_size
-    if field.encoding == "uint8":
-        tiles = field.texels.reshape(n, n, m, m)
-        return tiles.transpose(0, 2, 1, 3).reshape(n * m, n * m)
-    width = m // 8
-    tiles = field.texels.reshape(n, n, m, width)
-    atlas = np.zeros((n * m + n, n * width), np.uint8)
-    atlas[:n * m] = tiles.transpose(0, 2, 1, 3).reshape(n * m, n * width)
-    atlas[n * m:, :n] = field.mean_codes.reshape(n, n)
-    return atlas
-
-
-def field_from_atlas(atlas: np.ndarray, *, side: int, map_size: int, encoding: str) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse of field_atlas: (texels, mean_codes) as stored in DisplacementField (mean_codes empty for uint8)."""
-    atlas = np.asarray(atlas, np.uint8)
-    atlas = atlas[:, :, 0] if atlas.ndim == 3 else atlas
-    n, m = side, map_size
-    if encoding == "uint8":
-        texels = atlas.reshape(n, m, n, m).transpose(0, 2, 1, 3).reshape(n * n, m, m)
-        return np.ascontiguousarray(texels), np.zeros(0, np.uint8)
-    width = m // 8
-    texels = atlas[:n * m].reshape(n, m, n, width).transpose(0, 2, 1, 3).reshape(n * n, m * width)
-    return np.ascontiguousarray(texels), np.ascontiguousarray(atlas[n * m:, :n]).reshape(n * n)
-
-
 def build_field(points: np.ndarray, triangles: np.ndarray, *, prototype: str = "", positional_samples: int = 4225,
                 map_size: int = 32, encoding: str = "uint8", device: str = "cpu",
                 threads: int | None = None) -> DisplacementField:
-    """A prototype's displacement field from its prototype-space triangles (Algorithm 1)."""
+    """A prototype's displacement field from its prototype-space triangles: Algorithm 1 (Section 3.1), codes
+    from ``kernels.displacement_field.encode_field`` (``uint8``, or ``bit1`` after Section 4, "Further
+    Memory Optimization")."""
     side = side_for(positional_samples)
     started = time.perf_counter()
     distances, center, radius = compute_field_distances(points, triangles, side=side, map_size=map_size,

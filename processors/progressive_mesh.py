@@ -1,14 +1,19 @@
 """Progressive meshes by half-edge collapse (vertex order + collapse table per mesh).
 
-Pacanowski et al. 2008 (doi:10.1145/1394209.1394214), section 4.2: instead of
-collapsing an edge onto a new vertex (Hoppe 1996), collapse it onto one of its
-end vertices (Melax 1998), so the whole multiresolution mesh is the original
-mesh plus a *vertex lookup table* (the vertex each vertex collapses onto) and
-a vertex order: streaming the vertices in that order, a client rebuilds every
-level of detail by mapping each face corner through the table until it
-reaches a received vertex and dropping the faces that became degenerate.
+Pacanowski et al., "Efficient streaming of 3D scenes with complex geometry
+and complex lighting", Web3D 2008 (doi:10.1145/1394209.1394214), Section 4.2:
+instead of collapsing an edge onto a new vertex (Hoppe 1996), collapse it onto
+one of its end vertices, so the whole multiresolution mesh is the original
+mesh plus a *vertex lookup table* (the vertex each vertex collapses onto; the
+paper's reference for it is Melax 1998) and a vertex order: streaming the
+vertices in that order, a client rebuilds every level of detail by mapping
+each face corner through the table until it reaches a received vertex and
+dropping the faces that became degenerate.
 
-**Cost** of collapsing u onto its neighbour v (Melax)::
+**Cost** of collapsing u onto its neighbour v. Section 4.2 leaves the energy
+open ("some energy function", citing Garland & Heckbert 1997); this is Melax's
+("A simple, fast, and effective polygon reduction algorithm", Game Developer,
+November 1998), in stage units (a length times a dimensionless curvature)::
 
     cost(u -> v) = |u - v| * max_{f in faces(u)} min_{g in faces(u) & faces(v)} (1 - n_f . n_g) / 2
 
@@ -58,7 +63,7 @@ import numpy as np
 from ..core import Context, Params, Primvar, Processor, Result, param
 from ..core.products import ProgressiveMeshProduct
 from ..geometry.mesh import receiver_prims
-from ..core.scene import Scene
+from ..geometry.receivers import missing_receivers
 
 FLIP_PENALTY = 10.0
 """Added to the curvature term of a collapse that flips a face: such collapses come last."""
@@ -83,7 +88,12 @@ def _normal(p, face) -> tuple[float, float, float]:
 
 
 def progressive_order(points: np.ndarray, tri_vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Half-edge collapse order of a triangle mesh (module docstring).
+    """Half-edge collapse order of a triangle mesh (Pacanowski et al. 2008, Section 4.2; cost in the module
+    docstring).
+
+    Collapses the cheapest vertex onto a neighbour until none is left; the reversed sequence is the stream
+    order, which puts "the most significant vertices (that are present in the coarser meshes)" first
+    (Section 4.2), and ``collapse_to`` is the paper's vertex lookup table.
 
     Parameters
     ----------
@@ -199,7 +209,9 @@ def progressive_order(points: np.ndarray, tri_vertices: np.ndarray) -> tuple[np.
 
 
 def lod_faces(tri_vertices: np.ndarray, rank: np.ndarray, collapse_to: np.ndarray, k: int) -> np.ndarray:
-    """(F, 3) faces of the level of detail made of the points of rank < k (degenerate faces dropped)."""
+    """(F, 3) faces of the level of detail made of the points of rank < k (Section 4.2 of Pacanowski et al.
+    2008: each corner is mapped through the vertex lookup table until it reaches a received vertex, and the
+    faces left degenerate are dropped, so only valid faces remain)."""
     rank = np.asarray(rank, np.int64)
     collapse_to = np.asarray(collapse_to, np.int64)
     target = np.arange(len(rank))
@@ -224,10 +236,8 @@ class ProgressiveMesh(Processor):
         max_points: int = param(200_000, "meshes with more points are skipped (pure Python)", low=1)
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
-        scene = ctx.scene
-        if len(receiver_prims(scene)) == 0:
-            return False, "no writable meshes (all instanced, bake:skip or empty)"
-        return True, ""
+        reason = missing_receivers(ctx.scene)
+        return not reason, reason
 
     def run(self, ctx: Context) -> Result:
         scene, p = ctx.scene, ctx.params

@@ -9,8 +9,8 @@ import pytest
 
 from usdbake.core.products import DisplacementFieldSet
 from usdbake import core
-from usdbake.processors.displacement_fields import (MAX_HIT_CODE, MISS_CODE, DisplacementFields, build_field,
-                                                    choose_prototypes, field_atlas, field_from_atlas,
+from usdbake.kernels.displacement_field import MAX_HIT_CODE, MISS_CODE, field_atlas, field_from_atlas
+from usdbake.processors.displacement_fields import (DisplacementFields, build_field, choose_prototypes,
                                                     field_records, prototype_geometry, side_for)
 from usdbake.kernels.sampling import cosine_hemisphere_np
 from usdbake.kernels.sphere_maps import grid_cell_centers_np

@@ -15,7 +15,9 @@ from usdbake import core
 from usdbake.processors import instance_ao as ia
 from usdbake.processors.ambient_occlusion import AmbientOcclusion
 from usdbake.processors.displacement_fields import DisplacementFields, build_field
-from usdbake.processors.instance_ao import InstanceAO, invertible, parse_frames, query_field
+from usdbake.geometry.transforms import invertible
+from usdbake.kernels import displacement_field
+from usdbake.processors.instance_ao import InstanceAO, parse_frames, query_field
 from usdbake.kernels.tracer import Tracer
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
@@ -99,6 +101,7 @@ def test_frames_give_time_samples_without_rebuilding_the_bvh(props, monkeypatch)
             super().__init__(*args, **kwargs)
 
     monkeypatch.setattr(ia, "Tracer", CountingTracer)
+    monkeypatch.setattr(displacement_field, "Tracer", CountingTracer)  # FieldSet's prototype BVHs
     result, _ = field_ao(scene, ao_params={"frames": "1:3"}, fields=fields)
     assert len(built) == 1 + len(fields)  # the scene BVH and one per prototype (self-occlusion), not per frame
     by_frame = result.products[InstanceOcclusionProduct].point_ao_by_frame

@@ -18,7 +18,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom
 from stress.stage_builders_stress import FAST_PARAMS, hostile_lit_stage, small_lit_stage
 from usdbake.core.products import FormFactorProduct, ProbeCloud
 from usdbake import core
-from usdbake.processors.form_factors import decompress_operator
+from usdbake.kernels.operator_codec import decompress_operator
 from usdbake.kernels.sh import sh_basis_np
 from usdbake.core.errors import StageError
 from usdbake.stages.extract import extract_scene
