@@ -25,17 +25,7 @@ inputs:occlusion         float     (connection)  ``connect_occlusion``, on each 
                                                  UsdPrimvarReader_float
 ======================== ========= ============= ===================================
 
-Parameters
-----------
-==================== ====== ======= ==================================================
-name                 type   default meaning
-==================== ====== ======= ==================================================
-samples              int    256     rays per point (rounded to a square for stratification)
-max_distance         float  inf     hits farther than this (stage units) do not occlude
-per_face             bool   False   also write per-face AO (area-weighted triangle samples)
-connect_occlusion    bool   False   wire bake:ao into UsdPreviewSurface inputs:occlusion
-seed                 int    0       random seed (results are identical across thread counts)
-==================== ====== ======= ==================================================
+Parameters: ``usdbake list ambient_occlusion`` or docs/ambient_occlusion.md, both generated from ``Params`` below.
 """
 
 from __future__ import annotations

@@ -38,27 +38,7 @@ primvars:displayColor  color3f[] uniform     ``display_color``: L_i * k / (1 + L
                                              percentile of the luminance)
 ==================== ========= ============= ================================================
 
-Parameters
-----------
-=================== ====== ================= ===================================================
-name                type   default           meaning
-=================== ====== ================= ===================================================
-times               str    2026-06-21T12:00  instant, list, or start/end/step (ISO 8601), local time
-latitude            float  41.98             degrees north
-longitude           float  2.82              degrees east
-timezone            float  1.0               hours east of UTC of the local standard time
-north               float  0.0               angle of north from the stage's default north (deg, CCW)
-sky                 str    preetham          preetham, perez, overcast or uniform
-turbidity           float  3.0               Preetham turbidity (2 clear .. 10 hazy)
-uniform_radiance    float  1000.0            radiance of the uniform sky, W/(m^2 sr)
-direct_normal       float  600.0             Perez: direct-normal irradiance, W/m^2 (also the sun's)
-diffuse_horizontal  float  150.0             Perez: diffuse-horizontal irradiance, W/m^2
-sun                 bool   True              add the direct sun (not for overcast/uniform skies)
-sun_samples         int    4                 rays per face toward the solar disk
-display_color       bool   False             also write a tone-mapped primvars:displayColor
-exposure            float  0.0               tone-mapping scale k for displayColor (0: automatic)
-seed                int    0                 random seed of the sun rays
-=================== ====== ================= ===================================================
+Parameters: ``usdbake list daylight`` or docs/daylight.md, both generated from ``Params`` below.
 """
 
 from __future__ import annotations
@@ -275,7 +255,7 @@ def tone_map(radiance: np.ndarray, exposure: float = 0.0) -> tuple[np.ndarray, f
 class Daylight(Processor):
     name = "daylight"
     version = "2"
-    summary = "Sky (Preetham/CIE overcast/uniform) + sun relighting of the sky_visibility mesh, time-sampled."
+    summary = "Sky (Preetham/Perez/CIE overcast/uniform) + sun relighting of the sky_visibility mesh, time-sampled."
     facets = ("geometry", "materials")
     requires = (SkyVisibilityProduct,)
     provides = (DaylightProduct,)

@@ -49,19 +49,7 @@ tiles, one per positional sample; the layout, the codes and the lookup are
 defined once, in ``kernels.displacement_field``, for this producer and for
 its consumer ``instance_ao``.
 
-Parameters
-----------
-========================== ===== ======= ===============================================================
-name                       type  default meaning
-========================== ===== ======= ===============================================================
-positional_samples         int   4225    samples on the bounding sphere, rounded to a square n^2 (paper: 1090-4226)
-direction_map_size         int   32      M: each sample's direction map is M x M (paper: 32-64)
-encoding                   str   uint8   uint8 (8-bit distance) or bit1 (hit bit + mean distance per sample)
-min_instances              int   2       prototypes with fewer instances get no field (unless forced)
-expected_rays_per_instance float 1e6     rays expected to meet one instance over the field's lifetime
-force                      str   ''      comma-separated prototype paths or names that always get a field
-forbid                     str   ''      comma-separated prototype paths or names that never get a field
-========================== ===== ======= ===============================================================
+Parameters: ``usdbake list displacement_fields`` or docs/displacement_fields.md, both generated from ``Params`` below.
 """
 
 from __future__ import annotations

@@ -67,23 +67,7 @@ bake:exactFraction     float      share of entries kept exact
 bake:formFactorRays    int        rays per patch
 ====================== ========== ==================================================
 
-Parameters
-----------
-================== ====== ======= =======================================================
-name               type   default meaning
-================== ====== ======= =======================================================
-voxel_size         float  0.0     voxel edge in stage units; 0 = chosen for target_patches
-target_patches     int    2000    patch count aimed at when voxel_size is 0
-rays               int    1024    form-factor rays per patch (rounded to a square)
-bounces            int    3       k in sum_{h=1..k} (F^C)^h
-infinite           bool   False   use (I - F^C)^-1 - I instead (all bounces)
-exact_fraction     float  0.04    share of the largest entries kept exact (sparse part)
-log_floor          float  0.0     smallest coded value / largest remaining one; 0 = auto
-reorder_passes     int    2       greedy reordering passes (0, 1 rows, 2 rows + columns)
-quantization       str    log     code mapping before BC1: log (thesis) or linear
-row_correction     bool   True    rescale each decoded BC1 row to its exact row sum ((n, 3) floats)
-seed               int    0       random seed (identical results across thread counts)
-================== ====== ======= =======================================================
+Parameters: ``usdbake list form_factors`` or docs/radiosity.md, both generated from ``Params`` below.
 """
 
 from __future__ import annotations

@@ -60,22 +60,7 @@ primvars:bake:ao float[] vertex        ``instances``: on each PointInstancer, on
 ``primvars:bake:ao`` is the property ``ambient_occlusion`` writes: run one
 or the other on a stage, not both (the last record authored would win).
 
-Parameters
-----------
-============= ===== ============ =================================================================
-name          type  default      meaning
-============= ===== ============ =================================================================
-samples       int   256          rays per point (rounded to a square for stratification)
-max_distance  float inf          hits farther than this (stage units) do not occlude
-interpolation str   nearest      nearest (1 sample x 1 texel, the paper), position (bilinear over
-                                 4 samples), direction (bilinear over 4 texels) or quadrilinear (both)
-frames        str   ''           '' (extraction time), 'all', 'a:b[:step]' or 'f1,f2,...': time codes
-                                 whose authored instance transforms get an AO time sample each
-instances     bool  False        also AO at the instances' own vertices: self-occlusion traced through
-                                 the prototype's BVH (in prototype space), mutual occlusion through
-                                 the other instances' fields; written per instance (area-weighted mean)
-seed          int   0            random seed (the same rays as ambient_occlusion with this seed)
-============= ===== ============ =================================================================
+Parameters: ``usdbake list instance_ao`` or docs/displacement_fields.md, both generated from ``Params`` below.
 """
 
 from __future__ import annotations

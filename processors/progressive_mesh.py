@@ -44,13 +44,7 @@ primvars:bake:pmRank         int[]  vertex        stream position of each point
 primvars:bake:pmCollapseTo   int[]  vertex        point it collapses onto, -1 for none
 ============================ ====== ============= =====================================
 
-Parameters
-----------
-============ ===== ======= ==================================================
-name         type  default meaning
-============ ===== ======= ==================================================
-max_points   int   200000  meshes with more points are skipped (pure Python)
-============ ===== ======= ==================================================
+Parameters: ``usdbake list progressive_mesh`` or docs/irradiance_grid.md, both generated from ``Params`` below.
 """
 
 from __future__ import annotations

@@ -48,23 +48,7 @@ bake:sky:visibilityScale         float                    V = value * scale (1/2
 bake:sky:patchCount ... upAxis   (SkyVisibilityAPI, applied) patch layout, directions, solid angles
 ================================ ========== ============= =============================================
 
-Parameters
-----------
-=============== ====== ========= ===========================================================
-name            type   default   meaning
-=============== ====== ========= ===========================================================
-patch_layout    str    uniform   uniform (equal solid angle), tregenza (145), reinhart (MF)
-patch_count     int    256       number of patches of the uniform layout
-subdivision     int    2         Reinhart MF (577 patches for 2)
-samples         int    4         rays per (triangle, patch) pair (rounded to a square)
-tolerance       float  0.1       refine when partial_i exceeds this
-min_area        float  1e-5      smallest triangle area refined, times the scene diagonal^2
-max_level       int    5         most four-way splits below an input triangle
-max_triangles   int    500000    stop refining when the mesh reaches this many triangles
-criterion       str    share     share (partial_i above) or any: (1/pi) sum_j dw_j mean cos over
-                                 the patches with any partial visibility (closer to the paper)
-seed            int    0         random seed (identical results across thread counts)
-=============== ====== ========= ===========================================================
+Parameters: ``usdbake list sky_visibility`` or docs/daylight.md, both generated from ``Params`` below.
 """
 
 from __future__ import annotations
