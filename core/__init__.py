@@ -14,4 +14,4 @@ from .records import Attribute, File, Output, Prim, Primvar, Texture
 from .scene import Scene
 
 __all__ = ["Attribute", "Context", "File", "Output", "ParamError", "Params", "Prim", "Primvar", "Processor",
-           "Result", "Scene", "StageError", "Texture", "UsageError", "param"]
+           "Result", "Scene", "StageError", "Texture", "UsageError", "param", "registry"]

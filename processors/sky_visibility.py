@@ -53,7 +53,7 @@ Parameters: ``usdbake list sky_visibility`` or docs/daylight.md, both generated 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_displacement_fields import build_scene, grid, icosphere, run_processor, translate
+from instanced_scenes import build_scene, grid, icosphere, run_processor, translate
 
 from usdbake.core.products import AmbientOcclusionProduct, DisplacementFieldSet, InstanceOcclusionProduct
 from usdbake import core

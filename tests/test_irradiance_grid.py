@@ -17,13 +17,7 @@ from usdbake.formats import streaming
 from usdbake.core import Context, ParamError
 from usdbake.kernels import octahedral as oct8
 from usdbake.kernels.rgb9e5 import RELATIVE_ERROR
-from usdbake.core.scene import (
-    LIGHT_DISTANT,
-    LIGHT_DOME,
-    LIGHT_SPHERE,
-    Lights,
-    Scene,
-)
+from usdbake.core.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Scene
 from usdbake.kernels.tracer import Tracer
 
 REPO = Path(__file__).resolve().parents[1]

@@ -16,7 +16,7 @@ from usdbake.processors import light_probes as lp
 from usdbake.geometry import tetrahedra
 from usdbake.core import Context, ParamError
 from usdbake.kernels import sh
-from usdbake.core.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Lights, Scene
+from usdbake.core.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Scene
 from usdbake.kernels.tracer import Tracer
 
 REPO = Path(__file__).resolve().parents[1]

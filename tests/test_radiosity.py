@@ -6,7 +6,7 @@ import numpy as np
 from lit_scenes import make_lights
 from stage_builders import base_context
 import pytest
-from test_form_factors import box_parts, make_scene, quad
+from patch_scenes import box_parts, make_scene, quad
 from usdbake.core.products import FormFactorProduct, RadiosityProduct
 from usdbake.processors import form_factors as ff
 from usdbake.processors import radiosity as rad
