@@ -11,6 +11,7 @@ benchmarks/cache, empty Warp kernel cache).
 
 from __future__ import annotations
 
+from repo_paths import REPO
 import hashlib
 import itertools
 import json
@@ -18,11 +19,9 @@ import math
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
 
 QUICK_BUDGET_S = 180.0
 """The issue's limit for ``--quick`` (measured 47-68 s here, so the margin covers a busy machine)."""

@@ -11,12 +11,13 @@ rule broken in a function body or behind a branch is caught too; a subprocess
 then checks the transitive import graph at run time.
 """
 
+from repo_paths import REPO
 import ast
 import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 PACKAGE = "usdbake"
 FOLDERS = ("core", "kernels", "geometry", "formats", "processors", "stages", "schemas", "preview", "cli")
 

@@ -1,5 +1,6 @@
 """radiosity: direct light against closed forms, relight, transfer and the processor end to end."""
 
+from repo_paths import SAMPLES
 import math
 
 import numpy as np
@@ -165,7 +166,7 @@ def test_bake_cornell_box_through_the_cli(tmp_path):
 
     from usdbake.cli.main import main
 
-    sample = Path(__file__).resolve().parent.parent / "samples" / "cornell_box.usda"
+    sample = SAMPLES / "cornell_box.usda"
     out = tmp_path / "cornell.usdc"
     code = main(["bake", str(sample), "-o", str(out), "-p", "radiosity", "--cache", str(tmp_path / "cache"),
                  "--set", "form_factors.target_patches=200", "--set", "form_factors.rays=64",

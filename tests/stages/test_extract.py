@@ -5,6 +5,7 @@ The oracle for transforms is UsdGeom.XformCache / Gf, evaluated in the test;
 Scene stores positions relative to ``scene.origin`` (world = origin + points).
 """
 
+from repo_paths import SAMPLES
 import re
 import warnings
 from pathlib import Path
@@ -20,7 +21,7 @@ from usdbake.core.scene import (LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_REC
 from usdbake.core.errors import StageError
 from usdbake.stages.extract import extract_scene
 
-SAMPLES_DIR = Path(__file__).resolve().parents[1] / "samples"
+SAMPLES_DIR = SAMPLES  # noqa: the name the tests here use
 
 POSITION_ATOL = 1e-5
 """Stage-unit tolerance on world positions of geometry within ~10 units of the

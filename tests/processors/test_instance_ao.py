@@ -4,7 +4,7 @@ The two processors cast the same rays (same seeds, strata and ray offsets), so t
 difference is the field approximation alone.
 """
 
-from pathlib import Path
+from repo_paths import SAMPLES
 
 import numpy as np
 import pytest
@@ -20,7 +20,6 @@ from usdbake.kernels import displacement_field
 from usdbake.processors.instance_ao import InstanceAO, parse_frames, query_field
 from usdbake.kernels.tracer import Tracer
 
-SAMPLES = Path(__file__).resolve().parents[1] / "samples"
 
 AO_RMS_FIGURE = 0.02
 """The issue's figure: RMS AO difference from ambient_occlusion with 8-bit 4225 x 32x32 fields."""

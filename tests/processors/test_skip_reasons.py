@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+from repo_paths import SAMPLES
 
 from pxr import Gf, Usd, UsdGeom, UsdLux
 
 from usdbake.stages.extract import extract_scene
 from usdbake.core.pipeline import Pipeline
 
-SAMPLES = Path(__file__).resolve().parents[1] / "samples"
 
 
 def quad_stage(*, light: bool) -> Usd.Stage:

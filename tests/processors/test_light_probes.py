@@ -2,8 +2,8 @@
 geometry), leak fixing with a wall, determinism across thread counts, applies(), params, and
 end-to-end bakes through USD (a small stage and samples/atrium.usda)."""
 
+from repo_paths import REPO
 import math
-from pathlib import Path
 
 import numpy as np
 from lit_scenes import cube, make_lights, make_scene, merge, quad
@@ -19,7 +19,6 @@ from usdbake.kernels import sh
 from usdbake.core.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Scene
 from usdbake.kernels.tracer import Tracer
 
-REPO = Path(__file__).resolve().parents[1]
 
 SIGMAS = 4.0
 """Monte Carlo tolerances are SIGMAS standard deviations of the i.i.d. estimator (stratified

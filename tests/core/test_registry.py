@@ -9,14 +9,14 @@ tables print it.
 
 from __future__ import annotations
 
-from pathlib import Path
+from repo_paths import REPO
 
 import pytest
 
 from usdbake.core import registry
 from usdbake.core.processor import Processor
 
-PROCESSORS_DIR = Path(__file__).resolve().parent.parent / "processors"
+PROCESSORS_DIR = REPO / "processors"
 
 ACRONYMS = {"ao": "AO"}
 """Name parts written in capitals in class names: instance_ao -> InstanceAO."""

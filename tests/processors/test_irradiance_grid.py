@@ -4,7 +4,6 @@ reconstruction formula, inside-geometry vertices, determinism across thread coun
 geometry, applies()/params, and an end-to-end bake through USD with its stream file."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 from lit_scenes import cube, make_lights, make_scene, merge, quad
@@ -20,7 +19,6 @@ from usdbake.kernels.rgb9e5 import RELATIVE_ERROR
 from usdbake.core.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Scene
 from usdbake.kernels.tracer import Tracer
 
-REPO = Path(__file__).resolve().parents[1]
 
 SIGMAS = 4.0
 """Monte Carlo tolerances: SIGMAS i.i.d. standard deviations (stratified sampling has less variance)."""

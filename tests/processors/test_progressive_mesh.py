@@ -2,6 +2,7 @@
 is the original mesh, a flat grid keeps its area and its 4 corners, a sphere's error shrinks as
 points arrive, degenerate input is harmless, and a bake through USD writes the primvars."""
 
+from repo_paths import SAMPLES
 import numpy as np
 import pytest
 from usdbake.processors import progressive_mesh as pm
@@ -81,12 +82,10 @@ def test_degenerate_input_is_harmless():
 
 
 def test_end_to_end_cornell_box(tmp_path):
-    from pathlib import Path
-
     from pxr import Usd
     from usdbake.cli.main import main
 
-    sample = Path(__file__).resolve().parents[1] / "samples" / "cornell_box.usda"
+    sample = SAMPLES / "cornell_box.usda"
     out = tmp_path / "cornell_pm.usdc"
     assert main(["bake", str(sample), "-o", str(out), "-p", "progressive_mesh", "--cache", str(tmp_path / "c")]) == 0
     stage = Usd.Stage.Open(str(out))

@@ -2,8 +2,8 @@
 open-top box aperture), brute-force agreement on a sample, conforming refinement of receivers, closed
 rooms never refined, degenerate and far-off geometry, and an end-to-end bake through USD."""
 
+from repo_paths import SAMPLES
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,7 +23,6 @@ from usdbake.processors.sky_visibility import (
 )
 from usdbake.kernels.tracer import Tracer
 
-SAMPLES = Path(__file__).resolve().parent.parent / "samples"
 
 SIGMAS = 4.0
 """Monte Carlo tolerances are SIGMAS standard deviations (seeds are fixed anyway)."""

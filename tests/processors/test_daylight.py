@@ -1,8 +1,8 @@
 """Daylight: relight linearity and closed forms, sky models (Preetham, CIE overcast), sun irradiance and
 visibility, and an end-to-end time-sampled bake through USD."""
 
+from repo_paths import SAMPLES
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,7 +25,6 @@ from usdbake.core.scene import Scene
 from usdbake.processors.sky_visibility import compute_sky_visibility
 from usdbake.kernels.tracer import Tracer
 
-SAMPLES = Path(__file__).resolve().parent.parent / "samples"
 
 PATCH_TOL = 0.01
 """Relative error of integrating a smooth sky over 256 patches (patch-mean radiance x patch-mean cosine)."""
