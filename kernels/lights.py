@@ -215,7 +215,9 @@ def sample_light(lights: Lights, l: int, p: wp.vec3, u1: float, u2: float) -> Li
 
 @wp.func
 def light_sample_count(lights: Lights, l: int, strata: int) -> int:
-    """strata^2 stratified samples per light; 1 for a delta light."""
+    """strata^2 stratified samples per light; 1 for a delta light; 0 for a dome (sampled by rays that escape)."""
+    if lights.light_kind[l] == 1:
+        return 0
     if is_delta_light(lights, l):
         return 1
     return strata * strata
@@ -228,6 +230,19 @@ def light_sample_at(lights: Lights, l: int, p: wp.vec3, k: int, strata: int, sta
     if not is_delta_light(lights, l):
         u = stratified_pair(k, strata, state)
     return sample_light(lights, l, p, u[0], u[1])
+
+
+@wp.func
+def visible_light_sample(mesh: wp.uint64, lights: Lights, l: int, p: wp.vec3, k: int, strata: int,
+                         state: wp.uint32) -> LightSample:
+    """Sample k of light l seen from a point p in free space, its shadow ray cast: weight = Omega V / count,
+    so sum_k L weight estimates the light's part of integral L dw (zero for a dome light, which escaped
+    rays see, and for an occluded sample). Vector irradiance and SH projections sum L weight f(w)."""
+    s = light_sample_at(lights, l, p, k, strata, state)
+    if s.weight > 0.0:
+        s.weight = s.weight * shadow_visible(mesh, p, s.direction, s.distance, 0.0) / float(
+            light_sample_count(lights, l, strata))
+    return s
 
 
 @wp.func

@@ -16,8 +16,8 @@ import numpy as np
 import warp as wp
 
 from ..core.scene import Scene
-from .lights import (Lights, SceneLighting, Surfaces, hit_radiance, light_sample_at, light_sample_count,
-                     scene_lighting, shadow_visible)
+from .lights import (Lights, SceneLighting, Surfaces, hit_radiance, light_sample_count, scene_lighting,
+                     visible_light_sample)
 from .sampling import strata_for, stratified_pair
 from .sh import COSINE_LOBE, project_kernel, sh_basis, uniform_sphere
 
@@ -87,14 +87,10 @@ def probe_lights_kernel(
     p = probe_positions[i]
     state = wp.rand_init(seed, i)
     for l in range(lights.light_kind.shape[0]):
-        if lights.light_kind[l] == 1:
-            continue
-        count = light_sample_count(lights, l, strata)
-        for k in range(count):
-            s = light_sample_at(lights, l, p, k, strata, state)
+        for k in range(light_sample_count(lights, l, strata)):
+            s = visible_light_sample(mesh, lights, l, p, k, strata, state)
             if s.weight > 0.0:
-                c = lights.light_radiance[l] * (s.weight * shadow_visible(mesh, p, s.direction, s.distance, 0.0)
-                                                / float(count))
+                c = lights.light_radiance[l] * s.weight
                 y = sh_basis(s.direction)
                 for j in range(9):
                     out[i, 3 * j + 0] = out[i, 3 * j + 0] + y[j] * c[0]

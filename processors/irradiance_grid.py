@@ -115,7 +115,7 @@ from ..core.scene import Scene
 from ..formats import streaming
 from ..geometry.mesh import receiver_prims, vertex_normals
 from ..kernels.lights import (Lights, SceneLighting, Surfaces, emissive_lights, has_light, hit_radiance,
-                              light_sample_at, light_sample_count, scene_lighting, shadow_visible)
+                              light_sample_count, scene_lighting, visible_light_sample)
 from ..kernels.octahedral import AXES, decode_hemisphere, encode_hemisphere
 from ..kernels.rgb9e5 import decode_rgb9e5, encode_rgb9e5
 from ..kernels.sampling import strata_for, stratified_pair
@@ -198,15 +198,12 @@ def irradiance_vectors_kernel(
     back_hits[i] = back
     if include_direct == 0:
         return
-    for l in range(lights.light_kind.shape[0]):
-        if lights.light_kind[l] == 1:  # dome: seen by the escaped rays above
-            continue
-        count = light_sample_count(lights, l, strata)
-        for k in range(count):
-            s = light_sample_at(lights, l, p, k, strata, state)
+    for l in range(lights.light_kind.shape[0]):  # the small lights; domes are seen by the escaped rays above
+        for k in range(light_sample_count(lights, l, strata)):
+            s = visible_light_sample(mesh, lights, l, p, k, strata, state)
             if s.weight > 0.0:
-                v = s.weight * shadow_visible(mesh, p, s.direction, s.distance, 0.0) / float(count)
-                add_to_hemispheres(vectors, base, s.direction, wp.outer(lights.light_radiance[l] * v, s.direction))
+                add_to_hemispheres(vectors, base, s.direction,
+                                   wp.outer(lights.light_radiance[l] * s.weight, s.direction))
 
 
 # ---------------------------------------------------------------------------

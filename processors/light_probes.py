@@ -216,6 +216,14 @@ def variation_gradient(positions: np.ndarray, v: np.ndarray, edges: np.ndarray) 
     return gradient, length_sum / np.maximum(degree, 1.0)
 
 
+def cloud_edges(positions: np.ndarray) -> np.ndarray | None:
+    """(E, 2) edges of the probes' Delaunay tetrahedra, or None when the probes span no volume."""
+    try:
+        return tetrahedra.edge_list(tetrahedra.tetrahedralize(positions).tet_vertices)[0]
+    except tetrahedra.DegenerateProbesError:
+        return None
+
+
 def segment_blocked(tracer, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(N,) bool: geometry lies on the segment a -> b or b -> a (two rays, as Sukys for thick walls)."""
     a = np.asarray(a, np.float32).reshape(-1, 3)
@@ -280,11 +288,9 @@ def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0,
     capture_seed = seed + 2
     for round_ in range(iterations):
         progress(0.1 + 0.5 * round_ / max(iterations, 1))
-        try:
-            tetra = tetrahedra.tetrahedralize(positions)
-        except tetrahedra.DegenerateProbesError:
+        edges = cloud_edges(positions)
+        if edges is None:
             break
-        edges, _ = tetrahedra.edge_list(tetra.tet_vertices)
         samples = sample_irradiance(sh)
         floor = CONTRAST_FLOOR_RELATIVE * max(float(samples.max(initial=0.0)), 1e-30)
         v, _ = variation(positions, samples, edges, floor)
@@ -308,11 +314,9 @@ def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0,
                 stats["moved"] += int(lit.sum())
 
         # Spawn at the midpoints of contrasted, long edges.
-        try:
-            tetra = tetrahedra.tetrahedralize(positions)
-        except tetrahedra.DegenerateProbesError:
+        edges = cloud_edges(positions)
+        if edges is None:
             break
-        edges, _ = tetrahedra.edge_list(tetra.tet_vertices)
         samples = sample_irradiance(sh)
         v, edge_c = variation(positions, samples, edges, floor)
         length = np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1)
