@@ -32,3 +32,15 @@ def face_means(values: np.ndarray, weights: np.ndarray, face: np.ndarray, face_c
     weight = np.bincount(face, weights=weights, minlength=face_count)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(weight > 0, total / weight, 1.0).astype(np.float32)
+
+
+NO_RECEIVERS = "no writable meshes (all instanced, bake:skip or empty)"
+"""Why a processor that writes to receiver meshes does not apply."""
+
+
+def missing_receivers(scene: Scene) -> str:
+    """NO_RECEIVERS when the scene has no receiver prims (``receiver_prims``), else ''.
+
+    Meant for ``Processor.applies``: ``reason = missing_receivers(scene); return not reason, reason``.
+    """
+    return NO_RECEIVERS if len(receiver_prims(scene)) == 0 else ""

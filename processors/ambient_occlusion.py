@@ -40,8 +40,7 @@ from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result,
 from ..core.products import AmbientOcclusionProduct
 from ..kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
 from ..kernels.sampling import strata_for, tangent_frame, triangle_point
-from ..geometry.mesh import face_means, receiver_prims, vertex_normals
-from ..geometry.receivers import missing_receivers
+from ..geometry.mesh import face_means, missing_receivers, receiver_prims, vertex_normals
 from ..core.scene import Scene
 
 wp.set_module_options({"enable_backward": False})

@@ -76,8 +76,7 @@ from ..core.products import DisplacementFieldSet, InstanceOcclusionProduct
 from ..kernels.displacement_field import INTERPOLATION_MODES, FieldArrays, FieldSet, field_visibility
 from ..kernels.occlusion import FAR, AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
 from ..kernels.sampling import strata_for, tangent_frame
-from ..geometry.mesh import face_means, receiver_prims, vertex_normals
-from ..geometry.receivers import missing_receivers
+from ..geometry.mesh import face_means, missing_receivers, receiver_prims, vertex_normals
 from ..geometry.transforms import invertible
 from ..core.scene import Scene
 from ..kernels.tracer import Tracer

@@ -56,8 +56,7 @@ import numpy as np
 
 from ..core import Context, Params, Primvar, Processor, Result, param
 from ..core.products import ProgressiveMeshProduct
-from ..geometry.mesh import receiver_prims
-from ..geometry.receivers import missing_receivers
+from ..geometry.mesh import missing_receivers, receiver_prims
 
 FLIP_PENALTY = 10.0
 """Added to the curvature term of a collapse that flips a face: such collapses come last."""

@@ -52,7 +52,7 @@ import warp as wp
 
 from ..core import Context, Params, Primvar, Processor, Result, param
 from ..core.products import FormFactorProduct, RadiosityProduct
-from ..geometry.mesh import receiver_prims, vertex_normals
+from ..geometry.mesh import missing_receivers, receiver_prims, vertex_normals
 from ..kernels.operator_relight import relight
 from ..core.scene import Scene
 from ..kernels.lights import Lights, direct_irradiance, has_light, light_bundle, shadow_rays_per_point
@@ -377,9 +377,8 @@ class Radiosity(Processor):
         scene = ctx.scene
         if not has_light(scene):
             return False, "no lights or emissive surfaces"
-        if len(receiver_prims(scene)) == 0:
-            return False, "no writable meshes (all instanced, bake:skip or empty)"
-        return True, ""
+        reason = missing_receivers(scene)
+        return not reason, reason
 
     def run(self, ctx: Context) -> Result:
         scene, p = ctx.scene, ctx.params

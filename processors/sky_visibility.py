@@ -60,7 +60,7 @@ import warp as wp
 
 from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
 from ..core.products import SkyVisibilityProduct
-from ..geometry.mesh import receiver_prims
+from ..geometry.mesh import missing_receivers, receiver_prims
 from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame, triangle_point
 from ..kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
 from ..geometry.refine import refine, weld_points
@@ -461,8 +461,9 @@ class SkyVisibility(Processor):
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
         scene = ctx.scene
-        if len(receiver_prims(scene)) == 0:
-            return False, "no writable meshes (all instanced, bake:skip or empty)"
+        reason = missing_receivers(scene)
+        if reason:
+            return False, reason
         patches = patch_layout(self.params.patch_layout, count=self.params.patch_count,
                                subdivision=self.params.subdivision)
         if not sees_sky(ctx.tracer, scene, patches.patch_directions @ enu_to_world(scene.up_axis).T):
