@@ -16,13 +16,13 @@ from dataclasses import dataclass, field
 from graphlib import CycleError, TopologicalSorter
 from typing import Callable
 
-from .registry import get as get_processor
-from .registry import registry as all_processors
 from .cache import ResultCache, step_key
 from .errors import UsageError
 from .params import ParamError, Params
 from .processor import Context, Processor, Result
 from .records import Attribute, Primvar
+from .registry import get as get_processor
+from .registry import registry as all_processors
 from .scene import Scene
 
 DEFAULT_PROCESSORS = ("ambient_occlusion",)

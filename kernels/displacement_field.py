@@ -40,8 +40,12 @@ import warp as wp
 
 from ..core.products import DisplacementField
 from .sampling import cosine_hemisphere, tangent_frame
-from .sphere_maps import (equal_area_sphere_to_square, equal_area_square_to_sphere, malley_direction_to_square,
-                          octahedral_wrap)
+from .sphere_maps import (
+    equal_area_sphere_to_square,
+    equal_area_square_to_sphere,
+    malley_direction_to_square,
+    octahedral_wrap,
+)
 from .tracer import Tracer
 
 wp.set_module_options({"enable_backward": False})

@@ -42,6 +42,7 @@ import warp as wp
 
 from ..core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Scene
 from .sampling import concentric_disk, cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
+from .tracer import FAR
 
 wp.set_module_options({"enable_backward": False})
 
@@ -53,8 +54,6 @@ AREA_SHADOW_SHORTENING = 1e-4
 """Shadow rays towards a point on an area light stop this fraction short of it, so the emitter's own
 surface (a quad modelled at the light) does not occlude its light."""
 
-NO_HIT = 3.0e38
-"""Shadow-ray length for lights at infinity (float32 max is 3.4e38)."""
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 """Rec. 709 luminance weights: the power an emissive triangle is picked by."""
@@ -181,7 +180,7 @@ def sample_light(lights: Lights, l: int, p: wp.vec3, u1: float, u2: float) -> Li
     s = LightSample()
     s.direction = -axis
     s.weight = 0.0
-    s.distance = NO_HIT
+    s.distance = FAR
     if kind == 0:  # distant: a direction in the cone `angle`, weight Omega (angle 0: -axis, weight 1)
         s.weight = distant_solid_angle(size[0])
         half = wp.radians(size[0]) * 0.5
@@ -287,7 +286,7 @@ def direct_irradiance(mesh: wp.uint64, lights: Lights, p: wp.vec3, n: wp.vec3, s
             for k in range(sky):
                 u = stratified_pair(k, sky_strata, state)
                 w = frame * cosine_hemisphere(u[0], u[1])
-                acc += shadow_visible(mesh, origin, w, NO_HIT, epsilon) * (wp.pi / float(sky))
+                acc += shadow_visible(mesh, origin, w, FAR, epsilon) * (wp.pi / float(sky))
         elif lights.light_kind[l] == 2 and wp.length(lights.light_position[l] - p) <= lights.light_size[l][0]:
             acc = wp.pi  # inside a sphere light: radiance from every direction of the hemisphere
         else:

@@ -26,11 +26,10 @@ import numpy as np
 import warp as wp
 
 from .sampling import cosine_hemisphere, strata_for, stratified_pair
+from .tracer import FAR
 
 wp.set_module_options({"enable_backward": False})
 
-FAR = 3.0e38
-"""Ray length standing in for an unbounded ``max_distance`` (kernels take float32)."""
 
 
 @wp.struct

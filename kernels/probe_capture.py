@@ -16,10 +16,18 @@ import numpy as np
 import warp as wp
 
 from ..core.scene import Scene
-from .lights import (Lights, SceneLighting, Surfaces, hit_radiance, light_sample_count, scene_lighting,
-                     visible_light_sample)
+from .lights import (
+    Lights,
+    SceneLighting,
+    Surfaces,
+    hit_radiance,
+    light_sample_count,
+    scene_lighting,
+    visible_light_sample,
+)
 from .sampling import strata_for, stratified_pair
 from .sh import COSINE_LOBE, project_kernel, sh_basis, uniform_sphere
+from .tracer import FAR
 
 wp.set_module_options({"enable_backward": False})
 
@@ -64,7 +72,7 @@ def capture_kernel(
     d = uniform_sphere(u[0], u[1])
     directions[i] = d
     origin = probe_positions[probe]
-    q = wp.mesh_query_ray(mesh, origin, d, 3.0e38)
+    q = wp.mesh_query_ray(mesh, origin, d, FAR)
     value = lights.dome_radiance
     if q.result:
         value = hit_radiance(mesh, surfaces, lights, origin, d, q.face, q.t, 1, epsilon, wp.rand_init(wp.int32(state), samples))
@@ -113,10 +121,10 @@ def inside_kernel(
     i = start + wp.tid()
     p = positions[i]
     votes = int(0)
-    near = float(3.0e38)
+    near = FAR
     for k in range(directions.shape[0]):
         d = directions[k]
-        q = wp.mesh_query_ray(mesh, p, d, 3.0e38)
+        q = wp.mesh_query_ray(mesh, p, d, FAR)
         if q.result:
             near = wp.min(near, q.t)
             if surfaces.tri_double_sided[q.face] == 0:

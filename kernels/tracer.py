@@ -32,6 +32,9 @@ feature a baker resolves."""
 CPU_BLOCK_DIM = 1
 """Warp's CPU launch block size; stated so preloading and launching agree."""
 
+FAR = 3.0e38
+"""Ray length that means "no limit" in float32 kernels (float32 max is 3.4e38)."""
+
 MIN_CHUNK = 4096
 """Smallest work item per thread: below this, thread overhead beats the gain."""
 
@@ -191,7 +194,7 @@ class Tracer:
         hit_uv = wp.zeros(n, dtype=wp.vec2, device=self.device)
         hit_front = wp.zeros(n, dtype=wp.int8, device=self.device)
         self.launch(closest_hit_kernel, n,
-                    [self.mesh.id, origins_wp, directions_wp, _finite(max_t), hit_t, hit_triangle, hit_uv, hit_front])
+                    [self.mesh.id, origins_wp, directions_wp, finite_distance(max_t), hit_t, hit_triangle, hit_uv, hit_front])
         self.rays_cast += n
         return Hits(hit_t.numpy(), hit_triangle.numpy(), hit_uv.numpy(), hit_front.numpy().astype(bool))
 
@@ -199,7 +202,7 @@ class Tracer:
         """(N,) bool: something lies along the ray within max_t."""
         origins_wp, directions_wp, n = self._rays(origins, directions)
         occluded = wp.zeros(n, dtype=wp.int8, device=self.device)
-        self.launch(any_hit_kernel, n, [self.mesh.id, origins_wp, directions_wp, _finite(max_t), occluded])
+        self.launch(any_hit_kernel, n, [self.mesh.id, origins_wp, directions_wp, finite_distance(max_t), occluded])
         self.rays_cast += n
         return occluded.numpy().astype(bool)
 
@@ -211,9 +214,9 @@ class Tracer:
         return self.array(origins, wp.vec3), self.array(directions, wp.vec3), len(origins)
 
 
-def _finite(max_t: float) -> float:
-    """Warp kernels take float32; inf is fine there but keep it explicit and finite-safe."""
-    return float(min(max_t, 3.0e38))
+def finite_distance(max_t: float) -> float:
+    """A ray length for a float32 kernel argument: ``max_t`` clamped to FAR (inf means no limit)."""
+    return float(min(max_t, FAR))
 
 
 _SHARED: dict[tuple[int, str], Tracer] = {}

@@ -38,10 +38,10 @@ import warp as wp
 
 from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
 from ..core.products import AmbientOcclusionProduct
+from ..core.scene import Scene
+from ..geometry.mesh import face_means, missing_receivers, receiver_prims, vertex_normals
 from ..kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
 from ..kernels.sampling import strata_for, tangent_frame, triangle_point
-from ..geometry.mesh import face_means, missing_receivers, receiver_prims, vertex_normals
-from ..core.scene import Scene
 
 wp.set_module_options({"enable_backward": False})
 

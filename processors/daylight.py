@@ -60,6 +60,7 @@ from ..core import (
     param,
 )
 from ..core.products import DaylightProduct, SkyVisibilityProduct
+from ..core.scene import Scene
 from ..kernels.sampling import tangent_frame, triangle_point
 from ..kernels.sky import (
     SUN_ANGULAR_DIAMETER,
@@ -67,8 +68,8 @@ from ..kernels.sky import (
     patch_radiance,
     sun_normal_irradiance,
 )
-from ..core.scene import Scene
 from ..kernels.solar import parse_times, sun_position
+from ..kernels.tracer import FAR
 
 wp.set_module_options({"enable_backward": False})
 
@@ -113,7 +114,7 @@ def sun_visibility_kernel(
         d = frame * wp.vec3(sin_t * wp.cos(phi), sin_t * wp.sin(phi), cos_t)
         x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))
         if wp.dot(n, d) > 0.0:
-            if not wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, d, 3.0e38):
+            if not wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, d, FAR):
                 hits += 1
     visible[i] = float(hits) / float(samples)
 

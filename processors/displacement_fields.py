@@ -64,11 +64,17 @@ import warp as wp
 
 from ..core import Attribute, Context, ParamError, Params, Prim, Processor, Result, Texture, param
 from ..core.products import DisplacementField, DisplacementFieldSet
-from ..kernels.displacement_field import (DIRECTION_MAPPING, POSITION_MAPPING, encode_field, field_atlas,
-                                         positional_sample, texel_direction)
-from ..kernels.sampling import tangent_frame
-from ..geometry.transforms import invertible
 from ..core.scene import Scene
+from ..geometry.transforms import invertible
+from ..kernels.displacement_field import (
+    DIRECTION_MAPPING,
+    POSITION_MAPPING,
+    encode_field,
+    field_atlas,
+    positional_sample,
+    texel_direction,
+)
+from ..kernels.sampling import tangent_frame
 from ..kernels.tracer import Tracer
 
 wp.set_module_options({"enable_backward": False})

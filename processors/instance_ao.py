@@ -73,13 +73,13 @@ import warp as wp
 
 from ..core import Context, Params, Primvar, Processor, Result, param
 from ..core.products import DisplacementFieldSet, InstanceOcclusionProduct
-from ..kernels.displacement_field import INTERPOLATION_MODES, FieldArrays, FieldSet, field_visibility
-from ..kernels.occlusion import FAR, AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
-from ..kernels.sampling import strata_for, tangent_frame
+from ..core.scene import Scene
 from ..geometry.mesh import face_means, missing_receivers, receiver_prims, vertex_normals
 from ..geometry.transforms import invertible
-from ..core.scene import Scene
-from ..kernels.tracer import Tracer
+from ..kernels.displacement_field import INTERPOLATION_MODES, FieldArrays, FieldSet, field_visibility
+from ..kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
+from ..kernels.sampling import strata_for, tangent_frame
+from ..kernels.tracer import FAR, Tracer
 
 wp.set_module_options({"enable_backward": False})
 

@@ -114,12 +114,22 @@ from ..core.products import IrradianceGridProduct
 from ..core.scene import Scene
 from ..formats import streaming
 from ..geometry.mesh import receiver_prims, vertex_normals
-from ..kernels.lights import (Lights, SceneLighting, Surfaces, emissive_lights, has_light, hit_radiance,
-                              light_sample_count, scene_lighting, visible_light_sample)
+from ..kernels.lights import (
+    Lights,
+    SceneLighting,
+    Surfaces,
+    emissive_lights,
+    has_light,
+    hit_radiance,
+    light_sample_count,
+    scene_lighting,
+    visible_light_sample,
+)
 from ..kernels.octahedral import AXES, decode_hemisphere, encode_hemisphere
 from ..kernels.rgb9e5 import decode_rgb9e5, encode_rgb9e5
 from ..kernels.sampling import strata_for, stratified_pair
 from ..kernels.sh import uniform_sphere
+from ..kernels.tracer import FAR
 
 wp.set_module_options({"enable_backward": False})
 
@@ -184,7 +194,7 @@ def irradiance_vectors_kernel(
         u = stratified_pair(k, strata, state)
         d = uniform_sphere(u[0], u[1])
         value = wp.vec3(0.0, 0.0, 0.0)
-        q = wp.mesh_query_ray(mesh, p, d, 3.0e38)
+        q = wp.mesh_query_ray(mesh, p, d, FAR)
         if not q.result:
             if include_direct != 0:
                 value = lights.dome_radiance

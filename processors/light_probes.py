@@ -111,13 +111,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..geometry import tetrahedra
 from ..core import Attribute, Context, Params, Prim, Processor, Result, param
 from ..core.products import ProbeCloud
+from ..core.scene import Scene
+from ..geometry import tetrahedra
 from ..kernels.lights import SceneLighting, has_light, scene_lighting
 from ..kernels.probe_capture import PROBE_DIRECTIONS, classify_points, compute_probe_sh
 from ..kernels.sh import sh_basis_np
-from ..core.scene import Scene
 
 CLOUD_PRIM = "/usdbake/LightProbes"
 

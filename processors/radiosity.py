@@ -52,12 +52,13 @@ import warp as wp
 
 from ..core import Context, Params, Primvar, Processor, Result, param
 from ..core.products import FormFactorProduct, RadiosityProduct
-from ..geometry.mesh import missing_receivers, receiver_prims, vertex_normals
-from ..kernels.operator_relight import relight
 from ..core.scene import Scene
+from ..geometry.mesh import missing_receivers, receiver_prims, vertex_normals
 from ..kernels.lights import Lights, direct_irradiance, has_light, light_bundle, shadow_rays_per_point
+from ..kernels.operator_relight import relight
 from ..kernels.patches import fragment_of_hit
 from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
+from ..kernels.tracer import FAR
 
 wp.set_module_options({"enable_backward": False})
 
@@ -146,7 +147,7 @@ def gather_kernel(
     for k in range(rays):
         u = stratified_pair(k, strata, state)
         w = frame * cosine_hemisphere(u[0], u[1])
-        q = wp.mesh_query_ray(mesh, origin, w, 3.0e38)
+        q = wp.mesh_query_ray(mesh, origin, w, FAR)
         if q.result:
             if wp.dot(w, tri_normals[q.face]) < 0.0:
                 patch = fragment_patch[fragment_of_hit(q.face, q.u, q.v, tri_subdivision, tri_fragment_start)]
@@ -189,7 +190,7 @@ def gather_direct_kernel(
         u1 = (float(k % strata) + wp.randf(state)) * inv
         u2 = (float(k // strata) + wp.randf(state)) * inv
         w = frame * cosine_hemisphere(u1, u2)
-        q = wp.mesh_query_ray(mesh, origin, w, 3.0e38)
+        q = wp.mesh_query_ray(mesh, origin, w, FAR)
         if q.result:
             hn = tri_normals[q.face]
             if wp.dot(w, hn) < 0.0:

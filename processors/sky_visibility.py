@@ -60,11 +60,12 @@ import warp as wp
 
 from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
 from ..core.products import SkyVisibilityProduct
+from ..core.scene import Scene
 from ..geometry.mesh import missing_receivers, receiver_prims
+from ..geometry.refine import refine, weld_points
 from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame, triangle_point
 from ..kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
-from ..geometry.refine import refine, weld_points
-from ..core.scene import Scene
+from ..kernels.tracer import FAR
 
 wp.set_module_options({"enable_backward": False})
 
@@ -131,7 +132,7 @@ def patch_visibility_kernel(
         u2 = wp.randf(state)
         if cos_theta > 0.0:
             x = triangle_point(a, b, c, u1, u2)
-            if wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, d, 3.0e38):
+            if wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, d, FAR):
                 occ += cos_theta
             else:
                 vis += cos_theta
@@ -176,7 +177,7 @@ def point_sky_view_kernel(
         u = stratified_pair(k, strata, state)
         d = frame * cosine_hemisphere(u[0], u[1])
         if wp.dot(d, up) > 0.0:
-            if not wp.mesh_query_ray_anyhit(mesh, origin, d, 3.0e38):
+            if not wp.mesh_query_ray_anyhit(mesh, origin, d, FAR):
                 hits += 1
     view[i] = float(hits) / float(strata * strata)
 

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Tf, Usd
 
-from ..core.records import Attribute, File, Prim, Primvar, Texture
 from ..core.errors import UsageError
+from ..core.records import Attribute, File, Prim, Primvar, Texture
 
 PROVENANCE_KEY = "usdbake"
 

@@ -15,9 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux
 
-from ..core.scene import (LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Instances,
-                                Lights, Scene)
 from ..core.errors import StageError
+from ..core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Instances, Lights, Scene
 from .materials import MaterialReader
 from .triangulate import triangulate
 

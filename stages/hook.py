@@ -16,10 +16,10 @@ from pathlib import Path
 
 from pxr import Sdf, Usd
 
+from ..core.pipeline import Pipeline
 from ..core.records import File, Texture
 from .bake_layer import PROVENANCE_KEY, author, is_bake_layer
 from .extract import extract_scene
-from ..core.pipeline import Pipeline
 
 
 def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | None = None,

@@ -6,8 +6,8 @@ from pathlib import Path
 
 from pxr import Sdf
 
-from .bake_layer import PROVENANCE_KEY, is_bake_layer
 from ..core.errors import UsageError
+from .bake_layer import PROVENANCE_KEY, is_bake_layer
 
 
 def inspect_layer(path: str) -> dict:
