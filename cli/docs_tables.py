@@ -97,9 +97,13 @@ def rewrite(text: str, processors: dict[str, type[Processor]], where: str = "<te
     return BLOCK.sub(lambda match: block(match["name"], processors[match["name"]]), text)
 
 
-def expected(docs: Path = DOCS, processors: dict[str, type[Processor]] | None = None) -> dict[Path, str]:
+def expected(docs: Path = DOCS, processors: dict[str, type[Processor]] | None = None, *,
+             add_missing: bool = True) -> dict[Path, str]:
     """{page: the text the generator would write} for docs/*.md, the index page included (created
-    when absent). DocsError for unknown names, unclosed blocks and processors named twice."""
+    when absent). ``add_missing``: give a processor that no page names a section on the index page
+    (what the command does); without it such a processor is left out of the pages and the index (what
+    the drift check compares, so a new processor is not drift). DocsError for unknown names, unclosed
+    blocks and processors named twice."""
     processors = dict(registry.builtin()) if processors is None else processors
     if not docs.is_dir():
         raise DocsError(f"no docs folder at {docs} (the tables live in a source checkout)")
@@ -112,19 +116,19 @@ def expected(docs: Path = DOCS, processors: dict[str, type[Processor]] | None = 
             if name in home:
                 raise DocsError(f"{name!r} has parameter blocks in both {home[name]} and {path.name}; keep one")
             home[name] = path.name
-    for name in processors:
+    for name in processors if add_missing else ():
         if name not in home:  # a section of its own on the index page, filled in by rewrite() below
             pages[catch_all] = (pages[catch_all].rstrip("\n")
                                 + f"\n\n## `{name}`\n\n{processors[name].summary}\n\n<!-- params: {name} -->\n{CLOSE}\n")
             home[name] = catch_all.name
-    listing = index(processors, home)
+    listing = index({name: cls for name, cls in processors.items() if name in home}, home)
     return {path: INDEX.sub(lambda match: listing, rewrite(text, processors, path.name))
             for path, text in pages.items()}
 
 
 def stale(docs: Path = DOCS) -> list[Path]:
-    """Pages whose text differs from what the generator would write."""
-    return [path for path, text in expected(docs).items() if _differs(path, text)]
+    """Pages whose text differs from what the generator would write for the processors they name."""
+    return [path for path, text in expected(docs, add_missing=False).items() if _differs(path, text)]
 
 
 def write(docs: Path = DOCS) -> list[Path]:

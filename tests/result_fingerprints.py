@@ -75,12 +75,13 @@ def fingerprints(sample: Path, name: str, params: dict) -> dict:
 
 
 def compute(samples=None, processors=None) -> dict:
-    from stress.stage_builders_stress import FAST_PARAMS
+    from stress.stage_builders_stress import fast_params
+    from usdbake.core import registry
 
     table = {}
     for sample in sorted(samples or SAMPLES.glob("*.usda")):
-        for name in sorted(processors or FAST_PARAMS):
-            table[f"{sample.stem}/{name}"] = fingerprints(sample, name, FAST_PARAMS[name])
+        for name in sorted(processors or registry.builtin()):
+            table[f"{sample.stem}/{name}"] = fingerprints(sample, name, fast_params(name))
     return table
 
 

@@ -139,3 +139,9 @@ FAST_PARAMS: dict[str, dict[str, dict]] = {
     "progressive_mesh": {},
 }
 """Per processor: the params argument of usdbake.bake / Pipeline.build (dependencies' params included)."""
+
+
+def fast_params(name: str) -> dict[str, dict]:
+    """FAST_PARAMS of a processor; a processor without an entry runs at its defaults (a new processor joins
+    every stress and determinism test as it is; give it an entry when its defaults are slow)."""
+    return FAST_PARAMS.get(name, {})

@@ -16,7 +16,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from stress.stage_builders_stress import FAST_PARAMS, hostile_lit_stage, small_lit_stage
+from stress.stage_builders_stress import fast_params, hostile_lit_stage, small_lit_stage
 from usdbake import core
 from usdbake.kernels import tracer
 from usdbake.stages.extract import extract_scene
@@ -62,7 +62,7 @@ def record_arrays(value, where: str, depth: int = 0):
 
 
 def run_once(name: str, scene, threads: int) -> dict[str, np.ndarray]:
-    steps = Pipeline.build([name], FAST_PARAMS[name], threads=threads).run(scene)
+    steps = Pipeline.build([name], fast_params(name), threads=threads).run(scene)
     out = {}
     for step in steps:
         assert step.action == "run", f"{step.name}: {step.action} ({step.reason})"
