@@ -2,12 +2,7 @@
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -21,15 +16,11 @@ DEFAULT_SAMPLES = 256
 
 
 def run(quick: bool = False) -> dict:
-    from pxr import Usd
-
-    from usdbake.processors.ambient_occlusion import AmbientOcclusion, compute_vertex_ao
     from usdbake.geometry.mesh import vertex_normals
     from usdbake.kernels.tracer import Tracer
-    from usdbake.stages.extract import extract_scene
+    from usdbake.processors.ambient_occlusion import AmbientOcclusion, compute_vertex_ao
 
-    sample = harness.SAMPLES / "atrium.usda"
-    scene = extract_scene(Usd.Stage.Open(str(sample)))
+    scene = harness.load_scene("atrium")
     tracer = Tracer.from_scene(scene)
     normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
     points = scene.points
@@ -53,18 +44,9 @@ def run(quick: bool = False) -> dict:
     figures = {"vertices": len(points), "rms_at_default_vs_16x": round(next(r["error"] for r in rows
                                                                               if r["default"]), 5)}
     if not quick:
-        figures["bake_wall_seconds_default"] = round(_bake_wall_seconds(sample), 3)
+        figures["bake_wall_seconds_default"] = round(harness.bake_wall_seconds(harness.SAMPLES / "atrium.usda"), 3)
     table = harness.markdown_table(rows, ["samples", "seconds", "error", "mrays_per_s"])
     return harness.result(NAME, description=DESCRIPTION, settings={"reference_samples": reference_samples},
                           points=rows, figures=figures, table=table, knob="samples per vertex",
                           error_label="AO RMS vs 16x samples")
 
-
-def _bake_wall_seconds(sample: Path) -> float:
-    """Wall time of the `usdbake bake` command at defaults (fresh cache, so it really runs)."""
-    with tempfile.TemporaryDirectory() as folder:
-        command = [sys.executable, "-m", "usdbake.cli.main", "bake", str(sample), "-o",
-                   str(Path(folder) / "atrium.baked.usdc"), "--cache", str(Path(folder) / "cache")]
-        started = time.perf_counter()
-        subprocess.run(command, check=True, capture_output=True, env={**os.environ})
-        return time.perf_counter() - started

@@ -5,10 +5,14 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from usdbake.core.products import (AmbientOcclusionProduct, DisplacementField, DisplacementFieldSet,
-                                   InstanceOcclusionProduct)
 
 from . import harness
+from usdbake.core.products import (
+    AmbientOcclusionProduct,
+    DisplacementField,
+    DisplacementFieldSet,
+    InstanceOcclusionProduct,
+)
 
 NAME = "displacement_fields"
 DESCRIPTION = (
@@ -43,19 +47,20 @@ def bumpy_sphere(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def run(quick: bool = False) -> dict:
-    from pxr import Usd
-
     from usdbake import core
-    from usdbake.processors.ambient_occlusion import AmbientOcclusion
     from usdbake.kernels.displacement_field import encode_field
-    from usdbake.processors.displacement_fields import (DisplacementFields, compute_field_distances,
-                                                        prototype_geometry, side_for)
-    from usdbake.processors.instance_ao import InstanceAO
     from usdbake.kernels.tracer import Tracer
-    from usdbake.stages.extract import extract_scene
+    from usdbake.processors.ambient_occlusion import AmbientOcclusion
+    from usdbake.processors.displacement_fields import (
+        DisplacementFields,
+        compute_field_distances,
+        prototype_geometry,
+        side_for,
+    )
+    from usdbake.processors.instance_ao import InstanceAO
 
-    scene = extract_scene(Usd.Stage.Open(str(harness.SAMPLES / "instanced_props.usda")))
-    receivers = np.isin(scene.point_prim, np.flatnonzero(scene.prim_writable))
+    scene = harness.load_scene("instanced_props")
+    receivers = harness.receiver_points(scene)
 
     # reference: the exact AO with a BVH over all 372k triangles (BVH build included: per frame, it must be redone)
     started = time.perf_counter()
@@ -66,6 +71,9 @@ def run(quick: bool = False) -> dict:
     started = time.perf_counter()
     reference = AmbientOcclusion().run(ctx).products[AmbientOcclusionProduct].point_ao
     reference_seconds = time.perf_counter() - started + bvh_build
+
+    def rms(ao) -> float:  # over the receivers' points, AO in [0, 1]
+        return float(np.sqrt(np.mean((ao[receivers] - reference[receivers]) ** 2)))
 
     prototypes = {path: prototype_geometry(scene, index) for index, path in enumerate(scene.instances.prototype_paths)}
     sweep = ([(289, 16), (1089, 16), (1089, 32)] if quick else
@@ -85,17 +93,16 @@ def run(quick: bool = False) -> dict:
                 texels, means = encode_field(values, encoding)
                 fields[path] = DisplacementField(path, center, radius, side, size, encoding, texels, means,
                                                  len(prototypes[path][1]))
-            params = InstanceAO.Params()
-            ao_ctx = core.Context(scene=scene, params=params, tracer=None, products={DisplacementFieldSet: DisplacementFieldSet(fields)})
+            ao_ctx = core.Context(scene=scene, params=InstanceAO.Params(), tracer=None,
+                                  products={DisplacementFieldSet: DisplacementFieldSet(fields)})
             InstanceAO().run(ao_ctx)  # compile / warm
             started = time.perf_counter()
             ao = InstanceAO().run(ao_ctx).products[InstanceOcclusionProduct].point_ao_by_frame[None]
             query = time.perf_counter() - started
-            rms = float(np.sqrt(np.mean((ao[receivers] - reference[receivers]) ** 2)))
             vase = fields["/World/Scatter/Prototypes/Vase"]
             rows.append({"label": f"{side * side}x{size}^2 {encoding}", "positional": side * side, "map": size,
                          "encoding": encoding, "build_s": build, "ao_s": query, "seconds": build + query,
-                         "error": rms, "mb_per_prototype": vase.nbytes / 1e6,
+                         "error": rms(ao), "mb_per_prototype": vase.nbytes / 1e6,
                          "default": (side * side, size, encoding) == (4225, 32, "uint8")})
     default = next((r for r in rows if r["default"]), rows[-1])  # quick: the largest setting swept
 
@@ -108,7 +115,7 @@ def run(quick: bool = False) -> dict:
             ao_ctx = core.Context(scene=scene, params=InstanceAO.Params(interpolation=mode), tracer=None,
                                   products={DisplacementFieldSet: DisplacementFieldSet(fields)})
             ao = InstanceAO().run(ao_ctx).products[InstanceOcclusionProduct].point_ao_by_frame[None]
-            interpolation[mode] = float(np.sqrt(np.mean((ao[receivers] - reference[receivers]) ** 2)))
+            interpolation[mode] = rms(ao)
 
     instance_figures = {} if quick else _instance_vertices(scene)
     scaling = _scaling(quick, compute_field_distances, encode_field, DisplacementField, side_for)
@@ -159,15 +166,15 @@ def run(quick: bool = False) -> dict:
 
 def _scaling(quick, compute_field_distances, encode_field, DisplacementField, side_for) -> list[dict]:
     """Field lookup vs BVH any-hit time per ray as the prototype grows."""
-    from usdbake.processors.instance_ao import query_field
+    from usdbake.kernels.sh import uniform_sphere_np
     from usdbake.kernels.tracer import Tracer
+    from usdbake.processors.instance_ao import query_field
 
     sizes = [36, 112] if quick else [36, 112, 355]
     ray_count = 200_000 if quick else 1_000_000
     positional, size = (1089, 16) if quick else (4225, 32)
     rng = np.random.default_rng(21)  # fixed seed: the same rays for every prototype size
-    origins = rng.normal(size=(ray_count, 3))
-    origins *= (3.0 / np.linalg.norm(origins, axis=1))[:, None]
+    origins = 3.0 * uniform_sphere_np(rng.random(ray_count), rng.random(ray_count))  # on a sphere of radius 3
     targets = rng.normal(size=(ray_count, 3)) * 0.6
     directions = targets - origins
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
@@ -207,11 +214,11 @@ def _instance_vertices(scene) -> dict:
     import dataclasses
 
     from usdbake import core
+    from usdbake.geometry.mesh import vertex_normals
+    from usdbake.kernels.tracer import Tracer
     from usdbake.processors.ambient_occlusion import AmbientOcclusion
     from usdbake.processors.displacement_fields import DisplacementFields
-    from usdbake.geometry.mesh import vertex_normals
     from usdbake.processors.instance_ao import InstanceAO, InstancePoints
-    from usdbake.kernels.tracer import Tracer
 
     fields = DisplacementFields().run(core.Context(scene=scene, params=DisplacementFields.Params(),
                                                    tracer=None)).products[DisplacementFieldSet].fields
@@ -223,11 +230,12 @@ def _instance_vertices(scene) -> dict:
     writable = dataclasses.replace(scene, prim_writable=np.ones(len(scene.prim_paths), bool))
     started = time.perf_counter()
     exact = AmbientOcclusion().run(core.Context(scene=writable, params=AmbientOcclusion.Params(),
-                                                tracer=Tracer.from_scene(scene))).products[AmbientOcclusionProduct].point_ao
+                                                tracer=Tracer.from_scene(scene)))
+    exact_ao = exact.products[AmbientOcclusionProduct].point_ao
     exact_seconds = time.perf_counter() - started
     normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
-    exact_means = InstancePoints(scene, normals, np.zeros(len(scene.instances), np.int32)).means(
-        exact[InstancePoints(scene, normals, np.zeros(len(scene.instances), np.int32)).point_ids])
+    instance_points = InstancePoints(scene, normals, np.zeros(len(scene.instances), np.int32))
+    exact_means = instance_points.means(exact_ao[instance_points.point_ids])
     return {"instances_rms_of_per_instance_mean_ao": round(float(np.sqrt(np.mean((means - exact_means) ** 2))), 5),
             "instances_max_abs_per_instance_mean_ao": round(float(np.abs(means - exact_means).max()), 5),
             "instances_seconds_field_vs_exact": [round(field_seconds, 3), round(exact_seconds, 3)]}

@@ -6,10 +6,11 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from usdbake.processors.irradiance_grid import dequantize_vectors
 
 from . import harness
 from .references import point_irradiance
+from usdbake.kernels.lights import LUMINANCE
+from usdbake.processors.irradiance_grid import dequantize_vectors
 
 NAME = "irradiance_grid"
 DESCRIPTION = (
@@ -22,7 +23,6 @@ DESCRIPTION = (
     "(include_direct=false). Knob: grid vertices (cell size) and rays per vertex.")
 DEFAULT_VERTICES = 20000
 DEFAULT_RAYS = 256
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
 def _relative_rms(estimate: np.ndarray, reference: np.ndarray) -> float:
@@ -30,30 +30,16 @@ def _relative_rms(estimate: np.ndarray, reference: np.ndarray) -> float:
     return float(np.sqrt(np.mean((e - r) ** 2)) / max(float(np.mean(r)), 1e-30))
 
 
-def _surface_points(scene, count: int, seed: int):
-    rng = np.random.default_rng(seed)  # fixed seed: the same points for every setting
-    weights = scene.tri_areas / scene.tri_areas.sum()
-    tri = rng.choice(len(weights), count, p=weights)
-    r1, r2 = np.sqrt(rng.random(count)), rng.random(count)
-    corners = scene.points[scene.tri_vertices[tri]].astype(np.float64)
-    points = corners[:, 0] * (1 - r1)[:, None] + corners[:, 1] * (r1 * (1 - r2))[:, None] \
-        + corners[:, 2] * (r1 * r2)[:, None]
-    return points.astype(np.float32), scene.tri_normals[tri]
-
-
 def run(quick: bool = False) -> dict:
-    from pxr import Usd
-    from usdbake.processors import irradiance_grid as ig
     from usdbake.formats import streaming
     from usdbake.geometry.mesh import vertex_normals
     from usdbake.kernels.tracer import Tracer
-    from usdbake.stages.extract import extract_scene
+    from usdbake.processors import irradiance_grid as ig
 
-    sample = harness.SAMPLES / "cornell_box.usda"
-    scene = extract_scene(Usd.Stage.Open(str(sample)))
+    scene = harness.load_scene("cornell_box")
     tracer = Tracer.from_scene(scene)
     count = 1000 if quick else 4000
-    points, normals = _surface_points(scene, count, seed=5)
+    points, normals = harness.surface_points(scene, count, seed=5)  # every receiver of the box: all its faces
     vertex_n = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
     reference_rays = 16 * DEFAULT_RAYS
     references = {}
@@ -63,10 +49,10 @@ def run(quick: bool = False) -> dict:
             {"rays": reference_rays, "seed": 99, "points": count, "version": ig.IrradianceGrid.version,
              "include_direct": direct, "light_model": "sampled area lights, emission seen only without UsdLux"},
             lambda direct=direct: {
-                "surface": point_irradiance(tracer, scene, points, normals, rays=reference_rays,
-                                                       seed=99, include_direct=direct),
-                "vertices": point_irradiance(tracer, scene, scene.points, vertex_n, rays=reference_rays,
-                                                        seed=99, include_direct=direct)})
+                "surface": point_irradiance(tracer, scene, points, normals, rays=reference_rays, seed=99,
+                                            include_direct=direct),
+                "vertices": point_irradiance(tracer, scene, scene.points, vertex_n, rays=reference_rays, seed=99,
+                                             include_direct=direct)})
     lo, hi = scene.bounds
     ig.bake_grid(tracer, scene, ig.grid_layout(lo, hi, vertices=64), rays=4)  # compile outside the timing
     point_irradiance(tracer, scene, points[:10], normals[:10], rays=4)
@@ -74,12 +60,11 @@ def run(quick: bool = False) -> dict:
     # one light sample per bounce hit, large for hits close to the big ceiling light).
     reference_noise = {}
     for mode, direct in (("total", True), ("indirect", False)):
-        again = point_irradiance(tracer, scene, points, normals, rays=reference_rays, seed=7,
-                                            include_direct=direct)
+        again = point_irradiance(tracer, scene, points, normals, rays=reference_rays, seed=7, include_direct=direct)
         reference_noise[mode] = round(_relative_rms(again, references[mode]["surface"]), 4)
     # The per-point ray-casting noise floor at the default rays (what the grid's sampling competes with).
-    direct_noise = _relative_rms(point_irradiance(tracer, scene, points, normals, rays=DEFAULT_RAYS,
-                                                             seed=1), references["total"]["surface"])
+    direct_noise = _relative_rms(point_irradiance(tracer, scene, points, normals, rays=DEFAULT_RAYS, seed=1),
+                                 references["total"]["surface"])
 
     settings = [(2000, 256), (8000, 256), (20000, 64), (20000, 256)] if quick else \
         [(2000, 256), (8000, 256), (20000, 64), (20000, 256), (20000, 1024), (60000, 256)]
@@ -92,7 +77,8 @@ def run(quick: bool = False) -> dict:
         for mode, direct in (("total", True), ("indirect", False)):
             with harness.measure() as m:
                 grid = ig.bake_grid(tracer, scene, layout, rays=rays, include_direct=direct)
-            estimate = ig.reconstruct_irradiance(layout, dequantize_vectors(grid.directions, grid.colors), points, normals)
+            estimate = ig.reconstruct_irradiance(layout, dequantize_vectors(grid.directions, grid.colors), points,
+                                                 normals)
             row[f"error_{mode}"] = _relative_rms(estimate, references[mode]["surface"])
             row[f"seconds_{mode}"] = m.seconds
             grids[(vertices, rays, mode)] = grid

@@ -2,54 +2,40 @@
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
-from usdbake.core.products import ProbeCloud
 
 from . import harness
+from usdbake.core.products import ProbeCloud
 
 NAME = "light_probes"
 DESCRIPTION = (
     "Light probe cloud on `atrium.usda`. Error = relative RMS of the irradiance interpolated from the cloud "
-    "(tetrahedral walk, leak rule) at random free-space points, for 26 normals each (luminance), against a "
-    "direct capture at those points with 16x the default rays (4096, different seed), cached; divided by "
+    "(tetrahedral walk, leak rule) at random free-space points, for 26 normals each (luminance clamped at 0, "
+    "as `sample_irradiance` reads it), against a direct capture at those points with 16x the default rays "
+    "(4096, different seed), cached; divided by "
     "the mean reference irradiance (`median`: the median over points of the per-point RMS). "
     "Knobs: probe budget (default 1024) and capture rays (default 256); "
     "seconds = the whole processor (placement, capture, tetrahedra, edge rays). The noise floor is the "
     "error of a direct capture at the points at default rays.")
 DEFAULT_PROBES = 1024
 DEFAULT_RAYS = 256
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 POINT_CLEARANCE = 0.3
 """Test points keep 0.3 m from surfaces (where a character or a prop would be lit by the probes)."""
 
 
 def run(quick: bool = False) -> dict:
-    from pxr import Usd
-
-    from usdbake.processors import light_probes as lp
     from usdbake.core import Context
-    from usdbake.kernels.sh import sh_basis_np
     from usdbake.kernels.lights import scene_lighting
     from usdbake.kernels.tracer import Tracer
-    from usdbake.stages.extract import extract_scene
+    from usdbake.processors import light_probes as lp
 
-    sample = harness.SAMPLES / "atrium.usda"
-    scene = extract_scene(Usd.Stage.Open(str(sample)))
+    scene = harness.load_scene("atrium")
     tracer = Tracer.from_scene(scene)
     lighting = scene_lighting(scene, tracer.device)
     count = 150 if quick else 600
     points = _free_points(lp, tracer, lighting, scene, count)
-    basis = sh_basis_np(lp.PROBE_DIRECTIONS)  # (26, 9)
-
-    def luminance(sh):  # (N, 9, 3) irradiance SH -> (N, 26) luminance at the 26 normals
-        return np.einsum("dk,nkc,c->nd", basis, np.asarray(sh, np.float64), LUMINANCE)
 
     reference_rays = 16 * DEFAULT_RAYS
     reference = harness.cached_reference(
@@ -57,14 +43,14 @@ def run(quick: bool = False) -> dict:
                                 "version": lp.LightProbes.version, "clearance": POINT_CLEARANCE},
         lambda: {"sh": lp.compute_probe_sh(tracer, scene, points, rays=reference_rays, seed=99,
                                            lighting=lighting)})["sh"]
-    e_ref = luminance(reference)
-    scale = float(np.abs(e_ref).mean())
+    e_ref = lp.sample_irradiance(reference)
+    scale = float(e_ref.mean())
 
     def error(sh) -> float:
-        return float(np.sqrt(np.mean((luminance(sh) - e_ref) ** 2)) / scale)
+        return float(np.sqrt(np.mean((lp.sample_irradiance(sh) - e_ref) ** 2)) / scale)
 
     def median_error(sh) -> float:  # per point: RMS over its 26 normals / the mean reference irradiance
-        return float(np.median(np.sqrt(np.mean((luminance(sh) - e_ref) ** 2, axis=1)) / scale))
+        return float(np.median(np.sqrt(np.mean((lp.sample_irradiance(sh) - e_ref) ** 2, axis=1)) / scale))
 
     processor = lp.LightProbes()
 
@@ -109,7 +95,8 @@ def run(quick: bool = False) -> dict:
         "median_point_error_without_leak_fix": round(median_error(lp.interpolate_sh(leaky_cloud, points)), 4),
     }
     if not quick:
-        figures["bake_wall_seconds_default"] = round(_bake_wall_seconds(sample), 3)
+        figures["bake_wall_seconds_default"] = round(harness.bake_wall_seconds(harness.SAMPLES / "atrium.usda",
+                                                                               "light_probes"), 3)
     table = harness.markdown_table(rows, ["label", "probes", "rays", "seconds", "error", "median"])
     return harness.result(NAME, description=DESCRIPTION,
                           settings={"reference_rays": reference_rays, "test_points": len(points),
@@ -129,13 +116,3 @@ def _free_points(lp, tracer, lighting, scene, count: int) -> np.ndarray:
         found.append(candidates[~inside & (nearest >= POINT_CLEARANCE)])
     return np.concatenate(found)[:count]
 
-
-def _bake_wall_seconds(sample: Path) -> float:
-    """Wall time of `usdbake bake -p light_probes` at defaults (fresh cache, so it really runs)."""
-    with tempfile.TemporaryDirectory() as folder:
-        command = [sys.executable, "-m", "usdbake.cli.main", "bake", str(sample), "-o",
-                   str(Path(folder) / "atrium.probes.usdc"), "-p", "light_probes",
-                   "--cache", str(Path(folder) / "cache")]
-        started = time.perf_counter()
-        subprocess.run(command, check=True, capture_output=True, env={**os.environ})
-        return time.perf_counter() - started

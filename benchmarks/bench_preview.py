@@ -60,11 +60,7 @@ def run(quick: bool = False) -> dict:
                          "write_s": timings["write_image"], "mrays_per_s": width * height / timings["render"] / 1e6,
                          "default": (width, height) == (640, 480)})
         # With the legend (the default look), end to end at 640 x 480.
-        legend_runs = []
-        for _ in range(repeats):
-            started = time.perf_counter()
-            preview(baked, out, channel="ao", size=(640, 480))
-            legend_runs.append(time.perf_counter() - started)
+        legend_runs = harness.timings(lambda: preview(baked, out, channel="ao", size=(640, 480)), repeats)
     default = next(r for r in rows if r["default"])
     figures = {
         "atrium_640x480_seconds": round(default["seconds"], 3),

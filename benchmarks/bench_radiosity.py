@@ -20,42 +20,40 @@ import time
 
 import numpy as np
 import warp as wp
-from usdbake.kernels.operator_codec import compress_operator
-from usdbake.kernels.operator_relight import Relighter, launch_rows, relight, relight_dense_kernel
-from usdbake.processors import form_factors as ff
-from usdbake.processors import radiosity as rad
-from usdbake.geometry.mesh import receiver_prims, vertex_normals
-from usdbake.kernels.tracer import Tracer
 
 from . import harness
 from .references import path_traced_indirect
+from usdbake.geometry.mesh import vertex_normals
+from usdbake.kernels.operator_codec import compress_operator
+from usdbake.kernels.operator_relight import Relighter, launch_rows, relight
+from usdbake.kernels.tracer import Tracer
+from usdbake.processors import form_factors as ff
+from usdbake.processors import radiosity as rad
+
+wp.set_module_options({"enable_backward": False})
 
 NAME = "radiosity"
 DESCRIPTION = ("Radiosity transfer: patch count vs indirect-irradiance error against a path tracer "
                "(cornell_box), compression, memory and relight speed (atrium)")
 
-def load(name: str):
-    from pxr import Usd
-    from usdbake.stages.extract import extract_scene
 
-    return extract_scene(Usd.Stage.Open(str(harness.SAMPLES / f"{name}.usda")))
-
-
-def receivers(scene):
-    prims = receiver_prims(scene)
-    ids = np.flatnonzero(np.isin(scene.point_prim, prims))
-    normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
-    return ids, normals
-
-
-def rel_rms(a, b) -> float:
-    return float(np.sqrt(np.mean((a - b) ** 2) / max(np.mean(b ** 2), 1e-300)))
+@wp.kernel
+def relight_dense_kernel(start: int, matrix: wp.array2d(dtype=wp.vec3), x: wp.array(dtype=wp.vec3),
+                         y: wp.array(dtype=wp.vec3)):
+    """Row ``start + tid`` of y = M x for the dense (n, n) float32 RGB k-bounce operator M (x: direct, y:
+    indirect irradiance per patch, W/m^2): the uncompressed baseline the relight figure compares against."""
+    i = start + wp.tid()
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    for j in range(matrix.shape[1]):
+        acc += wp.cw_mul(matrix[i, j], x[j])
+    y[i] = acc
 
 
 def cornell_sweep(quick: bool):
-    scene = load("cornell_box")
+    scene = harness.load_scene("cornell_box")
     tracer = Tracer.from_scene(scene)
-    ids, normals = receivers(scene)
+    ids = harness.receiver_points(scene)
+    normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
     positions = rad.vertex_sample_positions(scene.points, scene.tri_vertices, scene.tri_areas)
     paths = 4096 if quick else 65536
     reference = harness.cached_reference(
@@ -75,7 +73,7 @@ def cornell_sweep(quick: bool):
         solved = rad.solve(tracer, scene, product, rp, ids)
         apply = time.perf_counter() - started
         e_vertex, e_patch, e0_patch = solved["vertex_indirect"], solved["patch_indirect"], solved["patch_direct"]
-        error = rel_rms(e_vertex, reference)
+        error = harness.relative_rms(e_vertex, reference)
         # Same pipeline with the dense float32 operator: isolates the compression error.
         operator = dense["operator"]
         dense_solved = rad.solve(tracer, scene, product, rp, ids,
@@ -84,9 +82,9 @@ def cornell_sweep(quick: bool):
         points.append({
             "label": f"{product.patches.count} patches", "seconds": pre + apply, "error": error,
             "default": target == default, "patches": product.patches.count, "precompute_s": pre,
-            "apply_s": apply, "dense_error": rel_rms(dense_vertex, reference),
-            "compressed_vs_dense_patches": rel_rms(e_patch, dense_patch),
-            "compressed_vs_dense_vertices": rel_rms(e_vertex, dense_vertex),
+            "apply_s": apply, "dense_error": harness.relative_rms(dense_vertex, reference),
+            "compressed_vs_dense_patches": harness.relative_rms(e_patch, dense_patch),
+            "compressed_vs_dense_vertices": harness.relative_rms(e_vertex, dense_vertex),
             "memory_ratio": product.operator.stats["memory_ratio"],
             "reciprocity_error": product.checks["reciprocity_error"], "row_sum_mean": product.checks["row_sum_mean"],
         })
@@ -95,11 +93,11 @@ def cornell_sweep(quick: bool):
             extra["no_correction"] = compress_operator(dense["operator"], row_correction=False)
             extra["dense_patch"], extra["e0"] = dense_patch, e0_patch
             interp = rad.solve(tracer, scene, product, rad.Radiosity.Params(gather_rays=0), ids)
-            extra["interpolation_only_error"] = rel_rms(interp["vertex_indirect"], reference)
+            extra["interpolation_only_error"] = harness.relative_rms(interp["vertex_indirect"], reference)
     for key in ("linear", "no_correction"):
         if key in extra:
             e = relight(extra[key], extra["e0"], threads=tracer.threads)
-            extra[key] = rel_rms(e, extra["dense_patch"])
+            extra[key] = harness.relative_rms(e, extra["dense_patch"])
     return points, extra, len(ids), paths
 
 
@@ -121,7 +119,7 @@ def time_interleaved(candidates: dict, rounds: int) -> dict:
 
 
 def atrium_figures(quick: bool) -> dict:
-    scene = load("atrium")
+    scene = harness.load_scene("atrium")
     tracer = Tracer.from_scene(scene)
     p = ff.FormFactors.Params(target_patches=500 if quick else ff.FormFactors.Params().target_patches,
                               rays=256 if quick else 1024)
@@ -135,7 +133,7 @@ def atrium_figures(quick: bool) -> dict:
     threads = tracer.threads
 
     relighter = Relighter(op, threads=threads)
-    relighter.x.assign(np.vstack([x[op.permutation], np.zeros((op.padded - n, 3), np.float32)]))
+    y_comp = relighter.apply(x)  # leaves x on the device (stored order) for the timed apply_stored calls
     m_rgb = np.ascontiguousarray(operator)  # (3, n, n) float32
 
     def dense_numpy():
@@ -172,10 +170,7 @@ def atrium_figures(quick: bool) -> dict:
         "iterate_scalar": iterate_scalar}, rounds=repeat)
     t_compressed, t_dense_numpy, t_dense_warp = best["compressed"], best["dense_numpy"], best["dense_warp"]
     t_iter_colored, t_iter_scalar = best["iterate_colored"], best["iterate_scalar"]
-    relighter.apply_stored()
     y_dense = dense_numpy()
-    y_comp = np.empty_like(y_dense)
-    y_comp[op.permutation] = relighter.y.numpy()[:n]
     passes = {}
     for count in (0, 1, 2):
         c = op if count == p.reorder_passes else compress_operator(
@@ -194,7 +189,7 @@ def atrium_figures(quick: bool) -> dict:
         "kbounce_speedup_vs_colored_iterations": t_iter_colored / t_dense_numpy,
         "kbounce_speedup_vs_scalar_iterations": t_iter_scalar / t_dense_numpy,
         "compressed_kbounce_speedup_vs_colored_iterations": t_iter_colored / t_compressed,
-        "atrium_compressed_vs_dense_random_light": rel_rms(y_comp, y_dense),
+        "atrium_compressed_vs_dense_random_light": harness.relative_rms(y_comp, y_dense),
         "reorder": passes, "reciprocity_error": product.checks["reciprocity_error"],
         "row_sum_mean": product.checks["row_sum_mean"], "row_sum_max": product.checks["row_sum_max"],
     }

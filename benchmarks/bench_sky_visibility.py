@@ -25,30 +25,10 @@ REFERENCE_VERSION = 2
 """Bump when the reference estimator changes (2: independent jitter per stratum in kernels.sampling)."""
 
 
-def _scene(name: str):
-    from pxr import Usd
-    from usdbake.stages.extract import extract_scene
-
-    return extract_scene(Usd.Stage.Open(str(harness.SAMPLES / f"{name}.usda")))
-
-
 def _centroid_error(product, reference) -> float:
+    """Area-weighted relative RMS of the faces' sky view sum_j V_ij dw_j / pi against the reference."""
     estimate = product.visibility_float() @ product.patches.patch_solid_angles.astype(np.float32) / np.pi
-    a = product.face_areas.astype(np.float64)
-    return float(np.sqrt((a * (estimate - reference) ** 2).sum() / (a * reference ** 2).sum()))
-
-
-def _surface_points(scene, count: int, seed: int = 5):
-    """(count, 3) area-uniform random points on the receivers' triangles and their (count, 3) normals."""
-    from usdbake.geometry.mesh import receiver_prims
-
-    tris = np.flatnonzero(np.isin(scene.tri_prim, receiver_prims(scene)) & (scene.tri_areas > 0))
-    rng = np.random.default_rng(seed)  # fixed: the same points for every mesh compared
-    pick = rng.choice(tris, count, p=scene.tri_areas[tris] / scene.tri_areas[tris].sum())
-    r1, r2 = np.sqrt(rng.random(count)), rng.random(count)
-    c = scene.points[scene.tri_vertices[pick]].astype(np.float64)
-    points = c[:, 0] * (1 - r1)[:, None] + c[:, 1] * (r1 * (1 - r2))[:, None] + c[:, 2] * (r1 * r2)[:, None]
-    return points.astype(np.float32), scene.tri_normals[pick]
+    return harness.relative_rms(estimate, reference, product.face_areas)
 
 
 def _surface_error(scene, product, points, normals, reference) -> float:
@@ -60,18 +40,18 @@ def _surface_error(scene, product, points, normals, reference) -> float:
     hits = locator.closest_hit(points + normals * lift, -normals, 4 * lift)
     found = hits.hit_triangle >= 0
     estimate = np.where(found, product.exposure[np.maximum(hits.hit_triangle, 0)], 0.0)
-    return float(np.sqrt(np.mean((estimate - reference) ** 2) / np.mean(reference ** 2)))
+    return harness.relative_rms(estimate, reference)
 
 
 def run(quick: bool = False) -> dict:
-    from usdbake.processors.daylight import compute_daylight, relight
     from usdbake.kernels.sky import uniform_patches
+    from usdbake.kernels.tracer import Tracer
+    from usdbake.processors.daylight import compute_daylight, relight
     from usdbake.processors.sky_visibility import (
         SkyVisibility,
         compute_point_sky_view,
         compute_sky_visibility,
     )
-    from usdbake.kernels.tracer import Tracer
 
     patches = uniform_patches(256)
     defaults = SkyVisibility.Params()
@@ -81,14 +61,13 @@ def run(quick: bool = False) -> dict:
     # -- refinement time at defaults (warm kernels) -------------------------------------------------
     scenes = {}
     for name in ("window_room", "building"):
-        scene = _scene(name)
+        scene = harness.load_scene(name)
         tracer = Tracer.from_scene(scene)
         scenes[name] = (scene, tracer)
         compute_sky_visibility(tracer, scene, patches=uniform_patches(4), adaptive=False)  # compile
-        started = time.perf_counter()
         with harness.measure() as m:
             product, stats = compute_sky_visibility(tracer, scene, patches=patches, samples=DEFAULT_SAMPLES, **kw)
-        figures[f"{name}_seconds"] = round(time.perf_counter() - started, 3)
+        figures[f"{name}_seconds"] = round(m.seconds, 3)
         figures[f"{name}_triangles_in"] = int(stats["triangles_in"])
         figures[f"{name}_triangles_out"] = int(stats["triangles_out"])
         figures[f"{name}_peak_mb"] = round(m.peak_mb, 1)
@@ -119,7 +98,7 @@ def run(quick: bool = False) -> dict:
     # -- adaptive vs uniform at equal error (fixed surface points) --------------------------------------
     count = 4000 if quick else 10000
     surface_samples = 1024 if quick else 16384  # the reference's own noise must sit well below the errors compared
-    points, normals = _surface_points(scene, count)
+    points, normals = harness.surface_points(scene, count, seed=5)  # the same points for every mesh compared
     surface_ref = harness.cached_reference(
         f"sky_surface_{sweep_scene}", {"count": count, "reference": surface_samples, "seed": 5,
                                        "reference_version": REFERENCE_VERSION},
@@ -154,7 +133,7 @@ def run(quick: bool = False) -> dict:
     weights = rng.random((256, 3)).astype(np.float32)
     albedo = rng.random((faces, 3)).astype(np.float32)
     figures["relight_ms_100k_x_256"] = round(_median_ms(lambda: relight(v_patch_major, weights, albedo=albedo,
-                                                                        patch_major=True)), 2)
+                                                                        patch_major=True), 20), 2)
     figures["relight_ms_100k_x_256_uint8_path"] = round(_median_ms(lambda: relight(v8, weights, scale=1 / 255,
                                                                                    albedo=albedo), 5), 2)
     figures["visibility_mb_100k_x_256_uint8"] = round(v8.nbytes / 2 ** 20, 1)
@@ -200,11 +179,7 @@ def _equal_error_ratio(uniform_rows: list[dict], target: dict) -> tuple[float, f
     return round(float(needed)), round(float(needed / target["triangles"]), 2)
 
 
-def _median_ms(function, repeats: int = 20) -> float:
+def _median_ms(function, repeats: int) -> float:
+    """Median milliseconds of ``repeats`` calls after one warm-up call."""
     function()
-    timings = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        function()
-        timings.append(time.perf_counter() - started)
-    return 1000.0 * float(np.median(timings))
+    return 1000.0 * float(np.median(harness.timings(function, repeats)))

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import os
-import time
 
 import numpy as np
+import warp as wp
 
 from . import harness
+from usdbake.kernels.occlusion import AORays, ao_direction, ao_rays
+from usdbake.kernels.sampling import tangent_frame
+
+wp.set_module_options({"enable_backward": False})
 
 NAME = "tracer"
 DESCRIPTION = ("Ray throughput of the shared Warp BVH (`Tracer.occluded`, any-hit) on `atrium.usda` with "
@@ -15,50 +19,49 @@ DESCRIPTION = ("Ray throughput of the shared Warp BVH (`Tracer.occluded`, any-hi
                "and the same rays through Embree (embreex, single-threaded calls) when it is installed.")
 
 
-def ao_rays(scene, count: int, epsilon: float, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
-    """``count`` rays from random vertices along cosine-weighted directions around their normals."""
+@wp.kernel
+def ao_ray_kernel(start: int, rays: AORays, positions: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
+                  origins: wp.array(dtype=wp.vec3), directions: wp.array(dtype=wp.vec3)):
+    """Ray i as ``ambient_occlusion`` casts it from point i with unit normal n: from p + n epsilon along
+    ``ao_direction`` (cosine-weighted; one ray per point, so each one is a fresh direction)."""
+    i = start + wp.tid()
+    n = normals[i]
+    origins[i] = positions[i] + n * rays.epsilon
+    directions[i] = ao_direction(rays, tangent_frame(n), 0, wp.rand_init(rays.seed, i))
+
+
+def ao_ray_arrays(tracer, scene, count: int, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
+    """(count, 3) float32 origins and unit directions of AO rays from random vertices of ``scene``."""
     from usdbake.geometry.mesh import vertex_normals
-    from usdbake.kernels.sampling import cosine_hemisphere_np
 
     rng = np.random.default_rng(seed)  # fixed seed: the same rays for every backend and thread count
     normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
     usable = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)
     picks = usable[rng.integers(0, len(usable), count)]
-    n = normals[picks].astype(np.float64)
-    helper = np.where(np.abs(n[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
-    t = np.cross(n, helper)
-    t /= np.linalg.norm(t, axis=1, keepdims=True)
-    s = np.cross(n, t)
-    local = cosine_hemisphere_np(rng.random(count), rng.random(count))
-    directions = local[:, :1] * t + local[:, 1:2] * s + local[:, 2:] * n
-    origins = scene.points[picks] + n * epsilon
-    return origins.astype(np.float32), directions.astype(np.float32)
-
-
-def best_of(repeats: int, fn) -> float:
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - started)
-    return min(times)
+    origins = wp.empty(count, dtype=wp.vec3, device=tracer.device)
+    directions = wp.empty(count, dtype=wp.vec3, device=tracer.device)
+    rays = ao_rays(tracer.mesh.id, samples=1, max_distance=np.inf, epsilon=tracer.epsilon, seed=seed)
+    tracer.launch(ao_ray_kernel, count, [rays, tracer.array(scene.points[picks], wp.vec3),
+                                         tracer.array(normals[picks], wp.vec3), origins, directions])
+    return origins.numpy(), directions.numpy()
 
 
 def run(quick: bool = False) -> dict:
-    from pxr import Usd
-
     from usdbake.kernels.tracer import Tracer
-    from usdbake.stages.extract import extract_scene
 
-    scene = extract_scene(Usd.Stage.Open(str(harness.SAMPLES / "atrium.usda")))
+    scene = harness.load_scene("atrium")
     count = 500_000 if quick else 4_000_000
     cores = os.cpu_count() or 1
     tracer = Tracer.from_scene(scene)
-    origins, directions = ao_rays(scene, count, tracer.epsilon)
+    origins, directions = ao_ray_arrays(tracer, scene, count)
     tracer.occluded(origins[:1000], directions[:1000])  # compile/load outside the timing
     repeats = 1 if quick else 3
-    one = best_of(repeats, lambda: Tracer.occluded(_with_threads(tracer, 1), origins, directions))
-    everyone = best_of(repeats, lambda: Tracer.occluded(_with_threads(tracer, cores), origins, directions))
+
+    def best_seconds(threads: int) -> float:
+        tracer.threads = threads
+        return min(harness.timings(lambda: tracer.occluded(origins, directions), repeats))
+
+    one, everyone = best_seconds(1), best_seconds(cores)
     figures = {
         "triangles": scene.num_triangles, "rays": count,
         "mrays_per_s_1_thread": round(count / one / 1e6, 3),
@@ -75,11 +78,6 @@ def run(quick: bool = False) -> dict:
                           points=points, figures=figures, knob="threads", error_label="(exact)")
 
 
-def _with_threads(tracer, threads: int):
-    tracer.threads = threads
-    return tracer
-
-
 def _embree_seconds(scene, origins, directions, repeats: int) -> float | None:
     try:
         from embreex import rtcore_scene
@@ -88,6 +86,5 @@ def _embree_seconds(scene, origins, directions, repeats: int) -> float | None:
         return None
     embree_scene = rtcore_scene.EmbreeScene()
     TriangleMesh(embree_scene, scene.points[scene.tri_vertices].astype(np.float32))
-    origins64, directions64 = origins.astype(np.float32), directions.astype(np.float32)
-    embree_scene.run(origins64[:1000], directions64[:1000], query="OCCLUDED")
-    return best_of(repeats, lambda: embree_scene.run(origins64, directions64, query="OCCLUDED"))
+    embree_scene.run(origins[:1000], directions[:1000], query="OCCLUDED")
+    return min(harness.timings(lambda: embree_scene.run(origins, directions, query="OCCLUDED"), repeats))

@@ -9,9 +9,19 @@ from __future__ import annotations
 
 import numpy as np
 import warp as wp
-from usdbake.kernels.lights import (Lights, Surfaces, direct_irradiance, emissive_lights, hit_radiance, light_bundle,
-                                    light_sample_at, light_sample_count, shadow_visible, surface_bundle)
+
+from usdbake.kernels.lights import (
+    Lights,
+    Surfaces,
+    direct_irradiance,
+    emissive_lights,
+    hit_radiance,
+    light_sample_count,
+    scene_lighting,
+    visible_light_sample,
+)
 from usdbake.kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
+from usdbake.kernels.tracer import FAR
 
 wp.set_module_options({"enable_backward": False})
 
@@ -23,11 +33,10 @@ PATH_CHUNKS = 16
 def indirect_paths_kernel(
     start: int,
     mesh: wp.uint64,
+    surfaces: Surfaces,
     lights: Lights,
     positions: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
-    tri_normals: wp.array(dtype=wp.vec3),
-    tri_albedo: wp.array(dtype=wp.vec3),
     paths_per_item: int,
     chunks: int,
     bounces: int,
@@ -55,15 +64,15 @@ def indirect_paths_kernel(
         throughput = wp.vec3(1.0, 1.0, 1.0)
         for h in range(bounces):
             w = tangent_frame(normal) * cosine_hemisphere(wp.randf(state), wp.randf(state))
-            q = wp.mesh_query_ray(mesh, p + normal * epsilon, w, 3.0e38)
+            q = wp.mesh_query_ray(mesh, p + normal * epsilon, w, FAR)
             if not q.result:
                 break
-            hn = tri_normals[q.face]
+            hn = surfaces.tri_normals[q.face]
             if wp.dot(w, hn) >= 0.0 or wp.length(hn) < 0.5:
                 break  # back face: absorbed, as in the form factors
             p = p + normal * epsilon + w * q.t
             normal = hn
-            throughput = wp.cw_mul(throughput, tri_albedo[q.face])
+            throughput = wp.cw_mul(throughput, surfaces.tri_albedo[q.face])
             total += wp.cw_mul(throughput, direct_irradiance(mesh, lights, p, normal, 1, 1, epsilon, state))
     out[item] = total
 
@@ -71,11 +80,11 @@ def indirect_paths_kernel(
 def path_traced_indirect(tracer, scene, positions, normals, *, paths: int, bounces: int = 3, seed: int = 7):
     """(N, 3) indirect irradiance (W/m^2) at points with unit normals, by path tracing."""
     per_item = max(1, paths // PATH_CHUNKS)
+    lighting = scene_lighting(scene, tracer.device)
     out = wp.zeros(len(positions) * PATH_CHUNKS, dtype=wp.vec3, device=tracer.device)
     tracer.launch(indirect_paths_kernel, len(positions) * PATH_CHUNKS, [
-        tracer.mesh.id, light_bundle(scene, tracer.device), tracer.array(positions, wp.vec3),
-        tracer.array(normals, wp.vec3), tracer.array(scene.tri_normals, wp.vec3),
-        tracer.array(scene.tri_albedo, wp.vec3), per_item, PATH_CHUNKS, bounces, tracer.epsilon, seed, out])
+        tracer.mesh.id, lighting.surfaces, lighting.lights, tracer.array(positions, wp.vec3),
+        tracer.array(normals, wp.vec3), per_item, PATH_CHUNKS, bounces, tracer.epsilon, seed, out])
     return out.numpy().reshape(len(positions), PATH_CHUNKS, 3).sum(axis=1) / (per_item * PATH_CHUNKS)
 
 
@@ -110,7 +119,7 @@ def point_irradiance_kernel(
     for k in range(samples):
         u = stratified_pair(k, strata, state)
         d = frame * cosine_hemisphere(u[0], u[1])
-        q = wp.mesh_query_ray(mesh, p, d, 3.0e38)
+        q = wp.mesh_query_ray(mesh, p, d, FAR)
         if not q.result:
             if include_direct != 0:
                 total = total + lights.dome_radiance
@@ -118,17 +127,11 @@ def point_irradiance_kernel(
             total = total + hit_radiance(mesh, surfaces, lights, p, d, q.face, q.t, see_emission, epsilon,
                                          wp.rand_init(wp.int32(state), samples + k))
     result = total * (wp.pi / float(samples))
-    if include_direct != 0:
+    if include_direct != 0:  # the small lights, as the grid samples them; domes are seen by the escaped rays
         for l in range(lights.light_kind.shape[0]):
-            if lights.light_kind[l] == 1:
-                continue
-            count = light_sample_count(lights, l, strata)
-            for k in range(count):
-                s = light_sample_at(lights, l, p, k, strata, state)
-                c = wp.dot(n, s.direction)
-                if s.weight > 0.0 and c > 0.0:
-                    v = shadow_visible(mesh, p, s.direction, s.distance, 0.0)
-                    result = result + lights.light_radiance[l] * (s.weight * c * v / float(count))
+            for k in range(light_sample_count(lights, l, strata)):
+                s = visible_light_sample(mesh, lights, l, p, k, strata, state)
+                result = result + lights.light_radiance[l] * (s.weight * wp.max(wp.dot(n, s.direction), 0.0))
     irradiance[i] = result
 
 
@@ -142,10 +145,11 @@ def point_irradiance(tracer, scene, positions: np.ndarray, normals: np.ndarray, 
         return np.zeros((0, 3), np.float32)
     see_emission = int(bool(include_direct) and emissive_lights(scene))
     strata = strata_for(rays)
+    lighting = scene_lighting(scene, tracer.device)
     out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
     tracer.launch(point_irradiance_kernel, len(positions), [
-        tracer.mesh.id, surface_bundle(scene, tracer.device), light_bundle(scene, tracer.device),
-        tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3), strata, int(seed), tracer.epsilon,
-        int(bool(include_direct)), see_emission, out,
+        tracer.mesh.id, lighting.surfaces, lighting.lights, tracer.array(positions, wp.vec3),
+        tracer.array(normals, wp.vec3), strata, int(seed), tracer.epsilon, int(bool(include_direct)), see_emission,
+        out,
     ])
     return np.nan_to_num(out.numpy(), nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)

@@ -184,17 +184,6 @@ def relight_bc1_sums_kernel(
     finish_block_row(br, y0, y1, y2, y3, row_scale, indptr, indices, values, size, x, y)
 
 
-@wp.kernel
-def relight_dense_kernel(start: int, matrix: wp.array2d(dtype=wp.vec3), x: wp.array(dtype=wp.vec3),
-                         y: wp.array(dtype=wp.vec3)):
-    """y = M x for a dense float32 RGB matrix (the uncompressed baseline of the relight figure)."""
-    i = start + wp.tid()
-    acc = wp.vec3(0.0, 0.0, 0.0)
-    for j in range(matrix.shape[1]):
-        acc += wp.cw_mul(matrix[i, j], x[j])
-    y[i] = acc
-
-
 def launch_rows(kernel, dim: int, inputs: list, device, threads: int) -> None:
     """Launch a row kernel split across threads: rows are few but heavy, so any chunk is worth a thread."""
     launch_chunked(kernel, dim, inputs, device=device, threads=threads, min_chunk=1)
