@@ -14,10 +14,38 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .bc1 import bc1_palette_byte, bc1_third, block_words, expand565
+from .bc1 import bc1_third, block_words, expand565
 from .tracer import launch_chunked
 
 wp.set_module_options({"enable_backward": False})
+
+
+@wp.struct
+class CompressedRows:
+    """The compressed operator on the device, in stored (permuted) order."""
+
+    words: wp.array(dtype=wp.int64)
+    """Two words per BC1 block (endpoints, then 16 two-bit codes), block rows of ``blocks_per_row``."""
+    blocks_per_row: int
+    lut: wp.array(dtype=float)
+    """(256,) code -> operator value (section 4.2: v = exp(code * scale + offset), 0 for code 0)."""
+    row_scale: wp.array(dtype=wp.vec3)
+    """(n,) per-row factor on the decoded BC1 part (row-sum correction)."""
+    indptr: wp.array(dtype=int)
+    indices: wp.array(dtype=int)
+    values: wp.array(dtype=wp.vec3)
+    """The exact top values (CSR): the part of the operator kept out of the BC1 texture."""
+    size: int
+
+
+@wp.struct
+class BlockPalette:
+    """The 4 operator values (RGB) one BC1 block's 2-bit codes choose from."""
+
+    p0: wp.vec3
+    p1: wp.vec3
+    p2: wp.vec3
+    p3: wp.vec3
 
 
 @wp.func
@@ -27,48 +55,58 @@ def lut_color(lut: wp.array(dtype=float), code: wp.vec3i) -> wp.vec3:
 
 
 @wp.func
-def row_product(bits: int, p0: wp.vec3, p1: wp.vec3, p2: wp.vec3, p3: wp.vec3,
-                x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, x3: wp.vec3) -> wp.vec3:
+def block_palette(lut: wp.array(dtype=float), word0: int) -> BlockPalette:
+    """The BC1 palette of a block (Microsoft BC1: with color0 > color1, {c0, c1, (2 c0 + c1) / 3,
+    (c0 + 2 c1) / 3}, else {c0, c1, (c0 + c1) / 2, 0}) as byte codes, looked up in the code table."""
+    c0 = word0 & 0xFFFF
+    c1 = (word0 >> 16) & 0xFFFF
+    a = expand565(c0)
+    b = expand565(c1)
+    q2 = wp.vec3i(0, 0, 0)
+    q3 = wp.vec3i(0, 0, 0)
+    if c0 > c1:
+        q2 = bc1_third(a, b)
+        q3 = bc1_third(b, a)
+    else:
+        q2 = wp.vec3i((a[0] + b[0] + 1) // 2, (a[1] + b[1] + 1) // 2, (a[2] + b[2] + 1) // 2)
+    palette = BlockPalette()
+    palette.p0 = lut_color(lut, a)
+    palette.p1 = lut_color(lut, b)
+    palette.p2 = lut_color(lut, q2)
+    palette.p3 = lut_color(lut, q3)
+    return palette
+
+
+@wp.func
+def row_product(bits: int, palette: BlockPalette, x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, x3: wp.vec3) -> wp.vec3:
     """Sum over the 4 texels of one block row (8 bits of codes) of palette[code] * x (per channel)."""
     acc = wp.vec3(0.0, 0.0, 0.0)
     for c in range(4):
         code = (bits >> (2 * c)) & 3
-        value = wp.where(code >= 2, wp.where(code == 3, p3, p2), wp.where(code == 1, p1, p0))
+        value = wp.where(code >= 2, wp.where(code == 3, palette.p3, palette.p2),
+                         wp.where(code == 1, palette.p1, palette.p0))
         xc = wp.where(c >= 2, wp.where(c == 3, x3, x2), wp.where(c == 1, x1, x0))
         acc += wp.cw_mul(value, xc)
     return acc
 
 
 @wp.func
-def finish_block_row(br: int, y0: wp.vec3, y1: wp.vec3, y2: wp.vec3, y3: wp.vec3, row_scale: wp.array(dtype=wp.vec3),
-                     indptr: wp.array(dtype=int), indices: wp.array(dtype=int), values: wp.array(dtype=wp.vec3),
-                     size: int, x: wp.array(dtype=wp.vec3), y: wp.array(dtype=wp.vec3)):
+def finish_block_row(op: CompressedRows, br: int, y0: wp.vec3, y1: wp.vec3, y2: wp.vec3, y3: wp.vec3,
+                     x: wp.array(dtype=wp.vec3), y: wp.array(dtype=wp.vec3)):
     """Rows 4 br .. 4 br + 3 of y: the decoded BC1 part times the row-sum correction, plus the exact sparse
-    part (thesis section 4: the top values are kept exact, the rest log-quantized in BC1 blocks)."""
+    part (section 4.2: the top values are kept exact, the rest log-quantized in BC1 blocks)."""
     for r in range(4):
         row = 4 * br + r
-        if row < size:
+        if row < op.size:
             acc = wp.where(r >= 2, wp.where(r == 3, y3, y2), wp.where(r == 1, y1, y0))
-            acc = wp.cw_mul(acc, row_scale[row])
-            for e in range(indptr[row], indptr[row + 1]):
-                acc += wp.cw_mul(values[e], x[indices[e]])
+            acc = wp.cw_mul(acc, op.row_scale[row])
+            for e in range(op.indptr[row], op.indptr[row + 1]):
+                acc += wp.cw_mul(op.values[e], x[op.indices[e]])
             y[row] = acc
 
 
 @wp.kernel
-def relight_bc1_kernel(
-    start: int,
-    words: wp.array(dtype=wp.int64),
-    blocks_per_row: int,
-    lut: wp.array(dtype=float),
-    row_scale: wp.array(dtype=wp.vec3),
-    indptr: wp.array(dtype=int),
-    indices: wp.array(dtype=int),
-    values: wp.array(dtype=wp.vec3),
-    size: int,
-    x: wp.array(dtype=wp.vec3),
-    y: wp.array(dtype=wp.vec3),
-):
+def relight_bc1_kernel(start: int, op: CompressedRows, x: wp.array(dtype=wp.vec3), y: wp.array(dtype=wp.vec3)):
     """y = M x for the 4 stored rows of block row ``start + tid`` (stored order, x padded to 4).
 
     Per block: decode the two endpoints into a 4-entry palette (12 table lookups), then 16
@@ -79,24 +117,20 @@ def relight_bc1_kernel(
     y1 = wp.vec3(0.0, 0.0, 0.0)
     y2 = wp.vec3(0.0, 0.0, 0.0)
     y3 = wp.vec3(0.0, 0.0, 0.0)
-    base = br * blocks_per_row
-    for bx in range(blocks_per_row):
-        word0 = int(words[2 * (base + bx)])
-        word1 = int(words[2 * (base + bx) + 1])
-        p0 = lut_color(lut, bc1_palette_byte(word0, 0))
-        p1 = lut_color(lut, bc1_palette_byte(word0, 1))
-        p2 = lut_color(lut, bc1_palette_byte(word0, 2))
-        p3 = lut_color(lut, bc1_palette_byte(word0, 3))
+    base = br * op.blocks_per_row
+    for bx in range(op.blocks_per_row):
+        palette = block_palette(op.lut, int(op.words[2 * (base + bx)]))
+        word1 = int(op.words[2 * (base + bx) + 1])
         j = 4 * bx
         x0 = x[j]
         x1 = x[j + 1]
         x2 = x[j + 2]
         x3 = x[j + 3]
-        y0 += row_product(word1 & 255, p0, p1, p2, p3, x0, x1, x2, x3)
-        y1 += row_product((word1 >> 8) & 255, p0, p1, p2, p3, x0, x1, x2, x3)
-        y2 += row_product((word1 >> 16) & 255, p0, p1, p2, p3, x0, x1, x2, x3)
-        y3 += row_product((word1 >> 24) & 255, p0, p1, p2, p3, x0, x1, x2, x3)
-    finish_block_row(br, y0, y1, y2, y3, row_scale, indptr, indices, values, size, x, y)
+        y0 += row_product(word1 & 255, palette, x0, x1, x2, x3)
+        y1 += row_product((word1 >> 8) & 255, palette, x0, x1, x2, x3)
+        y2 += row_product((word1 >> 16) & 255, palette, x0, x1, x2, x3)
+        y3 += row_product((word1 >> 24) & 255, palette, x0, x1, x2, x3)
+    finish_block_row(op, br, y0, y1, y2, y3, x, y)
 
 
 @wp.kernel
@@ -128,28 +162,15 @@ def code_sums_kernel(start: int, x: wp.array(dtype=wp.vec3), sums: wp.array2d(dt
 
 
 @wp.func
-def row_from_sums(sums: wp.array2d(dtype=wp.vec3), t: int, p0: wp.vec3, p1: wp.vec3, p2: wp.vec3,
-                  p3: wp.vec3) -> wp.vec3:
+def row_from_sums(sums: wp.array2d(dtype=wp.vec3), t: int, palette: BlockPalette) -> wp.vec3:
     """Sum over the 4 palette entries p of palette[p] * (the x_j whose code is p), for table row t."""
-    return (wp.cw_mul(p0, sums[t, 0]) + wp.cw_mul(p1, sums[t, 1]) + wp.cw_mul(p2, sums[t, 2])
-            + wp.cw_mul(p3, sums[t, 3]))
+    return (wp.cw_mul(palette.p0, sums[t, 0]) + wp.cw_mul(palette.p1, sums[t, 1])
+            + wp.cw_mul(palette.p2, sums[t, 2]) + wp.cw_mul(palette.p3, sums[t, 3]))
 
 
 @wp.kernel
-def relight_bc1_sums_kernel(
-    start: int,
-    words: wp.array(dtype=wp.int64),
-    blocks_per_row: int,
-    lut: wp.array(dtype=float),
-    row_scale: wp.array(dtype=wp.vec3),
-    indptr: wp.array(dtype=int),
-    indices: wp.array(dtype=int),
-    values: wp.array(dtype=wp.vec3),
-    size: int,
-    x: wp.array(dtype=wp.vec3),
-    sums: wp.array2d(dtype=wp.vec3),
-    y: wp.array(dtype=wp.vec3),
-):
+def relight_bc1_sums_kernel(start: int, op: CompressedRows, x: wp.array(dtype=wp.vec3),
+                            sums: wp.array2d(dtype=wp.vec3), y: wp.array(dtype=wp.vec3)):
     """relight_bc1_kernel with the texel loop replaced by code_sums lookups: per block row of 4
     texels, y += sum_p palette[p] * sums[bx, codes, p] (4 products instead of 4 selects + 4)."""
     br = start + wp.tid()
@@ -157,31 +178,16 @@ def relight_bc1_sums_kernel(
     y1 = wp.vec3(0.0, 0.0, 0.0)
     y2 = wp.vec3(0.0, 0.0, 0.0)
     y3 = wp.vec3(0.0, 0.0, 0.0)
-    base = br * blocks_per_row
-    for bx in range(blocks_per_row):
-        word0 = int(words[2 * (base + bx)])
-        word1 = int(words[2 * (base + bx) + 1])
-        c0 = word0 & 0xFFFF
-        c1 = (word0 >> 16) & 0xFFFF
-        a = expand565(c0)
-        b = expand565(c1)
-        q2 = wp.vec3i(0, 0, 0)
-        q3 = wp.vec3i(0, 0, 0)
-        if c0 > c1:
-            q2 = bc1_third(a, b)
-            q3 = bc1_third(b, a)
-        else:
-            q2 = wp.vec3i((a[0] + b[0] + 1) // 2, (a[1] + b[1] + 1) // 2, (a[2] + b[2] + 1) // 2)
-        p0 = lut_color(lut, a)
-        p1 = lut_color(lut, b)
-        p2 = lut_color(lut, q2)
-        p3 = lut_color(lut, q3)
+    base = br * op.blocks_per_row
+    for bx in range(op.blocks_per_row):
+        palette = block_palette(op.lut, int(op.words[2 * (base + bx)]))
+        word1 = int(op.words[2 * (base + bx) + 1])
         t = bx * 256
-        y0 += row_from_sums(sums, t + (word1 & 255), p0, p1, p2, p3)
-        y1 += row_from_sums(sums, t + ((word1 >> 8) & 255), p0, p1, p2, p3)
-        y2 += row_from_sums(sums, t + ((word1 >> 16) & 255), p0, p1, p2, p3)
-        y3 += row_from_sums(sums, t + ((word1 >> 24) & 255), p0, p1, p2, p3)
-    finish_block_row(br, y0, y1, y2, y3, row_scale, indptr, indices, values, size, x, y)
+        y0 += row_from_sums(sums, t + (word1 & 255), palette)
+        y1 += row_from_sums(sums, t + ((word1 >> 8) & 255), palette)
+        y2 += row_from_sums(sums, t + ((word1 >> 16) & 255), palette)
+        y3 += row_from_sums(sums, t + ((word1 >> 24) & 255), palette)
+    finish_block_row(op, br, y0, y1, y2, y3, x, y)
 
 
 def launch_rows(kernel, dim: int, inputs: list, device, threads: int) -> None:
@@ -198,12 +204,15 @@ class Relighter:
         self.device = wp.get_device(device)
         self.threads = threads
         self.permutation = np.asarray(compressed.permutation, np.int64)
-        self.words = wp.array(block_words(compressed.blocks), dtype=wp.int64, device=self.device)
-        self.lut = wp.array(compressed.lut, dtype=float, device=self.device)
-        self.row_scale = wp.array(compressed.row_scale, dtype=wp.vec3, device=self.device)
-        self.indptr = wp.array(compressed.sparse_indptr, dtype=int, device=self.device)
-        self.indices = wp.array(compressed.sparse_indices, dtype=int, device=self.device)
-        self.values = wp.array(compressed.sparse_values.reshape(-1, 3), dtype=wp.vec3, device=self.device)
+        self.op = CompressedRows()
+        self.op.words = wp.array(block_words(compressed.blocks), dtype=wp.int64, device=self.device)
+        self.op.blocks_per_row = self.padded // 4
+        self.op.lut = wp.array(compressed.lut, dtype=float, device=self.device)
+        self.op.row_scale = wp.array(compressed.row_scale, dtype=wp.vec3, device=self.device)
+        self.op.indptr = wp.array(compressed.sparse_indptr, dtype=int, device=self.device)
+        self.op.indices = wp.array(compressed.sparse_indices, dtype=int, device=self.device)
+        self.op.values = wp.array(compressed.sparse_values.reshape(-1, 3), dtype=wp.vec3, device=self.device)
+        self.op.size = self.size
         self.x = wp.zeros(self.padded, dtype=wp.vec3, device=self.device)
         self.y = wp.zeros(self.padded, dtype=wp.vec3, device=self.device)
         self.sums = wp.zeros((self.padded // 4 * 256, 4), dtype=wp.vec3, device=self.device)
@@ -214,13 +223,11 @@ class Relighter:
         Default: code sums per block column (code_sums_kernel), then 4 palette products per block
         row; ``texel_loop`` runs the plain per-texel decode instead (same result to rounding).
         """
-        common = [self.words, self.padded // 4, self.lut, self.row_scale, self.indptr, self.indices, self.values,
-                  self.size, self.x]
         if texel_loop:
-            launch_rows(relight_bc1_kernel, self.padded // 4, [*common, self.y], self.device, self.threads)
+            launch_rows(relight_bc1_kernel, self.padded // 4, [self.op, self.x, self.y], self.device, self.threads)
             return
         launch_rows(code_sums_kernel, self.padded // 4 * 256, [self.x, self.sums], self.device, self.threads)
-        launch_rows(relight_bc1_sums_kernel, self.padded // 4, [*common, self.sums, self.y], self.device,
+        launch_rows(relight_bc1_sums_kernel, self.padded // 4, [self.op, self.x, self.sums, self.y], self.device,
                     self.threads)
 
     def apply(self, irradiance: np.ndarray) -> np.ndarray:
