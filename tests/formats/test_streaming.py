@@ -6,12 +6,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from tolerances import FLOAT64_ROUNDING
 from usdbake.formats import streaming as s
 
 RESOLUTIONS = [(9, 9, 9), (8, 5, 3), (16, 12, 7), (1, 4, 4), (2, 2, 2), (1, 1, 1), (33, 2, 17)]
-
-EXACT = 1e-12
-"""Push-pull of a linear field on a level-boundary prefix copies and averages: float64 rounding only."""
 
 
 def linear_field(resolution, channels=2):
@@ -83,7 +81,7 @@ def test_constant_field_is_reproduced_for_any_holes(resolution, smooth):
     known[rng.integers(v)] = True
     values = np.where(known[:, None], np.array([[2.5, -1.0, 7.0]]), np.nan)
     filled = s.push_pull(values, resolution, known, smooth=smooth)
-    np.testing.assert_allclose(filled, np.tile([2.5, -1.0, 7.0], (v, 1)), rtol=1e-12)
+    np.testing.assert_allclose(filled, np.tile([2.5, -1.0, 7.0], (v, 1)), rtol=FLOAT64_ROUNDING)
 
 
 @pytest.mark.parametrize("resolution", [r for r in RESOLUTIONS if max(r) > 2])
@@ -94,7 +92,7 @@ def test_linear_field_is_reproduced_from_a_level_prefix(resolution):
         known = np.zeros(len(truth), bool)
         known[order[:s.level_prefix(resolution, level)]] = True
         filled = s.push_pull(np.where(known[:, None], truth, 0.0), resolution, known, smooth=False)
-        np.testing.assert_allclose(filled, truth, atol=EXACT * np.abs(truth).max())
+        np.testing.assert_allclose(filled, truth, atol=FLOAT64_ROUNDING * np.abs(truth).max())
 
 
 @given(st.integers(0, 2**31 - 1), st.floats(0.01, 0.95), st.booleans(),
@@ -109,7 +107,7 @@ def test_filled_values_are_bounded_and_received_ones_untouched(seed, fraction, s
     filled = s.push_pull(values, resolution, known, smooth=smooth)
     np.testing.assert_array_equal(filled[known], values[known])
     lo, hi = values[known].min(axis=0), values[known].max(axis=0)
-    tol = 1e-12 * np.abs(values).max()
+    tol = FLOAT64_ROUNDING * np.abs(values).max()
     assert (filled >= lo - tol).all() and (filled <= hi + tol).all()
 
 

@@ -4,10 +4,8 @@ marked triangles quartered, closure stays local, welded seams refined crack-free
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from tolerances import FLOAT64_AMPLIFIED, FLOAT64_ROUNDING, ON_BOUNDARY, T_JUNCTION_ENDPOINT
 from usdbake.geometry.refine import boundary_edges, is_watertight, refine, weld_points
-
-GEOMETRY_TOL = 1e-9
-"""float64 midpoints of unit-size meshes: rounding is ~1e-16; 1e-9 separates 'on the edge' from 'off it'."""
 
 
 def cube() -> tuple[np.ndarray, np.ndarray]:
@@ -48,7 +46,7 @@ def t_junctions(points, triangles) -> int:
     t = t / np.einsum("ek,ek->e", ab, ab)[None, :]
     closest = a[None] + t[..., None] * ab[None]
     distance = np.linalg.norm(closest - p[:, None], axis=2)
-    inside = (t > 1e-6) & (t < 1 - 1e-6) & (distance < GEOMETRY_TOL)
+    inside = (t > T_JUNCTION_ENDPOINT) & (t < 1 - T_JUNCTION_ENDPOINT) & (distance < ON_BOUNDARY)
     return int(inside.sum())
 
 
@@ -66,8 +64,8 @@ def test_watertight_cube_stays_watertight_and_conforming(seed, fraction):
         points, triangles, weld = result.points, result.triangles, result.weld
         normals, areas = normals_areas(points, triangles)
         assert is_watertight(triangles, weld)
-        np.testing.assert_allclose(areas.sum(), total_area, rtol=1e-12)
-        np.testing.assert_allclose(normals, normals_before[result.parent], atol=1e-12)  # winding kept
+        np.testing.assert_allclose(areas.sum(), total_area, rtol=FLOAT64_ROUNDING)
+        np.testing.assert_allclose(normals, normals_before[result.parent], atol=FLOAT64_ROUNDING)  # winding kept
     assert t_junctions(points, triangles) == 0
 
 
@@ -81,7 +79,7 @@ def test_marked_triangles_are_quartered_and_closure_is_local():
     for t in (100, 101):
         children = result.parent == t
         assert children.sum() == 4
-        np.testing.assert_allclose(new_areas[children], areas[t] / 4, rtol=1e-12)
+        np.testing.assert_allclose(new_areas[children], areas[t] / 4, rtol=FLOAT64_ROUNDING)
     touched = np.unique(result.parent[result.changed])
     # Longest-edge closure reaches only a neighbourhood, not the grid (red-green closure would spread over it).
     assert len(touched) <= 12, touched
@@ -109,7 +107,7 @@ def test_repeated_refinement_along_a_line_has_no_t_junctions_and_bounded_angles(
         cos = np.einsum("tk,tk->t", u, v) / np.linalg.norm(u, axis=1) / np.linalg.norm(v, axis=1)
         angles.append(np.degrees(np.arccos(np.clip(cos, -1, 1))))
     # Rivara: longest-edge bisection keeps the smallest angle >= half the initial smallest angle (45 deg here).
-    assert np.min(angles) >= 45.0 / 2 - 1e-9
+    assert np.min(angles) >= 45.0 / 2 - FLOAT64_AMPLIFIED
 
 
 def test_split_seams_are_refined_crack_free():

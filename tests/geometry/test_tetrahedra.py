@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull, Delaunay
 
+from tolerances import (BARYCENTRIC, FLOAT64_AMPLIFIED, FLOAT64_ROUNDING, JOGGLE_FIELD, JOGGLE_RECONSTRUCTION,
+                        ON_BOUNDARY)
 from usdbake.geometry import tetrahedra as T
-
-EXACT = 1e-9
-"""float64 barycentrics of unit-sized tetrahedra: rounding ~1e-15, far below this."""
 
 CUBE = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], float)
 OCTAHEDRON = np.array([[0.5, 0.5, -0.5], [0.5, 0.5, 1.5], [-0.5, 0.5, 0.5], [1.5, 0.5, 0.5],
@@ -22,7 +21,7 @@ def volumes(tetra):
 
 def check_structure(tetra):
     """Positively oriented, neighbours mutual and sharing the face opposite the vertex."""
-    assert (volumes(tetra) >= -EXACT).all()
+    assert (volumes(tetra) >= -ON_BOUNDARY).all()
     tets, nbr = tetra.tet_vertices, tetra.tet_neighbors
     for t in range(tetra.num_tets):
         for k in range(4):
@@ -36,7 +35,7 @@ def check_structure(tetra):
 
 def hull_contains(points, queries):
     eq = ConvexHull(points).equations
-    return (queries @ eq[:, :3].T + eq[:, 3] <= -1e-9).all(axis=1)
+    return (queries @ eq[:, :3].T + eq[:, 3] <= -ON_BOUNDARY).all(axis=1)
 
 
 def test_random_points_structure_and_volume():
@@ -44,14 +43,14 @@ def test_random_points_structure_and_volume():
     tetra = T.tetrahedralize(points)
     check_structure(tetra)
     assert not tetra.joggled
-    assert volumes(tetra).sum() == pytest.approx(ConvexHull(points).volume, rel=1e-12)
+    assert volumes(tetra).sum() == pytest.approx(ConvexHull(points).volume, rel=FLOAT64_ROUNDING)
 
 
 def test_cospherical_cube_and_octahedron():
     points = np.r_[CUBE, OCTAHEDRON]
     tetra = T.tetrahedralize(points)
     check_structure(tetra)
-    assert volumes(tetra).sum() == pytest.approx(ConvexHull(points).volume, rel=1e-12)
+    assert volumes(tetra).sum() == pytest.approx(ConvexHull(points).volume, rel=FLOAT64_ROUNDING)
     queries = np.random.default_rng(2).uniform(-0.6, 1.6, (3000, 3))  # fixed seed
     tet, bary, inside = T.locate(tetra, queries)
     expected_inside = hull_contains(points, queries)
@@ -59,13 +58,13 @@ def test_cospherical_cube_and_octahedron():
     outside = ~hull_contains(points, queries) & ~inside  # points within 1e-9 of the hull may go either way
     assert outside.sum() > 0.3 * len(queries)
     recon = np.einsum("nv,nvj->nj", bary, points[tetra.tet_vertices[tet]])
-    np.testing.assert_allclose(recon[inside], queries[inside], atol=1e-6)  # joggled slivers: 1e-6 diagonals
+    np.testing.assert_allclose(recon[inside], queries[inside], atol=JOGGLE_RECONSTRUCTION)
 
 
 def test_cube_corners_alone():
     tetra = T.tetrahedralize(CUBE)
     check_structure(tetra)
-    assert volumes(tetra).sum() == pytest.approx(1.0, rel=1e-12)
+    assert volumes(tetra).sum() == pytest.approx(1.0, rel=FLOAT64_ROUNDING)
 
 
 @pytest.mark.parametrize("points, word", [
@@ -92,7 +91,7 @@ def test_duplicates_are_never_referenced():
     tetra = T.tetrahedralize(with_dupes)
     check_structure(tetra)
     assert tetra.tet_vertices.max() < 50
-    assert volumes(tetra).sum() == pytest.approx(ConvexHull(points).volume, rel=1e-12)
+    assert volumes(tetra).sum() == pytest.approx(ConvexHull(points).volume, rel=FLOAT64_ROUNDING)
 
 
 def test_walk_agrees_with_scipy_find_simplex():
@@ -109,7 +108,7 @@ def test_walk_agrees_with_scipy_find_simplex():
         mine = np.sort(tetra.tet_vertices[tet[found]], axis=1)
         theirs = np.sort(reference.simplices[expected[found]], axis=1)
         np.testing.assert_array_equal(mine, theirs)
-        assert (bary[found] >= -EXACT).all()
+        assert (bary[found] >= -BARYCENTRIC).all()
 
 
 def test_walk_from_every_start_finds_the_same_tetrahedron():
@@ -129,7 +128,7 @@ def test_brute_force_fallback_when_steps_run_out():
     walked = T.locate(tetra, queries, start=0)
     forced = T.locate(tetra, queries, start=0, max_steps=1)
     inside = walked[2]
-    np.testing.assert_allclose(forced[1][inside], walked[1][inside], atol=EXACT)
+    np.testing.assert_allclose(forced[1][inside], walked[1][inside], atol=BARYCENTRIC)
 
 
 def test_interpolation_reproduces_a_linear_field_exactly():
@@ -141,11 +140,11 @@ def test_interpolation_reproduces_a_linear_field_exactly():
     queries = points.min(axis=0) + rng.random((2000, 3)) * (points.max(axis=0) - points.min(axis=0))
     tet, bary, inside = T.locate(tetra, queries)
     interpolated = np.einsum("nv,nvc->nc", bary, values[tetra.tet_vertices[tet]])
-    np.testing.assert_allclose(interpolated[inside], queries[inside] @ a + b, atol=1e-9)
+    np.testing.assert_allclose(interpolated[inside], queries[inside] @ a + b, atol=BARYCENTRIC)
     # and at the probes themselves the weights pick the probe
     tet, bary, inside = T.locate(tetra, points)
     picked = np.einsum("nv,nvc->nc", bary, values[tetra.tet_vertices[tet]])
-    np.testing.assert_allclose(picked, values, atol=1e-9)
+    np.testing.assert_allclose(picked, values, atol=BARYCENTRIC)
 
 
 def test_outside_queries_clamp_to_the_boundary():
@@ -202,7 +201,7 @@ def test_from_arrays_round_trip():
     queries = np.random.default_rng(11).uniform(0.1, 0.9, (300, 3))
     a, b = T.locate(tetra, queries), T.locate(again, queries)
     np.testing.assert_array_equal(a[0], b[0])
-    np.testing.assert_allclose(a[1], b[1], atol=EXACT)
+    np.testing.assert_allclose(a[1], b[1], atol=BARYCENTRIC)
     with pytest.raises(ValueError, match="outside"):
         T.from_arrays(points, np.array([0, 1, 2, 99]), np.array([-1, -1, -1, -1]))
 
@@ -215,11 +214,11 @@ def test_regular_grid_vertices_and_linear_field():
     tetra = T.tetrahedralize(points)
     check_structure(tetra)
     assert tetra.joggled and tetra.tet_flat is not None
-    assert volumes(tetra).sum() == pytest.approx(3.0 * 2.0 * 2.0, rel=1e-9)
+    assert volumes(tetra).sum() == pytest.approx(3.0 * 2.0 * 2.0, rel=FLOAT64_AMPLIFIED)
     rng = np.random.default_rng(12)  # fixed seed
     a, b = rng.normal(size=(3, 2)), rng.normal(size=2)
     values = points @ a + b
-    for queries, tol in ((points, 1e-9), (rng.random((1000, 3)) * [3, 2, 2], 1e-5)):
+    for queries, tol in ((points, BARYCENTRIC), (rng.random((1000, 3)) * [3, 2, 2], JOGGLE_FIELD)):
         tet, bary, inside = T.locate(tetra, queries)
         interior = ((queries > 1e-3) & (queries < [3 - 1e-3, 2 - 1e-3, 2 - 1e-3])).all(axis=1)
         assert inside[interior].all()  # on the hull the joggle may put a point 1e-6 outside: clamped

@@ -4,13 +4,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from tolerances import BC1_LINE_RMS
 from usdbake.formats import dds
 from usdbake.kernels import bc1
-
-LINE_TOLERANCE = 3.0
-"""RMS (8-bit steps) for texels on the 4 palette positions of a line in RGB: only the rounding of
-the endpoints to 5/6 bits remains, at most half a 5-bit step (4.1) per channel, ~2.4 RMS."""
-
 
 def test_constant_blocks_are_exact_when_representable():
     # 565-representable colours (r, b multiples of 255/31 rounded; g of 255/63) round-trip exactly.
@@ -41,7 +37,7 @@ def test_four_levels_on_a_line_round_trip_within_endpoint_rounding():
             t = rng.permutation(np.repeat([0.0, 1 / 3, 2 / 3, 1.0], 4)).reshape(4, 4, 1)
             image[4 * by:4 * by + 4, 4 * bx:4 * bx + 4] = start + t * (end - start)
     decoded = bc1.decode_bc1(bc1.encode_bc1(image), 64, 64).astype(np.float32)
-    assert np.sqrt(np.mean((decoded - image) ** 2)) < LINE_TOLERANCE
+    assert np.sqrt(np.mean((decoded - image) ** 2)) < BC1_LINE_RMS
 
 
 def test_encoder_handles_nan_and_out_of_range():

@@ -32,6 +32,9 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
+from tolerances import (BARYCENTRIC, BC1_BOUND_SLACK, FLOAT32_ROUNDING, FLOAT32_STORAGE, FLOAT64_AMPLIFIED,
+                        FLOAT64_ROUNDING, LOG_CODE_SLACK, ON_BOUNDARY, PALETTE_ROUNDING, QUANT565, QUOTED_6_DECIMALS,
+                        SH_LOBE, SH_QUADRATURE)
 from usdbake.geometry import tetrahedra
 from usdbake.kernels import bc1, operator_codec, rgb9e5, sh, sky
 from usdbake.kernels import octahedral as oct8
@@ -59,7 +62,7 @@ EXACT_QUADRATURE = gauss_sphere(6, 12)
 """Exact for degree < 12: products of L2 basis functions are degree 4."""
 
 FINE_QUADRATURE = gauss_sphere(48, 96)
-"""For non-band-limited smooth lobes (see SH_LOBE)."""
+"""For non-band-limited smooth lobes (see tolerances.SH_LOBE)."""
 
 
 @st.composite
@@ -90,22 +93,12 @@ coefficients9 = st.lists(st.floats(-10.0, 10.0, allow_nan=False), min_size=9, ma
 # ---------------------------------------------------------------------------
 # L2 spherical harmonics
 
-SH_EXACT = 1e-11
-"""Float64 sums over 72 exact quadrature nodes of values up to ~30: a few hundred ulps."""
-
-SH_LOBE = 1e-9
-"""A von Mises-Fisher lobe exp(k (w.a - 1)) is not band-limited but smooth (analytic): with k <= 20 the
-48 x 96 product quadrature projects it to ~1e-13 (measured 4e-14 against a 96 x 192 one), whatever
-its axis; the rotated and unrotated projections each carry that error. (A clamped cosine lobe has a
-kink at its horizon that this quadrature resolves only to ~2e-4 when the kink lies along a z ring.)"""
-
-
 @PROPERTY
 @given(coefficients9)
 def test_projection_recovers_band_limited_coefficients(c):
     dirs, w = EXACT_QUADRATURE
     values = sh.sh_basis_np(dirs) @ c
-    np.testing.assert_allclose(sh.project_np(dirs, values, w), c, rtol=0, atol=SH_EXACT * (1 + np.abs(c).max()),
+    np.testing.assert_allclose(sh.project_np(dirs, values, w), c, rtol=0, atol=SH_QUADRATURE * (1 + np.abs(c).max()),
                                err_msg="orthonormal basis: projecting sum c_k Y_k must give c back")
 
 
@@ -114,7 +107,7 @@ def test_projection_recovers_band_limited_coefficients(c):
 def test_rotation_of_band_limited_function_is_exact(c, rotation):
     dirs, w = EXACT_QUADRATURE
     rotated = sh.project_np(dirs, sh.sh_basis_np(dirs @ rotation) @ c, w)  # g(w) = f(R^T w)
-    np.testing.assert_allclose(sh.rotate_np(c, rotation), rotated, rtol=0, atol=SH_EXACT * (1 + np.abs(c).max()),
+    np.testing.assert_allclose(sh.rotate_np(c, rotation), rotated, rtol=0, atol=SH_QUADRATURE * (1 + np.abs(c).max()),
                                err_msg="rotation matrix must map f's coefficients to those of f(R^T w)")
 
 
@@ -133,7 +126,7 @@ def test_rotating_projected_lobe_equals_projecting_rotated_lobe(axis, rotation, 
     for band in range(3):
         rows = sh.BAND == band
         assert np.linalg.norm(sh.rotate_np(projected, rotation)[rows]) == pytest.approx(
-            np.linalg.norm(projected[rows]), abs=SH_EXACT), f"band {band} energy changed under rotation"
+            np.linalg.norm(projected[rows]), abs=SH_QUADRATURE), f"band {band} energy changed under rotation"
 
 
 KERNEL_MIN = (math.pi / (4 * math.pi) * 1.0 + 2 * math.pi / 3 * 3 / (4 * math.pi) * (-8 / 15)
@@ -151,17 +144,12 @@ def test_irradiance_of_non_negative_radiance_is_above_the_ringing_bound(lobes, n
     radiance = sum(power * np.maximum(dirs @ a, 0.0) ** k for a, power, k in lobes)
     phi = float((radiance * w).sum())
     e = sh.evaluate_np(sh.irradiance_sh_np(sh.project_np(dirs, radiance, w))[:, None], np.array(normals))[:, 0]
-    assert e.min() >= KERNEL_MIN * phi - 1e-12 * (1 + phi), "L2 irradiance below the kernel's ringing bound"
-    assert KERNEL_MIN == pytest.approx(-0.039583, abs=1e-6)
+    assert e.min() >= KERNEL_MIN * phi - FLOAT64_ROUNDING * (1 + phi), "L2 irradiance below the kernel's ringing bound"
+    assert KERNEL_MIN == pytest.approx(-0.039583, abs=QUOTED_6_DECIMALS)
 
 
 # ---------------------------------------------------------------------------
 # Barycentrics and point location
-
-BARY_EXACT = 1e-9
-"""Barycentrics of points within a few tetrahedron sizes, well-conditioned tetrahedra (volume checked):
-float64 solves lose at most ~1e4 ulps."""
-
 
 @st.composite
 def tetrahedron_and_points(draw):
@@ -184,9 +172,9 @@ def test_barycentrics_sum_to_one_and_reconstruct_the_point(data):
     tetra = tetrahedra.tetrahedralize(corners)
     assert tetra.num_tets == 1
     b = tetrahedra.barycentric(tetra, np.zeros(len(queries), np.int64), queries)
-    np.testing.assert_allclose(b.sum(axis=1), 1.0, rtol=0, atol=BARY_EXACT, err_msg="partition of unity")
+    np.testing.assert_allclose(b.sum(axis=1), 1.0, rtol=0, atol=BARYCENTRIC, err_msg="partition of unity")
     scale = 1 + np.abs(corners).max()
-    np.testing.assert_allclose(b @ tetra.points[tetra.tet_vertices[0]], queries, rtol=0, atol=BARY_EXACT * scale,
+    np.testing.assert_allclose(b @ tetra.points[tetra.tet_vertices[0]], queries, rtol=0, atol=BARYCENTRIC * scale,
                                err_msg="sum b_i v_i must reconstruct the query")
 
 
@@ -216,7 +204,7 @@ def test_walk_agrees_with_scipy_find_simplex(data):
     # Same simplex as scipy, unless the query lies on a face both tetrahedra share.
     same = np.all(np.sort(tetra.tet_vertices[found], axis=1) == np.sort(reference.simplices[expected[inside]], axis=1),
                   axis=1)
-    on_face = bary[inside].min(axis=1) <= 1e-9
+    on_face = bary[inside].min(axis=1) <= ON_BOUNDARY
     assert np.all(same | on_face), "walk ended in a different tetrahedron than scipy's find_simplex"
     assert np.all(bary[inside] >= -tetrahedra.BARY_TOLERANCE), "walk ended in a tetrahedron not containing the query"
 
@@ -232,7 +220,7 @@ def test_interpolation_reproduces_affine_fields(data, coefficients):
     assume(inside.any())
     interpolated = (bary * field[tetra.tet_vertices[tet]]).sum(axis=1)
     scale = 1 + np.abs(points).max() * np.abs(a).sum() + abs(b)
-    np.testing.assert_allclose(interpolated[inside], (queries @ a + b)[inside], rtol=0, atol=1e-9 * scale,
+    np.testing.assert_allclose(interpolated[inside], (queries @ a + b)[inside], rtol=0, atol=BARYCENTRIC * scale,
                                err_msg="linear interpolation must reproduce an affine field exactly")
 
 
@@ -292,15 +280,11 @@ def test_direction_code_angle_bound(direction, hemisphere):
     decoded = oct8.decode_hemisphere(oct8.encode_hemisphere(direction[None], [hemisphere]), [hemisphere])[0]
     angle = math.degrees(math.acos(min(1.0, float(decoded.astype(np.float64) @ direction))))
     assert angle <= oct8.MAX_ANGLE_ERROR_DEG, f"{direction} in hemisphere {hemisphere}: {angle:.2f} deg"
-    assert float(decoded @ axis) >= oct8.MIN_AXIS_COSINE - 1e-6, "decoded direction left its hemisphere"
+    assert float(decoded @ axis) >= oct8.MIN_AXIS_COSINE - FLOAT32_STORAGE, "decoded direction left its hemisphere"
 
 
 # ---------------------------------------------------------------------------
 # BC1
-
-QUANT565 = np.array([255 / 62 + 0.5, 255 / 126 + 0.5, 255 / 62 + 0.5])
-"""Per-channel error of an endpoint: half a 5/6-bit level (255/31/2, 255/63/2) plus the byte rounding
-of the expansion (0.5)."""
 
 byte = st.floats(0.0, 255.0, allow_nan=False)
 colour8 = st.lists(byte, min_size=3, max_size=3).map(np.array)
@@ -314,12 +298,7 @@ def test_bc1_two_colour_blocks_are_exact_up_to_565_rounding(a, b, mask):
     # The range fit puts the endpoints on the two colours; each texel can reach its own endpoint,
     # so the block's mean squared error is at most one endpoint's rounding (refinement only lowers it).
     mse = ((decoded - texels) ** 2).sum(-1).mean()
-    assert mse <= (QUANT565 ** 2).sum() + 1e-3, f"two-colour block: mean squared error {mse:.2f}"
-
-
-PALETTE_ROUNDING = np.linalg.norm(QUANT565 + 0.5)
-"""Euclidean distance of a decoded palette entry from its ideal position: endpoint rounding (QUANT565)
-plus the byte rounding of the interpolated entries (0.5)."""
+    assert mse <= (QUANT565 ** 2).sum() + BC1_BOUND_SLACK, f"two-colour block: mean squared error {mse:.2f}"
 
 
 def segment_block(a, b, t):
@@ -339,7 +318,8 @@ def test_bc1_blocks_on_a_line_are_within_the_palette_bound(a, b, t):
     texels = segment_block(a, b, [0.0, 1.0] + list(t))
     decoded = bc1.decode_bc1(bc1.encode_bc1(texels), 4, 4).astype(np.float64)
     mse = ((decoded - texels) ** 2).sum(-1).mean()
-    assert mse <= line_block_bound(a, b) + 1e-3, f"line block: mse {mse:.2f} > bound {line_block_bound(a, b):.2f}"
+    assert mse <= line_block_bound(a, b) + BC1_BOUND_SLACK, \
+        f"line block: mse {mse:.2f} > bound {line_block_bound(a, b):.2f}"
 
 
 def test_bc1_colour_line_orthogonal_to_grey():
@@ -355,10 +335,6 @@ def test_bc1_colour_line_orthogonal_to_grey():
 # ---------------------------------------------------------------------------
 # Log codes of the form-factor compression
 
-LOG_CODE_SLACK = 2e-5
-"""Codes are stored as float32 (up to 255: 1.5e-5 absolute) before rounding to a byte."""
-
-
 @PROPERTY
 @given(st.floats(-12, -1), st.floats(-3, 3),
        st.lists(st.floats(0.0, 1.0, allow_nan=False), min_size=1, max_size=50))
@@ -373,7 +349,8 @@ def test_log_codes_monotone_and_within_half_a_step(log10_floor, log10_vmax, frac
     coded = values >= floor
     np.testing.assert_array_equal(decoded[~coded], 0.0, err_msg="values below the floor decode to 0")
     error = np.abs(np.log(decoded[coded]) - np.log(values[coded]))
-    assert np.all(error <= scale * (0.5 + LOG_CODE_SLACK) + 1e-7), f"log error {error.max()} > half step {scale / 2}"
+    assert np.all(error <= scale * (0.5 + LOG_CODE_SLACK) + FLOAT32_ROUNDING), \
+        f"log error {error.max()} > half step {scale / 2}"
 
 
 # ---------------------------------------------------------------------------
@@ -385,14 +362,9 @@ layouts = st.one_of(
     st.integers(1, 16).map(lambda n: ("reinhart", n)),  # its subdivision range
 )
 
-SOLID_ANGLE_SUM = 1e-9
-"""Sum of up to a few thousand float64 solid angles of exact ring areas."""
-
-
-BOUNDARY_SLACK = 1e-9
-"""Directions on a shared patch edge (e.g. exactly south, on a ring boundary) belong to both closed
-patches; float azimuth wrapping decides them either way, so coverage is tested with the closed
-patches grown by this and overlap with the open patches shrunk by it."""
+# Directions on a shared patch edge (e.g. exactly south, on a ring boundary) belong to both closed patches;
+# float azimuth wrapping decides them either way, so coverage is tested with the closed patches grown by
+# ON_BOUNDARY and overlap with the open patches shrunk by it.
 
 
 def containing_patches(patches: sky.SkyPatches, direction: np.ndarray, slack: float) -> np.ndarray:
@@ -414,16 +386,18 @@ def test_patch_layouts_tile_the_upper_hemisphere(layout, directions):
     patches = sky.patch_layout(name, count=n, subdivision=n)
     if name == "uniform":
         assert len(patches) == n
-        np.testing.assert_allclose(patches.patch_solid_angles, 2 * np.pi / n, rtol=1e-9, err_msg="equal solid angle")
+        np.testing.assert_allclose(patches.patch_solid_angles, 2 * np.pi / n, rtol=FLOAT64_AMPLIFIED,
+                                   err_msg="equal solid angle")
     assert np.all(patches.patch_solid_angles > 0)
-    assert patches.patch_solid_angles.sum() == pytest.approx(2 * np.pi, abs=SOLID_ANGLE_SUM)
-    np.testing.assert_allclose(np.linalg.norm(patches.patch_directions, axis=1), 1.0, rtol=0, atol=1e-12)
+    assert patches.patch_solid_angles.sum() == pytest.approx(2 * np.pi, abs=FLOAT64_AMPLIFIED)
+    np.testing.assert_allclose(np.linalg.norm(patches.patch_directions, axis=1), 1.0, rtol=0, atol=FLOAT64_ROUNDING)
     assert patches.patch_directions[:, 2].min() >= 0.0
     # The bounds tile the hemisphere: rings stack from the horizon to the zenith, each ring's azimuth
     # ranges are contiguous and close the circle, and each stated solid angle is its band's dz dphi
     # (Archimedes' hat-box theorem).
     z_lo, z_hi, az_lo, az_hi = patches.patch_bounds.T
-    np.testing.assert_allclose(patches.patch_solid_angles, (z_hi - z_lo) * (az_hi - az_lo), rtol=1e-12, atol=0,
+    np.testing.assert_allclose(patches.patch_solid_angles, (z_hi - z_lo) * (az_hi - az_lo), rtol=FLOAT64_ROUNDING,
+                               atol=0,
                                err_msg="solid angle of a z band x azimuth range must be dz dphi")
     rings = np.unique(patches.patch_bounds[:, :2], axis=0)
     assert rings[0, 0] == 0.0 and rings[-1, 1] == 1.0, "rings must span z from the horizon to the zenith"
@@ -431,16 +405,17 @@ def test_patch_layouts_tile_the_upper_hemisphere(layout, directions):
     for lo, hi in rings:
         ring = np.flatnonzero((z_lo == lo) & (z_hi == hi))
         order = ring[np.argsort(az_lo[ring])]
-        np.testing.assert_allclose(az_lo[order[1:]], az_hi[order[:-1]], rtol=0, atol=1e-12,
+        np.testing.assert_allclose(az_lo[order[1:]], az_hi[order[:-1]], rtol=0, atol=FLOAT64_ROUNDING,
                                    err_msg="azimuth ranges in a ring must be contiguous")
-        assert az_hi[order[-1]] - az_lo[order[0]] == pytest.approx(2 * np.pi, abs=1e-12), "ring must close"
+        assert az_hi[order[-1]] - az_lo[order[0]] == pytest.approx(2 * np.pi, abs=FLOAT64_ROUNDING), "ring must close"
     for d in directions:
         d = d * np.sign(d[2]) if d[2] != 0 else d
-        hits = containing_patches(patches, d, BOUNDARY_SLACK)
+        hits = containing_patches(patches, d, ON_BOUNDARY)
         assert len(hits) >= 1, f"{name} {n}: direction {d} lies in no patch"
-        assert len(containing_patches(patches, d, -BOUNDARY_SLACK)) <= 1, f"{name} {n}: patches overlap at {d}"
+        assert len(containing_patches(patches, d, -ON_BOUNDARY)) <= 1, f"{name} {n}: patches overlap at {d}"
         angle = math.acos(min(1.0, float(patches.patch_directions[hits[0]] @ d)))
         assert angle <= patches.patch_radius[hits[0]], "direction farther from its patch centre than the radius"
     # Each patch centre lies in its own patch.
     for k in range(0, len(patches), max(1, len(patches) // 16)):
-        assert k in containing_patches(patches, patches.patch_directions[k], BOUNDARY_SLACK), f"centre of patch {k} outside it"
+        assert k in containing_patches(patches, patches.patch_directions[k], ON_BOUNDARY), \
+            f"centre of patch {k} outside it"

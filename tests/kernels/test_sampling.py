@@ -9,6 +9,8 @@ import warp as wp
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from tolerances import (FINITE_DIFFERENCE, FLOAT32_STORAGE, FLOAT32_WARP_MATH, FLOAT64_ROUNDING, MC_SIGMAS,
+                        MIDPOINT_MOMENT_FACTOR, MIDPOINT_RIM_FACTOR)
 from usdbake.kernels.sampling import (concentric_disk_np, cosine_hemisphere, cosine_hemisphere_np,
                                                  stratified_pair, tangent_frame, triangle_point)
 
@@ -24,18 +26,11 @@ PROPERTY = settings(derandomize=True, deadline=None)
 """Hypothesis with a fixed seed sequence (reproducible like the fixed seeds elsewhere); no deadline, since the
 first Warp example may load a module."""
 
-FLOAT64_TOL = 1e-12
-"""Roundoff of a handful of float64 operations on values of order 1."""
+POLY_MOMENT_TOL = MIDPOINT_MOMENT_FACTOR / GRID**2
+"""Midpoint rule on the grid: polynomial moments of r (see MIDPOINT_MOMENT_FACTOR)."""
 
-FLOAT32_TOL = 2e-6
-"""Roundoff of the float32 Warp functions (sin/cos/sqrt of order-1 values, ~10 ulp)."""
-
-POLY_MOMENT_TOL = 2.0 / GRID**2
-"""Midpoint rule on the grid: error O(h^2) for polynomial moments of r (measured exactly 1/GRID^2 for E[r^2])."""
-
-Z_MOMENT_TOL = GRID**-1.5
-"""E[z] = E[sqrt(1 - r^2)] has a square-root singularity at the disk's rim, so the midpoint rule converges
-only as h^1.5 there (measured ~0.5 * GRID^-1.5)."""
+Z_MOMENT_TOL = MIDPOINT_RIM_FACTOR * GRID**-1.5
+"""Midpoint rule on the grid: E[z], singular at the disk's rim (see MIDPOINT_RIM_FACTOR)."""
 
 
 @wp.kernel
@@ -78,8 +73,8 @@ def test_concentric_disk_lands_in_unit_disk_at_chebyshev_radius(u1, u2):
     # The concentric map sends the square of Chebyshev radius r (in [-1,1]^2) onto the circle of radius r.
     d = concentric_disk_np(np.array([u1]), np.array([u2]))[0]
     chebyshev = max(abs(2 * u1 - 1), abs(2 * u2 - 1))
-    np.testing.assert_allclose(np.hypot(*d), chebyshev, rtol=0, atol=FLOAT64_TOL)
-    assert np.hypot(*d) <= 1.0 + FLOAT64_TOL
+    np.testing.assert_allclose(np.hypot(*d), chebyshev, rtol=0, atol=FLOAT64_ROUNDING)
+    assert np.hypot(*d) <= 1.0 + FLOAT64_ROUNDING
 
 
 @PROPERTY
@@ -96,7 +91,7 @@ def test_concentric_disk_jacobian_is_pi(u1, u2):
            concentric_disk_np(np.array([u1]), np.array([u2 - step])))[0] / (2 * step)
     det = du1[0] * du2[1] - du1[1] * du2[0]
     # Central differences in float64: truncation O(step^2 * d''') ~1e-12, cancellation ~1e-16/step ~1e-10.
-    np.testing.assert_allclose(abs(det), math.pi, rtol=1e-6)
+    np.testing.assert_allclose(abs(det), math.pi, rtol=FINITE_DIFFERENCE)
 
 
 def test_concentric_disk_grid_moments_match_uniform_disk():
@@ -136,7 +131,7 @@ def test_concentric_disk_centre_maps_to_origin():
 @given(UNIT, UNIT)
 def test_cosine_hemisphere_is_unit_and_upper(u1, u2):
     w = cosine_hemisphere_np(np.array([u1]), np.array([u2]))[0]
-    np.testing.assert_allclose(np.linalg.norm(w), 1.0, rtol=0, atol=FLOAT64_TOL)
+    np.testing.assert_allclose(np.linalg.norm(w), 1.0, rtol=0, atol=FLOAT64_ROUNDING)
     assert w[2] >= 0.0
 
 
@@ -169,20 +164,20 @@ def test_warp_cosine_hemisphere_matches_numpy_twin():
     ]).astype(np.float32)
     directions, _ = eval_warp(u, np.tile([0.0, 0.0, 1.0], (len(u), 1)))
     expected = cosine_hemisphere_np(u[:, 0].astype(np.float64), u[:, 1].astype(np.float64))
-    np.testing.assert_allclose(directions[:, :2], expected[:, :2], rtol=0, atol=FLOAT32_TOL)
+    np.testing.assert_allclose(directions[:, :2], expected[:, :2], rtol=0, atol=FLOAT32_WARP_MATH)
     # z = sqrt(1 - r^2) amplifies float32 roundoff of r^2 by 1/(2z) at the rim (measured 2e-4 at u = (0, 0));
     # z^2 = 1 - r^2 carries no such amplification, so compare that.
-    np.testing.assert_allclose(directions[:, 2] ** 2, expected[:, 2] ** 2, rtol=0, atol=FLOAT32_TOL)
-    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0, rtol=0, atol=FLOAT32_TOL)
+    np.testing.assert_allclose(directions[:, 2] ** 2, expected[:, 2] ** 2, rtol=0, atol=FLOAT32_WARP_MATH)
+    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0, rtol=0, atol=FLOAT32_WARP_MATH)
     assert (directions[:, 2] >= 0).all()
 
 
 def assert_orthonormal_frames(frames: np.ndarray, normals: np.ndarray) -> None:
     """Each (3, 3) frame: orthonormal, right-handed, with the normal as its third column."""
     eye = np.broadcast_to(np.eye(3), frames.shape)
-    np.testing.assert_allclose(np.einsum("nji,njk->nik", frames, frames), eye, rtol=0, atol=4 * FLOAT32_TOL)
-    np.testing.assert_allclose(frames[:, :, 2], normals, rtol=0, atol=FLOAT32_TOL)
-    np.testing.assert_allclose(np.linalg.det(frames), 1.0, rtol=0, atol=4 * FLOAT32_TOL)
+    np.testing.assert_allclose(np.einsum("nji,njk->nik", frames, frames), eye, rtol=0, atol=4 * FLOAT32_WARP_MATH)
+    np.testing.assert_allclose(frames[:, :, 2], normals, rtol=0, atol=FLOAT32_WARP_MATH)
+    np.testing.assert_allclose(np.linalg.det(frames), 1.0, rtol=0, atol=4 * FLOAT32_WARP_MATH)
 
 
 def test_warp_tangent_frame_is_orthonormal_basis_around_n():
@@ -211,8 +206,9 @@ def test_warp_frame_maps_cosine_samples_around_n():
     u = rng.random((len(normals), 2)).astype(np.float32)
     directions, frames = eval_warp(u, normals)
     world = np.einsum("nij,nj->ni", frames, directions)
-    np.testing.assert_allclose(np.einsum("ni,ni->n", world, normals), directions[:, 2], rtol=0, atol=4 * FLOAT32_TOL)
-    np.testing.assert_allclose(np.linalg.norm(world, axis=1), 1.0, rtol=0, atol=4 * FLOAT32_TOL)
+    np.testing.assert_allclose(np.einsum("ni,ni->n", world, normals), directions[:, 2], rtol=0,
+                               atol=4 * FLOAT32_WARP_MATH)
+    np.testing.assert_allclose(np.linalg.norm(world, axis=1), 1.0, rtol=0, atol=4 * FLOAT32_WARP_MATH)
 
 
 @wp.func
@@ -255,7 +251,7 @@ def test_triangle_point_is_uniform_on_the_triangle():
     wp.launch(_triangle_points_kernel, dim=len(u), inputs=[wp.array(u, dtype=wp.vec2, device="cpu")], outputs=[out],
               device="cpu")
     p = out.numpy()[:, :2].astype(np.float64)
-    assert (p >= -1e-6).all() and (p.sum(axis=1) <= 1 + 1e-6).all()
-    tol = 4 * 0.25 / math.sqrt(len(u))  # 4 sigma, each coordinate's std is < 0.25
+    assert (p >= -FLOAT32_STORAGE).all() and (p.sum(axis=1) <= 1 + FLOAT32_STORAGE).all()
+    tol = MC_SIGMAS * 0.25 / math.sqrt(len(u))  # each coordinate's std is < 0.25
     np.testing.assert_allclose(p.mean(axis=0), [1 / 3, 1 / 3], atol=tol)
     np.testing.assert_allclose([(p[:, 0] ** 2).mean(), (p[:, 0] * p[:, 1]).mean()], [1 / 6, 1 / 12], atol=tol)

@@ -9,16 +9,11 @@ import numpy as np
 import pytest
 import warp as wp
 
+from tolerances import (FIBONACCI_MEAN, FLOAT32_ACCUMULATED, FLOAT32_WARP_MATH, FLOAT64_AMPLIFIED, FLOAT64_CONSTANT,
+                        FLOAT64_ROUNDING, GRID_MINIMUM, QUOTED_6_DECIMALS, SH_L2_TRUNCATION, SH_ROTATION)
 from usdbake.kernels import sh
 
 wp.set_module_options({"enable_backward": False})
-
-EXACT = 1e-12
-"""Quadrature-exact identities in float64: a few ulps of sums of ~1e3 terms of size ~1."""
-
-FLOAT32 = 2e-6
-"""Warp evaluates in float32: basis values up to ~1.1, relative rounding ~6e-8 per operation."""
-
 
 def gauss_sphere(n_z: int = 12, n_phi: int = 24, z_range=(-1.0, 1.0)):
     """Product quadrature on (a z-band of) the sphere: Gauss-Legendre in z, uniform in phi.
@@ -64,13 +59,13 @@ def test_basis_is_orthonormal_by_quadrature():
     dirs, w = gauss_sphere()
     y = sh.sh_basis_np(dirs)
     gram = np.einsum("nk,n,nj->kj", y, w, y)
-    np.testing.assert_allclose(gram, np.eye(9), atol=EXACT)
+    np.testing.assert_allclose(gram, np.eye(9), atol=FLOAT64_ROUNDING)
 
 
 def test_basis_constants_match_closed_forms():
     expected = [0.5 / math.sqrt(math.pi), math.sqrt(3 / (4 * math.pi)), math.sqrt(15 / (4 * math.pi)),
                 math.sqrt(5 / (16 * math.pi)), math.sqrt(15 / (16 * math.pi))]
-    np.testing.assert_allclose([sh.C0, sh.C1, sh.C2, sh.C3, sh.C4], expected, rtol=1e-15)
+    np.testing.assert_allclose([sh.C0, sh.C1, sh.C2, sh.C3, sh.C4], expected, rtol=FLOAT64_CONSTANT)
 
 
 @wp.kernel
@@ -91,15 +86,15 @@ def test_warp_basis_matches_numpy_twin():
     d = random_directions(200, seed=5).astype(np.float32)  # fixed seed
     out = wp.zeros((200, 9), dtype=float, device="cpu")
     wp.launch(_basis_kernel, dim=200, inputs=[wp.array(d, dtype=wp.vec3, device="cpu"), out], device="cpu")
-    np.testing.assert_allclose(out.numpy(), sh.sh_basis_np(d), atol=FLOAT32)
+    np.testing.assert_allclose(out.numpy(), sh.sh_basis_np(d), atol=FLOAT32_WARP_MATH)
 
 
 def test_warp_uniform_sphere_matches_twin_and_is_unit():
     u = np.random.default_rng(7).random((300, 2)).astype(np.float32)  # fixed seed
     out = wp.zeros(300, dtype=wp.vec3, device="cpu")
     wp.launch(_sphere_kernel, dim=300, inputs=[wp.array(u, dtype=wp.vec2, device="cpu"), out], device="cpu")
-    np.testing.assert_allclose(out.numpy(), sh.uniform_sphere_np(u[:, 0], u[:, 1]), atol=FLOAT32)
-    np.testing.assert_allclose(np.linalg.norm(out.numpy(), axis=1), 1.0, atol=FLOAT32)
+    np.testing.assert_allclose(out.numpy(), sh.uniform_sphere_np(u[:, 0], u[:, 1]), atol=FLOAT32_WARP_MATH)
+    np.testing.assert_allclose(np.linalg.norm(out.numpy(), axis=1), 1.0, atol=FLOAT32_WARP_MATH)
 
 
 def test_project_kernel_matches_numpy_projection():
@@ -113,7 +108,8 @@ def test_project_kernel_matches_numpy_projection():
     for i in range(n):
         rows = slice(i * samples, (i + 1) * samples)
         expected = sh.project_np(d[rows], radiance[rows])
-        np.testing.assert_allclose(out.numpy()[i].reshape(9, 3), expected, rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(out.numpy()[i].reshape(9, 3), expected, rtol=FLOAT32_ACCUMULATED,
+                                   atol=FLOAT32_ACCUMULATED)
 
 
 def test_projection_of_a_constant():
@@ -121,7 +117,7 @@ def test_projection_of_a_constant():
     c = sh.project_np(dirs, np.full(len(dirs), 2.5), w)
     expected = np.zeros(9)
     expected[0] = 2.5 * math.sqrt(4 * math.pi)
-    np.testing.assert_allclose(c, expected, atol=EXACT)
+    np.testing.assert_allclose(c, expected, atol=FLOAT64_ROUNDING)
 
 
 def test_projection_of_a_cosine_lobe():
@@ -132,9 +128,9 @@ def test_projection_of_a_cosine_lobe():
     expected[0] = math.pi * sh.C0
     expected[2] = 2 * math.pi / 3 * sh.C1
     expected[6] = math.pi / 2 * sh.C3
-    np.testing.assert_allclose(c, expected, atol=EXACT)
+    np.testing.assert_allclose(c, expected, atol=FLOAT64_ROUNDING)
     # ... which is the irradiance SH of a unit delta light from +z: A_l Y_l0(z).
-    np.testing.assert_allclose(c, sh.irradiance_sh_np(sh.sh_basis_np([[0, 0, 1]])[0]), atol=EXACT)
+    np.testing.assert_allclose(c, sh.irradiance_sh_np(sh.sh_basis_np([[0, 0, 1]])[0]), atol=FLOAT64_ROUNDING)
 
 
 def test_projection_of_a_single_direction_and_the_addition_theorem():
@@ -142,10 +138,10 @@ def test_projection_of_a_single_direction_and_the_addition_theorem():
     sum_l A_l (2l+1)/(4 pi) P_l(n . w)."""
     w_dir = random_directions(1, seed=21)[0]  # fixed seed
     coefficients = sh.project_np(w_dir[None], np.ones(1), np.ones(1))
-    np.testing.assert_allclose(coefficients, sh.sh_basis_np(w_dir[None])[0], atol=EXACT)
+    np.testing.assert_allclose(coefficients, sh.sh_basis_np(w_dir[None])[0], atol=FLOAT64_ROUNDING)
     normals = random_directions(500, seed=22)
     e = sh.evaluate_np(sh.irradiance_sh_np(coefficients)[:, None], normals)[:, 0]
-    np.testing.assert_allclose(e, clamped_cosine_kernel(normals @ w_dir), atol=EXACT)
+    np.testing.assert_allclose(e, clamped_cosine_kernel(normals @ w_dir), atol=FLOAT64_ROUNDING)
 
 
 def test_irradiance_of_uniform_radiance_is_pi_l_for_every_normal():
@@ -154,7 +150,7 @@ def test_irradiance_of_uniform_radiance_is_pi_l_for_every_normal():
     coefficients = sh.project_np(dirs, np.tile(radiance, (len(dirs), 1)), w)
     normals = random_directions(1000, seed=31)  # fixed seed
     e = sh.evaluate_np(sh.irradiance_sh_np(coefficients), normals)
-    np.testing.assert_allclose(e, np.tile(math.pi * radiance, (1000, 1)), rtol=EXACT)
+    np.testing.assert_allclose(e, np.tile(math.pi * radiance, (1000, 1)), rtol=FLOAT64_ROUNDING)
 
 
 def test_irradiance_of_a_cosine_power_environment_matches_closed_form():
@@ -164,9 +160,9 @@ def test_irradiance_of_a_cosine_power_environment_matches_closed_form():
     coefficients = sh.project_np(dirs, dirs[:, 2], w)
     e_up = sh.evaluate_np(sh.irradiance_sh_np(coefficients)[:, None], np.array([[0.0, 0.0, 1.0]]))[0, 0]
     l2 = sum(sh.COSINE_LOBE[k] * coefficients[k] * sh.sh_basis_np([[0, 0, 1]])[0, k] for k in (0, 2, 6))
-    np.testing.assert_allclose(e_up, l2, rtol=EXACT)
-    np.testing.assert_allclose(e_up, math.pi / 4 + math.pi / 3 + 5 * math.pi / 64, rtol=EXACT)
-    assert abs(e_up - 2 * math.pi / 3) / (2 * math.pi / 3) < 0.01
+    np.testing.assert_allclose(e_up, l2, rtol=FLOAT64_ROUNDING)
+    np.testing.assert_allclose(e_up, math.pi / 4 + math.pi / 3 + 5 * math.pi / 64, rtol=FLOAT64_ROUNDING)
+    assert abs(e_up - 2 * math.pi / 3) / (2 * math.pi / 3) < SH_L2_TRUNCATION
 
 
 KERNEL_MIN = float(clamped_cosine_kernel(np.array([-8.0 / 15.0]))[0])
@@ -177,8 +173,8 @@ and a single delta light reaches that bound."""
 
 def test_kernel_minimum_closed_form():
     x = np.linspace(-1, 1, 200001)
-    assert KERNEL_MIN == pytest.approx(clamped_cosine_kernel(x).min(), abs=1e-9)
-    assert KERNEL_MIN == pytest.approx(-0.039583, abs=1e-6)
+    assert KERNEL_MIN == pytest.approx(clamped_cosine_kernel(x).min(), abs=GRID_MINIMUM)
+    assert KERNEL_MIN == pytest.approx(-0.039583, abs=QUOTED_6_DECIMALS)
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -198,16 +194,16 @@ def test_non_negative_radiance_gives_irradiance_above_the_ringing_bound(seed):
     coefficients += (sh.sh_basis_np(deltas) * delta_power[:, None]).sum(axis=0)
     phi = float((radiance * w).sum() + delta_power.sum())
     e = sh.evaluate_np(sh.irradiance_sh_np(coefficients)[:, None], random_directions(4000, seed=300 + seed))[:, 0]
-    assert e.min() >= KERNEL_MIN * phi - 1e-9 * phi
+    assert e.min() >= KERNEL_MIN * phi - FLOAT64_AMPLIFIED * phi
     # the mean irradiance over all normals is exactly Phi / 4 (band 0 only)
-    assert sh.irradiance_sh_np(coefficients)[0] * sh.C0 == pytest.approx(phi / 4, rel=1e-9)
+    assert sh.irradiance_sh_np(coefficients)[0] * sh.C0 == pytest.approx(phi / 4, rel=FLOAT64_AMPLIFIED)
 
 
 def test_delta_light_attains_the_ringing_bound():
     w_dir = np.array([0.0, 0.0, 1.0])
     c = sh.irradiance_sh_np(sh.sh_basis_np(w_dir[None])[0])
     n = np.array([[math.sqrt(1 - (8 / 15) ** 2), 0.0, -8.0 / 15.0]])
-    assert sh.evaluate_np(c[:, None], n)[0, 0] == pytest.approx(KERNEL_MIN, abs=1e-12)
+    assert sh.evaluate_np(c[:, None], n)[0, 0] == pytest.approx(KERNEL_MIN, abs=FLOAT64_ROUNDING)
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -221,7 +217,7 @@ def test_rotation_matches_projecting_the_rotated_function(seed):
 
     c = sh.project_np(dirs, f(dirs), w)
     rotated_function = sh.project_np(dirs, f(dirs @ rotation), w)  # g(w) = f(R^T w): rows d @ R = R^T d
-    np.testing.assert_allclose(sh.rotate_np(c, rotation), rotated_function, atol=1e-10)
+    np.testing.assert_allclose(sh.rotate_np(c, rotation), rotated_function, atol=SH_ROTATION)
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -231,16 +227,16 @@ def test_irradiance_is_rotation_invariant(seed):
     rng = np.random.default_rng(60 + seed)
     c = rng.normal(size=(9, 3))
     matrix = sh.rotation_matrix_np(rotation)
-    np.testing.assert_allclose(matrix @ matrix.T, np.eye(9), atol=1e-10)
+    np.testing.assert_allclose(matrix @ matrix.T, np.eye(9), atol=SH_ROTATION)
     off_band = sh.BAND[:, None] != sh.BAND[None, :]
-    np.testing.assert_allclose(matrix[off_band], 0.0, atol=1e-10)
+    np.testing.assert_allclose(matrix[off_band], 0.0, atol=SH_ROTATION)
     normals = random_directions(300, seed=70 + seed)
     e = sh.evaluate_np(sh.irradiance_sh_np(c), normals)
     e_rotated = sh.evaluate_np(sh.irradiance_sh_np(sh.rotate_np(c, rotation)), normals @ rotation.T)
-    np.testing.assert_allclose(e_rotated, e, atol=1e-10)
+    np.testing.assert_allclose(e_rotated, e, atol=SH_ROTATION)
 
 
 def test_fibonacci_sphere_is_unit_and_balanced():
     d = sh.fibonacci_sphere_np(1000)
-    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
-    assert np.abs(d.mean(axis=0)).max() < 2e-3
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=FLOAT64_ROUNDING)
+    assert np.abs(d.mean(axis=0)).max() < FIBONACCI_MEAN

@@ -7,6 +7,8 @@ import OpenImageIO as oiio
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 from stage_builders import add_mesh, add_preview_material, new_stage
+from tolerances import (ACES_WHITE, CONTRAST_MARGIN, EDGE_BAND, FLOAT32_LONG_CHAIN, FLOAT32_STORAGE, FRAME_EDGE_PX,
+                        PIXEL_TOLERANCE, QUOTED_6_DECIMALS, VIRIDIS_TOLERANCE)
 
 import usdbake
 from usdbake.cli import main as cli
@@ -19,21 +21,6 @@ from usdbake.preview.compose import preview, sh_irradiance
 from usdbake.preview.legend import text_mask
 from usdbake.preview.raycast import polygon_edges
 from usdbake.stages.extract import extract_scene
-
-PIXEL_TOLERANCE = 1.0
-"""A projected point and the centroid of the pixels a small quad covers agree within one pixel: the
-centroid of a 3 x 3-ish pixel blob is quantized to pixel centres."""
-
-CONTRAST_MARGIN = 0.1
-"""Linear luminance gap between AO ~0.9 and AO ~0.2 pixels: through ACES at EV 0 (albedo 0.8) it is ~0.4,
-through viridis ~0.35; 0.1 still fails any renderer that swapped or flattened the two."""
-
-EDGE_BAND = 0.02
-"""Stage units either side of the shared edge where a float32 ray may land on either face."""
-
-VIRIDIS_TOLERANCE = 3.0 / 255.0
-"""VIRIDIS is 33 knots of matplotlib's table linearly interpolated: measured max deviation 2.5/255."""
-
 
 def grid_mesh(stage, path, size, n, height=0.0, material=None, double_sided=False):
     """An n x n grid of quads in the xz plane (Y-up), facing +y, centred at the origin."""
@@ -122,21 +109,21 @@ def test_false_color_legend_range_matches_data(ao_stage, tmp_path):
                              for p in ("/World/Floor", "/World/Box")])
     image = report["image"]
     legend = image.legend
-    assert legend.lo == pytest.approx(values.min(), abs=1e-6)
-    assert legend.hi == pytest.approx(values.max(), abs=1e-6)
+    assert legend.lo == pytest.approx(values.min(), abs=FLOAT32_STORAGE)
+    assert legend.hi == pytest.approx(values.max(), abs=FLOAT32_STORAGE)
     assert legend.ticks[0] == legend.lo and legend.ticks[-1] == legend.hi
     assert report["range"] == [legend.lo, legend.hi]
     # The bar runs from the map's first colour (bottom) to its last (top).
     x = (legend.bar_x[0] + legend.bar_x[1]) // 2 - 1
-    np.testing.assert_allclose(image.display[legend.bar_top, x], VIRIDIS[255], atol=1e-6)
-    np.testing.assert_allclose(image.display[legend.bar_bottom, x], VIRIDIS[0], atol=1e-6)
+    np.testing.assert_allclose(image.display[legend.bar_top, x], VIRIDIS[255], atol=FLOAT32_STORAGE)
+    np.testing.assert_allclose(image.display[legend.bar_bottom, x], VIRIDIS[0], atol=FLOAT32_STORAGE)
     assert image.display.shape[1] == 160 and image.view_width < 160
     # A surface pixel's colour is the map of its interpolated value on that scale.
     frame_value = image.value[..., 0]
     hit = image.coverage > 0
     y, x = np.argwhere(hit)[len(np.argwhere(hit)) // 2]
     np.testing.assert_allclose(image.display[y, x], false_color(frame_value[y, x], legend.lo, legend.hi),
-                               atol=1e-6)
+                               atol=FLOAT32_STORAGE)
 
 
 def bright_quad_stage(offset=(0.0, 0.0), aperture=(36.0, 27.0)):
@@ -205,9 +192,9 @@ def test_vertex_values_interpolate_and_uniform_values_stay_per_face(tmp_path):
                 continue
             ray = frustum.ComputePickRay(Gf.Vec2d((x + 0.5) / width * 2 - 1, 1 - (y + 0.5) / height * 2))
             hit = ray.startPoint + ray.direction * (-ray.startPoint[1] / ray.direction[1])
-            assert ramp_image.value[y, x, 0] == pytest.approx(hit[0] / 2, abs=1e-4)
+            assert ramp_image.value[y, x, 0] == pytest.approx(hit[0] / 2, abs=FLOAT32_LONG_CHAIN)
             if abs(hit[0] - 1) > EDGE_BAND:
-                assert face_image.value[y, x, 0] == pytest.approx(0.25 if hit[0] < 1 else 0.75, abs=1e-6)
+                assert face_image.value[y, x, 0] == pytest.approx(0.25 if hit[0] < 1 else 0.75, abs=FLOAT32_STORAGE)
             checked += 1
     assert checked > width * height / 4
 
@@ -270,7 +257,7 @@ def test_channel_sum_and_elements(ao_stage):
     scene = extract_scene(ao_stage)
     single = read_channel(ao_stage, scene, "ao")
     double = read_channel(ao_stage, scene, "ao+ao")
-    np.testing.assert_allclose(double.corner_values, 2 * single.corner_values, rtol=1e-6)
+    np.testing.assert_allclose(double.corner_values, 2 * single.corner_values, rtol=FLOAT32_STORAGE)
     assert double.hi == pytest.approx(2 * single.hi)
     with pytest.raises(UsageError, match="no prim"):
         read_channel(ao_stage, scene, "nothingHere")
@@ -304,7 +291,7 @@ def test_sh_and_rgb9e5_helpers():
     normals = np.array([[0, 0, 1.0], [1.0, 0, 0]])
     sh = np.zeros((2, 9, 3), np.float32)
     sh[:, 2] = 1.0  # Y_1^0 = 0.488603 z
-    np.testing.assert_allclose(sh_irradiance(sh, normals)[:, 0], [0.488603, 0.0], atol=1e-6)
+    np.testing.assert_allclose(sh_irradiance(sh, normals)[:, 0], [0.488603, 0.0], atol=QUOTED_6_DECIMALS)
     # RGB9E5: mantissa 256 with exponent 15 + 1 -> 256 * 2^(16 - 24) = 1.0
     packed = np.array([(16 << 27) | (256 << 18) | (128 << 9) | 256], np.uint32)
     np.testing.assert_allclose(decode_rgb9e5(packed), [[1.0, 0.5, 1.0]])
@@ -321,8 +308,8 @@ def test_auto_camera_frames_every_corner():
             corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
             pixels, depth = camera.project(corners, width, height)
             assert (depth > 0).all()
-            assert (pixels >= -1e-6).all() and (pixels[:, 0] <= width + 1e-6).all() \
-                and (pixels[:, 1] <= height + 1e-6).all()
+            assert (pixels >= -FRAME_EDGE_PX).all() and (pixels[:, 0] <= width + FRAME_EDGE_PX).all() \
+                and (pixels[:, 1] <= height + FRAME_EDGE_PX).all()
 
 
 def test_viridis_table_matches_matplotlib():
@@ -336,7 +323,7 @@ def test_viridis_table_matches_matplotlib():
 def test_tone_curve_and_font():
     x = np.linspace(0, 20, 200)
     y = aces_fitted(x)
-    assert (np.diff(y) >= 0).all() and y[0] == 0 and y[-1] == pytest.approx(1.0, abs=0.01)
+    assert (np.diff(y) >= 0).all() and y[0] == 0 and y[-1] == pytest.approx(1.0, abs=ACES_WHITE)
     mask = text_mask("0.25", 2)
     assert mask.shape == (10, 30) and mask.any()
 
@@ -377,8 +364,8 @@ def test_per_instance_primvar_colours_each_instance(tmp_path):
     shown = report["image"].value[..., 0]
     shown = shown[shown > 0]
     distance = np.abs(shown[:, None] - values[None, :])
-    assert distance.min(axis=1).max() < 1e-6  # constant per instance, never blended across instances
+    assert distance.min(axis=1).max() < FLOAT32_STORAGE  # constant per instance, never blended across instances
     assert set(distance.argmin(axis=1)) == set(range(len(positions)))  # every instance shows its value
     for k, p in enumerate(positions):
         x, y = project_with_gf(stage, "/World/Cam", (p[0], 0.4, p[2]), 128, 96)  # top face centre
-        assert report["image"].value[int(y), int(x), 0] == pytest.approx(values[k], abs=1e-6)
+        assert report["image"].value[int(y), int(x), 0] == pytest.approx(values[k], abs=FLOAT32_STORAGE)

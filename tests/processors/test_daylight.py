@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_STORAGE, FLOAT64_AMPLIFIED, LUMINANCE_WEIGHTS, MC_SIGMAS,
+                        PEREZ_PATCH_AVERAGING, SKY_PATCH_INTEGRATION, SUN_PENUMBRA_SHARE)
 from usdbake.core import ParamError
 from usdbake.processors.daylight import (
     Daylight,
@@ -24,10 +26,6 @@ from usdbake.kernels.sky import (
 from usdbake.core.scene import Scene
 from usdbake.processors.sky_visibility import compute_sky_visibility
 from usdbake.kernels.tracer import Tracer
-
-
-PATCH_TOL = 0.01
-"""Relative error of integrating a smooth sky over 256 patches (patch-mean radiance x patch-mean cosine)."""
 
 
 def plane_scene(extra=()) -> Scene:
@@ -66,12 +64,14 @@ def test_relight_is_linear_and_uint8_matches_float():
     albedo = rng.random((500, 3)).astype(np.float32)
     sun = rng.random((500, 3)).astype(np.float32)
     base = relight(v, w1, albedo=albedo)
-    np.testing.assert_allclose(relight(v, 2 * w1, albedo=albedo), 2 * base, rtol=1e-6)
+    np.testing.assert_allclose(relight(v, 2 * w1, albedo=albedo), 2 * base, rtol=FLOAT32_STORAGE)
     np.testing.assert_allclose(relight(v, w1 + w2, albedo=albedo, sun=sun),
-                               base + relight(v, w2, albedo=albedo) + albedo / np.pi * sun, rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(relight(v8, w1, scale=1 / 255, albedo=albedo, chunk=77), base, rtol=1e-5)
+                               base + relight(v, w2, albedo=albedo) + albedo / np.pi * sun,
+                               rtol=FLOAT32_ACCUMULATED, atol=FLOAT32_STORAGE)
+    np.testing.assert_allclose(relight(v8, w1, scale=1 / 255, albedo=albedo, chunk=77), base,
+                               rtol=FLOAT32_ACCUMULATED)
     np.testing.assert_allclose(relight(np.ascontiguousarray(v.T), w1, albedo=albedo, patch_major=True), base,
-                               rtol=1e-5)
+                               rtol=FLOAT32_ACCUMULATED)
     with pytest.raises(ValueError):
         relight(v, w1[:10])
 
@@ -83,9 +83,9 @@ def test_open_plane_under_uniform_sky_reflects_albedo_times_radiance():
     radiance = 700.0
     weights = np.full((256, 3), radiance, np.float32) * product.patches.patch_solid_angles[:, None].astype(np.float32)
     irradiance = relight(product.visibility, weights, scale=product.visibility_scale)
-    np.testing.assert_allclose(irradiance, np.pi * radiance, rtol=PATCH_TOL)
+    np.testing.assert_allclose(irradiance, np.pi * radiance, rtol=SKY_PATCH_INTEGRATION)
     out = relight(product.visibility_float(), weights, albedo=scene.tri_albedo[product.face_source])
-    np.testing.assert_allclose(out, 0.5 * radiance, rtol=PATCH_TOL)
+    np.testing.assert_allclose(out, 0.5 * radiance, rtol=SKY_PATCH_INTEGRATION)
 
 
 def test_overcast_sky_horizontal_irradiance_closed_form():
@@ -96,7 +96,7 @@ def test_overcast_sky_horizontal_irradiance_closed_form():
     mean_cos = patches.patch_bounds[:, :2].mean(axis=1)  # exact patch-mean cosine of ring patches
     irradiance = (values[:, 0] * mean_cos * patches.patch_solid_angles).sum()
     zenith = overcast_radiance(np.array([0, 0, 1.0]), sun)[0]
-    np.testing.assert_allclose(irradiance, 7 * np.pi / 9 * zenith, rtol=PATCH_TOL)
+    np.testing.assert_allclose(irradiance, 7 * np.pi / 9 * zenith, rtol=SKY_PATCH_INTEGRATION)
     np.testing.assert_allclose(overcast_radiance(np.array([1.0, 0, 0]), sun)[0] * 3, zenith)
 
 
@@ -108,9 +108,9 @@ def test_preetham_zenith_symmetry_and_circumsolar_brightening():
     chi = (4 / 9 - t / 120) * (math.pi - 2 * theta_s)
     expected_y = ((4.0453 * t - 4.9710) * math.tan(chi) - 0.2155 * t + 2.4192) * 1000  # cd/m^2 (Preetham A.2)
     luminance = zenith @ np.array([0.2126, 0.7152, 0.0722]) * LUMINOUS_EFFICACY
-    np.testing.assert_allclose(luminance, expected_y, rtol=0.02)  # sRGB luminance weights vs CIE Y: 2%
+    np.testing.assert_allclose(luminance, expected_y, rtol=LUMINANCE_WEIGHTS)
     east, west = preetham_radiance(np.array([[0.6, -0.3, 0.742], [-0.6, -0.3, 0.742]]), sun, t)
-    np.testing.assert_allclose(east, west, rtol=1e-9)  # symmetric about the sun's vertical plane
+    np.testing.assert_allclose(east, west, rtol=FLOAT64_AMPLIFIED)  # symmetric about the sun's vertical plane
     near_sun = preetham_radiance(sun * 0.99 + np.array([0, 0, 0.01]), sun, t)
     away = preetham_radiance(np.array([0.0, 0.5, math.sqrt(0.75)]), sun, t)
     assert near_sun.sum() > 3 * away.sum()
@@ -139,7 +139,7 @@ def test_sun_visibility_open_and_shaded():
     # Overhead sun: the roof shades x > -0.5. Triangle (0, 1, 2) is y <= x, (0, 2, 3) is y >= x, each of area 2;
     # their areas left of x = -0.5 are 0.125 and 0.875.
     visible = np.array([0.125, 0.875]) / 2
-    tol = 4 * np.sqrt(visible * (1 - visible) / 256) + 1e-2  # + the 0.53 deg penumbra band (~1% of the area)
+    tol = MC_SIGMAS * np.sqrt(visible * (1 - visible) / 256) + SUN_PENUMBRA_SHARE
     assert (np.abs(overhead - visible) <= tol).all(), (overhead, visible)
     low = compute_sun_visibility(tracer, corners, scene.tri_normals[:2], np.array([0, -1.0, -0.01]))
     assert not low.any()  # below the horizon of the faces
@@ -201,7 +201,7 @@ def test_perez_sky_integrates_to_the_diffuse_horizontal_irradiance():
             mean_cos = patches.patch_bounds[:, :2].mean(axis=1)
             irradiance = (values[:, 0] * mean_cos * patches.patch_solid_angles).sum()
             # patch averaging of a smooth but peaked (circumsolar) distribution: a few percent
-            np.testing.assert_allclose(irradiance, dhi, rtol=0.03)
+            np.testing.assert_allclose(irradiance, dhi, rtol=PEREZ_PATCH_AVERAGING)
         assert np.all(perez_radiance(np.array([[0.6, 0.0, -0.8]]), sun, dni, dhi) == 0.0)  # below the horizon
 
 

@@ -9,6 +9,8 @@ import numpy as np
 from lit_scenes import cube, make_lights, make_scene, merge, quad
 from stage_builders import base_context
 import pytest
+from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_ROUNDING, FLOAT32_STORAGE, MC_SIGMAS,
+                        ON_BOUNDARY)
 from usdbake.core.products import IrradianceGridProduct
 from usdbake.processors.irradiance_grid import dequantize_vectors
 from usdbake.processors import irradiance_grid as ig
@@ -18,13 +20,6 @@ from usdbake.kernels import octahedral as oct8
 from usdbake.kernels.rgb9e5 import RELATIVE_ERROR
 from usdbake.core.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Scene
 from usdbake.kernels.tracer import Tracer
-
-
-SIGMAS = 4.0
-"""Monte Carlo tolerances: SIGMAS i.i.d. standard deviations (stratified sampling has less variance)."""
-
-FLOAT32 = 1e-5
-"""Relative tolerance for float32 sums of a few hundred terms and float32 geometry."""
 
 
 # -- scenes built without pxr -------------------------------------------------------------------
@@ -63,7 +58,7 @@ def test_uniform_sky_gives_pi_l_along_each_axis():
                                                   seed=3)
     assert (back == 0).all()
     # i.i.d. std of one component of 4 pi L w 1[w.delta > 0] is at most 4 pi L / sqrt(3 N).
-    tol = SIGMAS * 4 * math.pi * dome.max() / math.sqrt(3 * rays)
+    tol = MC_SIGMAS * 4 * math.pi * dome.max() / math.sqrt(3 * rays)
     expected = math.pi * dome[None, :, None] * oct8.AXES[:, None, :]  # (6, 3 channels, 3)
     for v in vectors:
         np.testing.assert_allclose(v, expected, atol=tol)
@@ -74,7 +69,8 @@ def test_uniform_sky_gives_pi_l_along_each_axis():
     along = np.einsum("vhci,hi->vhc", decoded, oct8.AXES)
     truth = np.einsum("vhci,hi->vhc", vectors, oct8.AXES)
     # RGB9E5 shares one exponent: the error bound is relative to the largest channel.
-    assert np.all(np.abs(along - truth) <= RELATIVE_ERROR * truth.max(axis=2, keepdims=True) * (1 + FLOAT32))
+    bound = RELATIVE_ERROR * truth.max(axis=2, keepdims=True) * (1 + FLOAT32_ACCUMULATED)
+    assert np.all(np.abs(along - truth) <= bound)
 
 
 def test_single_distant_light_gives_vectors_along_the_light():
@@ -87,14 +83,14 @@ def test_single_distant_light_gives_vectors_along_the_light():
     vectors, _ = ig.compute_irradiance_vectors(Tracer.from_scene(scene), scene, np.zeros((1, 3)), rays=16)
     for h, axis in enumerate(oct8.AXES):
         expected = np.outer(e, w) if axis @ w > 0 else np.zeros((3, 3))
-        np.testing.assert_allclose(vectors[0, h], expected, rtol=FLOAT32, atol=FLOAT32)
+        np.testing.assert_allclose(vectors[0, h], expected, rtol=FLOAT32_ACCUMULATED, atol=FLOAT32_ACCUMULATED)
     directions, colors = ig.quantize_vectors(vectors)
     decoded = ig.dequantize_vectors(directions, colors)[0]
     for h in (0, 2, 4):
         d = decoded[h].sum(axis=0)
         assert math.degrees(math.acos(min(1.0, d @ w / np.linalg.norm(d)))) <= oct8.MAX_ANGLE_ERROR_DEG
         np.testing.assert_allclose(decoded[h] @ oct8.AXES[h], e * (w @ oct8.AXES[h]),
-                                   atol=RELATIVE_ERROR * e.max() * (w @ oct8.AXES[h]) * (1 + FLOAT32))
+                                   atol=RELATIVE_ERROR * e.max() * (w @ oct8.AXES[h]) * (1 + FLOAT32_ACCUMULATED))
 
 
 def test_shadowed_distant_light_gives_nothing():
@@ -117,12 +113,12 @@ def test_indirect_only_drops_the_light_but_keeps_its_bounce():
     v_all, _ = ig.compute_irradiance_vectors(Tracer.from_scene(scene), scene, np.array([[0, 0, 1.0]]), rays=rays)
     v_ind, _ = ig.compute_irradiance_vectors(Tracer.from_scene(scene), scene, np.array([[0, 0, 1.0]]), rays=rays,
                                              include_direct=False)
-    np.testing.assert_allclose(v_ind[0, 4], 0.0, atol=1e-7)
-    np.testing.assert_allclose(v_all[0, 4] @ [0, 0, 1], 2 * 0.8, rtol=FLOAT32)
+    np.testing.assert_allclose(v_ind[0, 4], 0.0, atol=FLOAT32_ROUNDING)
+    np.testing.assert_allclose(v_all[0, 4] @ [0, 0, 1], 2 * 0.8, rtol=FLOAT32_ACCUMULATED)
     radiance = rho * 2 * 0.8 / math.pi
-    tol = SIGMAS * 4 * math.pi * radiance / math.sqrt(3 * rays)
+    tol = MC_SIGMAS * 4 * math.pi * radiance / math.sqrt(3 * rays)
     np.testing.assert_allclose(-v_ind[0, 5] @ [0, 0, -1], -math.pi * radiance, atol=tol)
-    np.testing.assert_allclose(v_ind[0, 5], v_all[0, 5], rtol=FLOAT32)
+    np.testing.assert_allclose(v_ind[0, 5], v_all[0, 5], rtol=FLOAT32_ACCUMULATED)
 
 
 # -- reconstruction ---------------------------------------------------------------------------------
@@ -146,11 +142,12 @@ def test_paper_reconstruction_closed_form_for_a_uniform_sky():
     n = random_normals(500, 1)
     points = np.random.default_rng(2).random((500, 3))
     e = ig.reconstruct_irradiance(layout, vectors, points, n, normal_offset=0.0)
-    np.testing.assert_allclose(e, np.repeat((math.pi * (np.abs(n) ** 3).sum(axis=1))[:, None], 3, 1), rtol=FLOAT32)
+    np.testing.assert_allclose(e, np.repeat((math.pi * (np.abs(n) ** 3).sum(axis=1))[:, None], 3, 1),
+                               rtol=FLOAT32_ACCUMULATED)
     axes = ig.reconstruct_irradiance(layout, vectors, np.full((6, 3), 0.5), oct8.AXES, normal_offset=0.0)
-    np.testing.assert_allclose(axes, math.pi, rtol=FLOAT32)
+    np.testing.assert_allclose(axes, math.pi, rtol=FLOAT32_ACCUMULATED)
     normalized = ig.reconstruct_irradiance(layout, vectors, points, n, normal_offset=0.0, reconstruction="normalized")
-    np.testing.assert_allclose(normalized, math.pi, rtol=FLOAT32)
+    np.testing.assert_allclose(normalized, math.pi, rtol=FLOAT32_ACCUMULATED)
 
 
 def test_reconstruction_is_trilinear_and_zero_normals_give_zero():
@@ -161,7 +158,7 @@ def test_reconstruction_is_trilinear_and_zero_normals_give_zero():
     vectors[:, 4, :, 2] = value[:, None]  # +z hemisphere, along +z
     points = np.random.default_rng(3).random((50, 3)) * 2.0
     e = ig.reconstruct_irradiance(layout, vectors, points, np.tile([0, 0, 1.0], (50, 1)), normal_offset=0.0)
-    np.testing.assert_allclose(e[:, 0], 1.0 + points / 2.0 @ [1.0, 2.0, 3.0], rtol=FLOAT32)
+    np.testing.assert_allclose(e[:, 0], 1.0 + points / 2.0 @ [1.0, 2.0, 3.0], rtol=FLOAT32_ACCUMULATED)
     zero = ig.reconstruct_irradiance(layout, vectors, points[:2], np.array([[0, 0, 0], [np.nan, 0, 0]]))
     np.testing.assert_array_equal(zero, 0.0)
     with pytest.raises(ValueError):
@@ -180,7 +177,7 @@ def test_sunlit_ground_end_to_end_matches_the_closed_form():
     assert grid.vertex_valid.all()
     (primvar,) = [r for r in result.outputs if getattr(r, "name", "") == "bake:irradianceGrid"]
     assert primvar.interpolation == "vertex" and primvar.type_name == "color3f"
-    np.testing.assert_allclose(primvar.values, 4 * w[2], rtol=RELATIVE_ERROR * (1 + FLOAT32))
+    np.testing.assert_allclose(primvar.values, 4 * w[2], rtol=RELATIVE_ERROR * (1 + FLOAT32_ACCUMULATED))
 
 
 # -- grid, inside geometry, determinism, degenerate input ------------------------------------------
@@ -193,8 +190,8 @@ def test_grid_layout_bounds_and_target_count():
     hi = lo + (np.asarray(layout.resolution) - 1) * layout.cell_size
     h = layout.cell_size[0]
     # Outer vertices lie between h/4 and 3h/4 outside the bounds.
-    assert np.all(-lo >= h / 4 - 1e-9) and np.all(-lo <= 3 * h / 4 + 1e-9)
-    assert np.all(hi - [10, 5, 2] >= h / 4 - 1e-9)
+    assert np.all(-lo >= h / 4 - ON_BOUNDARY) and np.all(-lo <= 3 * h / 4 + ON_BOUNDARY)
+    assert np.all(hi - [10, 5, 2] >= h / 4 - ON_BOUNDARY)
     fixed = ig.grid_layout(np.zeros(3), np.ones(3), cell_size=0.25)
     assert fixed.resolution == (6, 6, 6)
     flat = ig.grid_layout(np.zeros(3), np.array([1.0, 1.0, 0.0]), vertices=100)
@@ -224,7 +221,7 @@ def test_vertices_inside_closed_geometry_are_flagged_and_filled():
     assert np.isfinite(decoded).all()
     # Filled vertices lie within the range of the computed ones (push-pull is a convex fill).
     valid = decoded[grid.vertex_valid]
-    assert decoded.max() <= valid.max() * (1 + 2 * RELATIVE_ERROR) + 1e-6
+    assert decoded.max() <= valid.max() * (1 + 2 * RELATIVE_ERROR) + FLOAT32_STORAGE
     assert any("inside geometry" in m for m in result.messages)
 
 
@@ -301,7 +298,7 @@ def test_end_to_end_small_stage(tmp_path):
     np.testing.assert_array_equal(stream.vertex_index, order[valid[order]])
     np.testing.assert_array_equal(stream.colors.ravel(),
                                   np.asarray(get("colorsRGB9E5")).reshape(-1, 6)[stream.vertex_index].ravel())
-    np.testing.assert_allclose(stream.grid_origin, np.asarray(get("gridOrigin")), rtol=1e-6)
+    np.testing.assert_allclose(stream.grid_origin, np.asarray(get("gridOrigin")), rtol=FLOAT32_STORAGE)
     # The mesh primvar and the preview's reading of the grid.
     primvar = baked.GetPrimAtPath("/World/Room").GetAttribute("primvars:bake:irradianceGrid")
     values = np.asarray(primvar.Get())
@@ -312,7 +309,8 @@ def test_end_to_end_small_stage(tmp_path):
     scene = extract_scene(baked)
     spheres = grid_spheres(baked, scene, None)  # centres in the scene frame (relative to scene.origin)
     assert spheres is not None and len(spheres.centers) == count
-    np.testing.assert_allclose(spheres.centers.min(axis=0) + scene.origin, np.asarray(get("gridOrigin")), atol=1e-4)
+    np.testing.assert_allclose(spheres.centers.min(axis=0) + scene.origin, np.asarray(get("gridOrigin")),
+                               atol=FLOAT32_LONG_CHAIN)
 
 
 def test_emissive_geometry_is_seen_only_without_usdlux_lights():
@@ -323,13 +321,13 @@ def test_emissive_geometry_is_seen_only_without_usdlux_lights():
     ceiling = quad([-1e3, -1e3, 1], [2e3, 0, 0], [0, 2e3, 0], flip=True)
     emission = np.ones((2, 3), np.float32)
     rays = 4096
-    tol = SIGMAS * 4 * math.pi / math.sqrt(3 * rays)
+    tol = MC_SIGMAS * 4 * math.pi / math.sqrt(3 * rays)
     alone = make_scene(*ceiling, albedo=0.0, emission=emission)
     vectors, _ = ig.compute_irradiance_vectors(Tracer.from_scene(alone), alone, np.zeros((1, 3)), rays=rays)
     np.testing.assert_allclose(vectors[0, 4], math.pi * np.tile([0, 0, 1.0], (3, 1)), atol=tol)
-    np.testing.assert_allclose(vectors[0, 5], 0.0, atol=1e-7)
+    np.testing.assert_allclose(vectors[0, 5], 0.0, atol=FLOAT32_ROUNDING)
     lit = make_scene(*ceiling, albedo=0.0, emission=emission,
                      lights=make_lights((LIGHT_DISTANT, [1, 1, 1], (0, 0, 0), (0, 0, 1), (0, 0))))
     vectors, _ = ig.compute_irradiance_vectors(Tracer.from_scene(lit), lit, np.zeros((1, 3)), rays=rays)
-    np.testing.assert_allclose(vectors[0, 4], 0.0, atol=1e-7)  # the sun (from below) is not in +z
-    np.testing.assert_allclose(vectors[0, 5], np.tile([0, 0, -1.0], (3, 1)), rtol=FLOAT32)
+    np.testing.assert_allclose(vectors[0, 4], 0.0, atol=FLOAT32_ROUNDING)  # the sun (from below) is not in +z
+    np.testing.assert_allclose(vectors[0, 5], np.tile([0, 0, -1.0], (3, 1)), rtol=FLOAT32_ACCUMULATED)

@@ -9,6 +9,8 @@ import numpy as np
 from lit_scenes import cube, make_lights, make_scene, merge, quad
 from stage_builders import base_context
 import pytest
+from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_ROUNDING, FLOAT32_STORAGE,
+                        FLOAT32_UNIT_ROUNDOFF, GROUND_QUADRATURE, MC_SIGMAS)
 
 from usdbake.core.products import ProbeCloud
 from usdbake.kernels.lights import scene_lighting
@@ -18,15 +20,6 @@ from usdbake.core import Context, ParamError
 from usdbake.kernels import sh
 from usdbake.core.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Scene
 from usdbake.kernels.tracer import Tracer
-
-
-SIGMAS = 4.0
-"""Monte Carlo tolerances are SIGMAS standard deviations of the i.i.d. estimator (stratified
-sampling never has more variance), ~6e-5 false-failure rate per check; seeds are fixed anyway."""
-
-
-FLOAT32_SUM = 6e-8
-"""Relative rounding per term of a float32 sum: a sum of N terms is good to N * FLOAT32_SUM."""
 
 
 # -- scenes built without pxr -------------------------------------------------------------------
@@ -57,11 +50,11 @@ def random_dirs(n, seed):
 
 
 def capture_tolerance(rays: int, radiance_bound: float) -> float:
-    """SIGMAS x the i.i.d. standard deviation of the L2 irradiance estimate E(n) from ``rays``
+    """MC_SIGMAS x the i.i.d. standard deviation of the L2 irradiance estimate E(n) from ``rays``
     uniform samples of radiance <= radiance_bound: E = 4 pi / N sum L K(n.w), with
     E[K^2] = sum_l A_l^2 (2l+1) / (4 pi)^2 over the uniform sphere."""
     k2 = sum(a * a * (2 * l + 1) for l, a in enumerate((math.pi, 2 * math.pi / 3, math.pi / 4))) / (4 * math.pi) ** 2
-    return SIGMAS * 4 * math.pi * radiance_bound * math.sqrt(k2 / rays)
+    return MC_SIGMAS * 4 * math.pi * radiance_bound * math.sqrt(k2 / rays)
 
 
 def test_uniform_dome_gives_pi_l_for_every_normal():
@@ -73,7 +66,8 @@ def test_uniform_dome_gives_pi_l_for_every_normal():
     rays = 4096
     probe_sh = lp.compute_probe_sh(tracer, scene, np.zeros((1, 3)), rays=rays, seed=3)
     # Band 0 is exact: every sample returns L and Y_0 is constant.
-    np.testing.assert_allclose(probe_sh[0, 0], math.pi * dome * math.sqrt(4 * math.pi), rtol=FLOAT32_SUM * rays)
+    np.testing.assert_allclose(probe_sh[0, 0], math.pi * dome * math.sqrt(4 * math.pi),
+                               rtol=FLOAT32_UNIT_ROUNDOFF * rays)
     e = sh.evaluate_np(probe_sh[0], random_dirs(200, seed=4))
     np.testing.assert_allclose(e, np.tile(math.pi * dome, (200, 1)), atol=capture_tolerance(rays, 1.0))
 
@@ -107,8 +101,8 @@ def test_capture_matches_a_quadrature_oracle_for_a_sunlit_ground():
     normals = random_dirs(100, seed=6)
     e_got = normals_eval(got, normals)
     e_expected = normals_eval(expected, normals)
-    # Quadrature error of the hit boundary (the square's edges cut the grid): < 1e-4 of E here.
-    np.testing.assert_allclose(e_got, e_expected, atol=capture_tolerance(rays, ground) + 1e-4 * e_sun)
+    # Plus the quadrature error of the hit boundary (the square's edges cut the grid).
+    np.testing.assert_allclose(e_got, e_expected, atol=capture_tolerance(rays, ground) + GROUND_QUADRATURE * e_sun)
 
 
 def normals_eval(coefficients, normals):
@@ -139,12 +133,12 @@ def test_sphere_light_is_its_cone_of_radiance_and_a_wall_shadows_it():
     basis = sh.sh_basis_np(cone_directions(half))
     expected = sh.irradiance_sh_np(radiance * omega * basis.mean(axis=0))
     # 16 stratified samples of the cone: each coefficient is off by at most L Omega A_l times the spread
-    # of its basis function over the cone, plus float32 rounding of the sums (1e-4 of band 0).
+    # of its basis function over the cone, plus float32 rounding of the sums (relative to band 0).
     spread = radiance * omega * sh.COSINE_LOBE * (basis.max(axis=0) - basis.min(axis=0))
-    np.testing.assert_array_less(np.abs(got[0, :, 0] - expected), spread + 1e-4 * expected[0])
-    np.testing.assert_allclose(got[0, 0, 0], expected[0], rtol=1e-4)  # band 0 is exact: L Omega Y_00
+    np.testing.assert_array_less(np.abs(got[0, :, 0] - expected), spread + FLOAT32_LONG_CHAIN * expected[0])
+    np.testing.assert_allclose(got[0, 0, 0], expected[0], rtol=FLOAT32_LONG_CHAIN)  # band 0 is exact: L Omega Y_00
     # probe 2 at (3, 0, 0): the line to the lamp (0, 0, 3) crosses x = 1.5 at z = 1.5, inside the wall
-    np.testing.assert_allclose(got[1], 0.0, atol=1e-6)
+    np.testing.assert_allclose(got[1], 0.0, atol=FLOAT32_STORAGE)
 
 
 def test_back_faces_are_dark_and_front_faces_lit():
@@ -153,7 +147,7 @@ def test_back_faces_are_dark_and_front_faces_lit():
     scene = make_scene(points, tris, lights=make_lights((LIGHT_DOME, [1, 1, 1], (0, 0, 0), (0, 0, -1), (0, 0))))
     tracer = Tracer.from_scene(scene)
     got = lp.compute_probe_sh(tracer, scene, np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 3.0]]), rays=256, seed=2)
-    np.testing.assert_allclose(got[0], 0.0, atol=1e-7)
+    np.testing.assert_allclose(got[0], 0.0, atol=FLOAT32_ROUNDING)
     assert got[1, 0, 0] > 0
 
 
@@ -204,10 +198,10 @@ def test_probes_never_inside_closed_geometry():
     assert (positions >= [-5, -5, 0]).all() and (positions <= [5, 5, 4]).all()
     tracer = Tracer.from_scene(scene)
     _, nearest = lp.classify_points(tracer, scene_lighting(scene, tracer.device), positions)
-    assert nearest.min() >= lp.CLEARANCE_FRACTION * result.stats["min_spacing"] * (1 - 1e-6)
+    assert nearest.min() >= lp.CLEARANCE_FRACTION * result.stats["min_spacing"] * (1 - FLOAT32_STORAGE)
     spacing = np.linalg.norm(positions[:, None] - positions[None], axis=2) + np.eye(len(positions)) * 1e9
     # merged to min_spacing; the probes beside blockers (leak fixing) to half of it
-    assert spacing.min() >= 0.5 * result.stats["min_spacing"] * (1 - 1e-6)
+    assert spacing.min() >= 0.5 * result.stats["min_spacing"] * (1 - FLOAT32_STORAGE)
 
 
 def test_classify_points_inside_outside():
@@ -217,7 +211,7 @@ def test_classify_points_inside_outside():
     inside, nearest = lp.classify_points(tracer, scene_lighting(scene, tracer.device),
                                          np.array([[0, 0, 0], [0.9, 0.2, -0.5], [3, 0, 0], [0, 0, -2.5]]))
     np.testing.assert_array_equal(inside, [True, True, False, False])
-    assert nearest[0] == pytest.approx(1.0, rel=1e-5)  # the axis rays meet the faces at distance 1
+    assert nearest[0] == pytest.approx(1.0, rel=FLOAT32_ACCUMULATED)  # the axis rays meet the faces at distance 1
 
 
 def test_spawn_and_ascent_add_probes_where_light_changes():
@@ -274,8 +268,8 @@ def test_leak_fix_with_a_wall_synthetic_values():
     np.testing.assert_array_equal(blocked, crossing)  # exactly the edges through the wall
     queries = np.array([[-0.6, 0.2, 0.1], [-0.8, -0.5, 0.4], [0.6, -0.2, 0.3], [0.7, 0.6, -0.6]])
     got = lp.interpolate_sh(fixed, queries)[:, 0]
-    np.testing.assert_allclose(got[:2], [[1, 0, 0], [1, 0, 0]], atol=1e-6)
-    np.testing.assert_allclose(got[2:], [[0, 0, 1], [0, 0, 1]], atol=1e-6)
+    np.testing.assert_allclose(got[:2], [[1, 0, 0], [1, 0, 0]], atol=FLOAT32_STORAGE)
+    np.testing.assert_allclose(got[2:], [[0, 0, 1], [0, 0, 1]], atol=FLOAT32_STORAGE)
     mixed = lp.interpolate_sh(leaky, queries)[:, 0]
     assert (mixed[0, 2] > 0.05) and (mixed[2, 0] > 0.05)  # without the fix, light leaks through
 
@@ -286,14 +280,14 @@ def test_leak_fix_with_a_wall_captured_light():
     tracer = Tracer.from_scene(scene)
     probe_sh = lp.compute_probe_sh(tracer, scene, WALL_PROBES, rays=64, seed=1)
     right = WALL_PROBES[:, 0] > 0
-    assert np.abs(probe_sh[right]).max() < 1e-6 and probe_sh[~right, 0, 0].min() > 0
+    assert np.abs(probe_sh[right]).max() < FLOAT32_STORAGE and probe_sh[~right, 0, 0].min() > 0
     fixed = lp.build_cloud(WALL_PROBES, probe_sh, tracer, leak_fix=True)
     leaky = lp.build_cloud(WALL_PROBES, probe_sh, tracer, leak_fix=False)
     query = np.array([[0.7, 0.1, 0.2]])
     normal = np.array([[-1.0, 0.0, 0.0]])
     # x = 0.7 keeps 15 % of its weight on the lit side: without the fix, that much light leaks through
     assert lp.irradiance_at(leaky, query, normal)[0, 0] > 0.05 * lp.irradiance_at(leaky, -query, normal)[0, 0]
-    assert abs(lp.irradiance_at(fixed, query, normal)[0, 0]) < 1e-6
+    assert abs(lp.irradiance_at(fixed, query, normal)[0, 0]) < FLOAT32_STORAGE
 
 
 # -- interpolation API ---------------------------------------------------------------------------
@@ -304,18 +298,19 @@ def test_interpolate_at_probes_returns_their_sh_and_irradiance_matches_evaluatio
     positions = rng.random((30, 3)).astype(np.float32) * 4
     values = rng.normal(size=(30, 9, 3)).astype(np.float32)
     cloud = lp.build_cloud(positions, values)  # no tracer: no leak fixing
-    np.testing.assert_allclose(lp.interpolate_sh(cloud, positions), values, atol=1e-5)
+    np.testing.assert_allclose(lp.interpolate_sh(cloud, positions), values, atol=FLOAT32_ACCUMULATED)
     points = rng.random((50, 3)) * 4
     normals = random_dirs(50, seed=9)
     expected = np.einsum("nk,nkc->nc", sh.sh_basis_np(normals), lp.interpolate_sh(cloud, points))
-    np.testing.assert_allclose(lp.irradiance_at(cloud, points, normals), expected, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(lp.irradiance_at(cloud, points, normals), expected, rtol=FLOAT32_ACCUMULATED,
+                               atol=FLOAT32_ACCUMULATED)
     # a linear field in the SH coefficients is reproduced inside the hull
     a = rng.normal(size=(3, 27))
     linear = (positions.astype(np.float64) @ a).reshape(-1, 9, 3).astype(np.float32)
     cloud = lp.build_cloud(positions, linear)
     _, _, inside = tetrahedra.locate(cloud.tetra, points)
     got = lp.interpolate_sh(cloud, points[inside])
-    np.testing.assert_allclose(got, (points[inside] @ a).reshape(-1, 9, 3), atol=1e-4)  # float32 storage
+    np.testing.assert_allclose(got, (points[inside] @ a).reshape(-1, 9, 3), atol=FLOAT32_LONG_CHAIN)  # float32 storage
 
 
 # -- processor contract ----------------------------------------------------------------------------
@@ -389,7 +384,8 @@ def test_end_to_end_small_stage(tmp_path):
     assert 4 <= len(cloud.probe_positions) <= 64
     inside_box = ((cloud.probe_positions > [-1, -1, 0]) & (cloud.probe_positions < [1, 1, 1])).all(axis=1)
     assert not inside_box.any()
-    np.testing.assert_allclose(lp.interpolate_sh(cloud, cloud.probe_positions), cloud.probe_sh, atol=1e-5)
+    np.testing.assert_allclose(lp.interpolate_sh(cloud, cloud.probe_positions), cloud.probe_sh,
+                               atol=FLOAT32_ACCUMULATED)
     # The lamp is at (1.5, 1.5, 2.5): probes near it see more light than probes at the far corner.
     dc = cloud.probe_sh[:, 0] @ [0.2126, 0.7152, 0.0722]
     d = np.linalg.norm(cloud.probe_positions - [1.5, 1.5, 2.5], axis=1)
@@ -434,8 +430,10 @@ def test_scale_invariance(factor):
     big, _ = run(scaled(scene, factor), probes=64, rays=64, placement_rays=16)
     a, b = base.products[ProbeCloud], big.products[ProbeCloud]
     assert len(a.probe_positions) == len(b.probe_positions)
-    np.testing.assert_allclose(b.probe_positions / factor, a.probe_positions, rtol=1e-6, atol=1e-6)
-    np.testing.assert_allclose(b.probe_sh, a.probe_sh, rtol=1e-5, atol=1e-5 * np.abs(a.probe_sh).max())
+    np.testing.assert_allclose(b.probe_positions / factor, a.probe_positions, rtol=FLOAT32_STORAGE,
+                               atol=FLOAT32_STORAGE)
+    np.testing.assert_allclose(b.probe_sh, a.probe_sh, rtol=FLOAT32_ACCUMULATED,
+                               atol=FLOAT32_ACCUMULATED * np.abs(a.probe_sh).max())
 
 
 @pytest.mark.parametrize("factor", [1e-3, 1e3])
@@ -447,10 +445,10 @@ def test_grid_placement_at_other_scales(factor):
     big, _ = run(scaled(scene, factor), probes=64, rays=64, placement_rays=16, iterations=0)
     a, b = base.products[ProbeCloud], big.products[ProbeCloud]
     assert len(a.probe_positions) == len(b.probe_positions)
-    np.testing.assert_allclose(b.probe_positions / factor, a.probe_positions, atol=1e-5)  # float32 of ~5: 5e-7
+    np.testing.assert_allclose(b.probe_positions / factor, a.probe_positions, atol=FLOAT32_ACCUMULATED)  # float32 of ~5
     # Same directions (seeded per ray); a hit point moved by float32 rounding could flip one shadow ray
     # (measured: none do here).
-    np.testing.assert_allclose(b.probe_sh, a.probe_sh, atol=1e-4 * np.abs(a.probe_sh).max())
+    np.testing.assert_allclose(b.probe_sh, a.probe_sh, atol=FLOAT32_LONG_CHAIN * np.abs(a.probe_sh).max())
 
 
 def test_degenerate_triangles_do_not_produce_nan():

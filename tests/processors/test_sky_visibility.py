@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_STORAGE, FLOAT64_AMPLIFIED, FLOAT64_ROUNDING,
+                        MC_SIGMAS, SKY_PATCH_STRATIFICATION, SKY_VISIBILITY_RMS, UINT8_HALF_STEP)
 from usdbake.kernels.sky import (
     enu_to_world,
     patch_layout,
@@ -22,10 +24,6 @@ from usdbake.processors.sky_visibility import (
     compute_sky_visibility,
 )
 from usdbake.kernels.tracer import Tracer
-
-
-SIGMAS = 4.0
-"""Monte Carlo tolerances are SIGMAS standard deviations (seeds are fixed anyway)."""
 
 
 # ---------------------------------------------------------------------------
@@ -122,21 +120,21 @@ def test_reinhart_layouts_match_radiance(mf, count):
     patches = reinhart_patches(mf)
     assert len(patches) == count
     directions, omegas = radiance_reinhart(mf)
-    np.testing.assert_allclose(patches.patch_solid_angles, omegas, rtol=1e-12)
-    np.testing.assert_allclose(patches.patch_directions, directions, atol=1e-12)
-    np.testing.assert_allclose(patches.patch_solid_angles.sum(), 2 * np.pi, rtol=1e-12)
+    np.testing.assert_allclose(patches.patch_solid_angles, omegas, rtol=FLOAT64_ROUNDING)
+    np.testing.assert_allclose(patches.patch_directions, directions, atol=FLOAT64_ROUNDING)
+    np.testing.assert_allclose(patches.patch_solid_angles.sum(), 2 * np.pi, rtol=FLOAT64_ROUNDING)
 
 
 def test_tregenza_known_patches():
     patches = patch_layout("tregenza")
     d = patches.patch_directions
     # Patch 1 (ours 0): horizon row, centred on north at 6 deg altitude; patch 2 is 12 deg towards east.
-    np.testing.assert_allclose(d[0], [0, math.cos(math.radians(6)), math.sin(math.radians(6))], atol=1e-12)
-    np.testing.assert_allclose(np.degrees(np.arctan2(d[1, 0], d[1, 1])), 12.0, atol=1e-9)
+    np.testing.assert_allclose(d[0], [0, math.cos(math.radians(6)), math.sin(math.radians(6))], atol=FLOAT64_ROUNDING)
+    np.testing.assert_allclose(np.degrees(np.arctan2(d[1, 0], d[1, 1])), 12.0, atol=FLOAT64_AMPLIFIED)
     # Row 2 starts at patch 31 (ours 30), 18 deg altitude; row 7 (6 patches) starts at 139 (ours 138); zenith last.
-    np.testing.assert_allclose(np.degrees(np.arcsin(d[30, 2])), 18.0, atol=1e-9)
-    np.testing.assert_allclose(np.degrees(np.arcsin(d[138, 2])), 78.0, atol=1e-9)
-    np.testing.assert_allclose(d[144], [0, 0, 1], atol=1e-12)
+    np.testing.assert_allclose(np.degrees(np.arcsin(d[30, 2])), 18.0, atol=FLOAT64_AMPLIFIED)
+    np.testing.assert_allclose(np.degrees(np.arcsin(d[138, 2])), 78.0, atol=FLOAT64_AMPLIFIED)
+    np.testing.assert_allclose(d[144], [0, 0, 1], atol=FLOAT64_ROUNDING)
     # Tregenza's horizon-band patch: 2 pi / 30 * sin(12 deg) sr.
     np.testing.assert_allclose(patches.patch_solid_angles[0], 2 * np.pi / 30 * math.sin(math.radians(12)))
 
@@ -145,7 +143,7 @@ def test_tregenza_known_patches():
 def test_uniform_layout_has_equal_solid_angles(count):
     patches = uniform_patches(count)
     assert len(patches) == count
-    np.testing.assert_allclose(patches.patch_solid_angles, 2 * np.pi / count, rtol=1e-9)
+    np.testing.assert_allclose(patches.patch_solid_angles, 2 * np.pi / count, rtol=FLOAT64_AMPLIFIED)
     # Sample directions of each patch lie within its angular radius of the centre (the horizon test relies on it).
     samples = patch_samples(patches, 5)
     cos = np.einsum("nkc,nc->nk", samples, patches.patch_directions)
@@ -156,8 +154,8 @@ def test_up_axis_frames_are_right_handed():
     for up, expected_up, expected_north in (("Z", [0, 0, 1], [0, 1, 0]), ("Y", [0, 1, 0], [0, 0, -1])):
         m = enu_to_world(up)
         np.testing.assert_allclose(np.linalg.det(m), 1.0)
-        np.testing.assert_allclose(m @ [0, 0, 1], expected_up, atol=1e-12)
-        np.testing.assert_allclose(m @ [0, 1, 0], expected_north, atol=1e-12)
+        np.testing.assert_allclose(m @ [0, 0, 1], expected_up, atol=FLOAT64_ROUNDING)
+        np.testing.assert_allclose(m @ [0, 1, 0], expected_north, atol=FLOAT64_ROUNDING)
 
 
 # ---------------------------------------------------------------------------
@@ -172,11 +170,11 @@ def test_open_upward_plane_sees_the_whole_sky():
                                           enu_to_world("Z"), samples=16)
     # For a ring patch, mean cos over the patch is exactly (z_lo + z_hi) / 2; each sample lies inside it.
     z_lo, z_hi = patches.patch_bounds[:, 0], patches.patch_bounds[:, 1]
-    assert ((v >= z_lo - 1e-6) & (v <= z_hi + 1e-6)).all()
+    assert ((v >= z_lo - FLOAT32_STORAGE) & (v <= z_hi + FLOAT32_STORAGE)).all()
     assert not partial.any()
     # Irradiance under a uniform sky L: pi L (stratified z: per-patch error <= dz / 8, they average out).
     irradiance = v.astype(np.float64) @ patches.patch_solid_angles
-    np.testing.assert_allclose(irradiance, np.pi, rtol=5e-3)
+    np.testing.assert_allclose(irradiance, np.pi, rtol=SKY_PATCH_STRATIFICATION)
 
 
 def test_floor_of_open_top_box_sees_the_aperture_view_factor():
@@ -188,11 +186,11 @@ def test_floor_of_open_top_box_sees_the_aperture_view_factor():
                                         prims=np.array([1]))
     expected = 4 * corner_view_factor(side / 2, side / 2, height)  # 0.553 for a 2 x 2 x 1 box
     # MC: 2 triangles x 256 patches x 64 rays; stratified and quantized to 1/255 per factor.
-    tol = SIGMAS * math.sqrt(expected * (1 - expected) / (2 * 256 * 64)) + 0.5 / 255
+    tol = MC_SIGMAS * math.sqrt(expected * (1 - expected) / (2 * 256 * 64)) + UINT8_HALF_STEP
     np.testing.assert_allclose(product.exposure, expected, atol=tol)
     # The brute-force point reference agrees too (4096 cosine-weighted rays).
     view = compute_point_sky_view(tracer, [[0, 0, 0.001]], [[0, 0, 1]], scene.up_vector, samples=4096)
-    np.testing.assert_allclose(view, expected, atol=SIGMAS * math.sqrt(expected * (1 - expected) / 4096))
+    np.testing.assert_allclose(view, expected, atol=MC_SIGMAS * math.sqrt(expected * (1 - expected) / 4096))
 
 
 # ---------------------------------------------------------------------------
@@ -218,9 +216,9 @@ def test_refinement_concentrates_where_visibility_is_partial():
     corners = product.face_points[product.face_vertices][:, :, :2]
     corner = (np.abs(corners) == 2.0).all(axis=2).any(axis=1)  # faces touching a corner of the ground
     # Faces along the box's foot reach the finest level (8 / 4^4); the far corners stay coarser.
-    np.testing.assert_allclose(product.face_areas[near], 8.0 / 4 ** 4, rtol=1e-5)
+    np.testing.assert_allclose(product.face_areas[near], 8.0 / 4 ** 4, rtol=FLOAT32_ACCUMULATED)
     assert product.face_areas[corner].mean() > 2 * product.face_areas[near].mean()
-    np.testing.assert_allclose(product.face_areas.sum(), 16.0, rtol=1e-6)
+    np.testing.assert_allclose(product.face_areas.sum(), 16.0, rtol=FLOAT32_STORAGE)
     # Conforming: a T-junction would leave an edge used once inside the ground; all such edges lie on its rim.
     rim = product.face_points[boundary_edges(product.face_vertices, np.arange(len(product.face_points))).ravel()]
     assert np.isclose(np.abs(rim[:, :2]).max(axis=1), 2.0).all()
@@ -257,7 +255,7 @@ def test_matches_brute_force_reference_on_window_room():
     estimate = product.visibility_float() @ product.patches.patch_solid_angles.astype(np.float32) / np.pi
     a = product.face_areas
     relative_rms = math.sqrt((a * (estimate - reference) ** 2).sum() / (a * reference ** 2).sum())
-    assert relative_rms < 0.02, relative_rms
+    assert relative_rms < SKY_VISIBILITY_RMS, relative_rms
 
 
 def test_results_do_not_depend_on_thread_count():
@@ -305,8 +303,8 @@ def test_bake_authors_refined_mesh_in_local_space():
     assert len(indices) > 2
     # Local space: the original corners are still there, in the authored frame, and all points lie on z = 0.
     for corner in [(-4, -4, 0), (4, 4, 0)]:
-        assert np.min(np.linalg.norm(points - corner, axis=1)) < 1e-4
-    np.testing.assert_allclose(points[:, 2], 0.0, atol=1e-4)
+        assert np.min(np.linalg.norm(points - corner, axis=1)) < FLOAT32_LONG_CHAIN
+    np.testing.assert_allclose(points[:, 2], 0.0, atol=FLOAT32_LONG_CHAIN)
     # Winding: the authored faces keep facing up (+Z) through orientation rightHanded and the mirroring
     # transform (a mirror turns the transformed winding's cross product around, hence the determinant's sign).
     world = np.array(UsdGeom.Xformable(mesh).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
@@ -325,7 +323,7 @@ def test_bake_authors_refined_mesh_in_local_space():
     prim = mesh.GetPrim()
     assert "SkyVisibilityAPI" in prim.GetAppliedSchemas()
     assert prim.GetAttribute("bake:sky:patchCount").Get() == 64
-    assert abs(sum(prim.GetAttribute("bake:sky:patchSolidAngles").Get()) - 2 * math.pi) < 1e-4
+    assert abs(sum(prim.GetAttribute("bake:sky:patchSolidAngles").Get()) - 2 * math.pi) < FLOAT32_LONG_CHAIN
     ok, reason = UsdGeom.Mesh.ValidateTopology(mesh.GetFaceVertexIndicesAttr().Get(),
                                                mesh.GetFaceVertexCountsAttr().Get(), len(points))
     assert ok, reason

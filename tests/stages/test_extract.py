@@ -15,6 +15,7 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 from stage_builders import (TETRA_COUNTS, TETRA_INDICES, TETRA_POINTS, UNIT_QUAD, add_mesh, add_preview_material,
                             add_quads, add_xform, bind, new_stage, world_points, write_png)
+from tolerances import FLOAT32_ACCUMULATED, FLOAT32_STORAGE, FLOAT64_AMPLIFIED
 
 from usdbake.core.scene import (LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE,
                                       Scene)
@@ -22,18 +23,6 @@ from usdbake.core.errors import StageError
 from usdbake.stages.extract import extract_scene
 
 SAMPLES_DIR = SAMPLES  # noqa: the name the tests here use
-
-POSITION_ATOL = 1e-5
-"""Stage-unit tolerance on world positions of geometry within ~10 units of the
-origin: float32 storage of points (eps 6e-8 relative) after float64 transforms."""
-
-LOCAL_ATOL = 1e-6
-"""Points are float32 relative to the scene origin; for unit-sized geometry the
-spacing of float32 is 6e-8, so 1e-6 holds however far the stage is from (0, 0, 0),
-while float32 world coordinates at 1e6 would be off by up to 0.03."""
-
-SHADING_ATOL = 1e-6
-"""Colours are float32 copies of float32 authored values or of float64 texture means."""
 
 
 def prim_index(scene: Scene, path: str) -> int:
@@ -58,7 +47,7 @@ def test_quads_give_two_triangles_each():
     assert scene.num_triangles == 6
     np.testing.assert_array_equal(scene.tri_face, [0, 0, 1, 1, 2, 2])
     np.testing.assert_array_equal(scene.prim_face_count, [3])
-    np.testing.assert_allclose(scene.tri_areas, 0.5, rtol=1e-6)
+    np.testing.assert_allclose(scene.tri_areas, 0.5, rtol=FLOAT32_STORAGE)
     assert scene.warnings == ()
 
 
@@ -72,7 +61,7 @@ def test_mixed_faces_map_triangles_to_source_faces():
     np.testing.assert_array_equal(scene.tri_face, [0, 0, 1, 1, 1, 2])
     # Pentagon area by the shoelace formula: 2.5; the quad 1, the triangle 0.5.
     per_face = np.bincount(scene.tri_face, weights=scene.tri_areas)
-    np.testing.assert_allclose(per_face, [1.0, 2.5, 0.5], rtol=1e-6)
+    np.testing.assert_allclose(per_face, [1.0, 2.5, 0.5], rtol=FLOAT32_STORAGE)
     # Each triangle only uses its face's vertices.
     face_vertices = [set(range(0, 4)), set(range(4, 9)), set(range(9, 12))]
     for tri, face in zip(scene.tri_vertices, scene.tri_face):
@@ -109,12 +98,13 @@ def test_nested_transforms_match_xform_cache():
     scene = extract_scene(stage)
 
     for path in ("/World/Parent/Child/Mesh", "/World/Plain"):
-        np.testing.assert_allclose(scene_world_points(scene, path), world_points(stage, path), atol=POSITION_ATOL)
+        np.testing.assert_allclose(scene_world_points(scene, path), world_points(stage, path), atol=FLOAT32_ACCUMULATED)
     # Areas follow the transformed geometry (non-uniform scale included).
     oracle = world_points(stage, "/World/Parent/Child/Mesh")
     corners = oracle[[[0, 1, 2], [0, 2, 3], [0, 1, 4]]]
     areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
-    np.testing.assert_allclose(scene.tri_areas[prim_tris(scene, "/World/Parent/Child/Mesh")], areas, rtol=1e-5)
+    np.testing.assert_allclose(scene.tri_areas[prim_tris(scene, "/World/Parent/Child/Mesh")], areas,
+                               rtol=FLOAT32_ACCUMULATED)
 
 
 def test_time_samples_are_read_at_the_requested_time():
@@ -125,7 +115,7 @@ def test_time_samples_are_read_at_the_requested_time():
     op.Set(Gf.Vec3d(0, 0, 10), 2.0)
     at_two = extract_scene(stage, time=2.0)
     assert at_two.time_code == 2.0
-    np.testing.assert_allclose(scene_world_points(at_two, "/World/Q")[:, 2], 10.0, atol=POSITION_ATOL)
+    np.testing.assert_allclose(scene_world_points(at_two, "/World/Q")[:, 2], 10.0, atol=FLOAT32_ACCUMULATED)
 
 
 def test_big_coordinates_are_absorbed_by_the_origin():
@@ -137,12 +127,12 @@ def test_big_coordinates_are_absorbed_by_the_origin():
     scene = extract_scene(stage)
 
     center = far + (local.min(axis=0) + local.max(axis=0)) / 2
-    np.testing.assert_allclose(scene.origin, center, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(scene.origin, center, rtol=0, atol=FLOAT64_AMPLIFIED)
     assert scene.origin.dtype == np.float64
-    assert np.abs(scene.points).max() <= 0.5 + LOCAL_ATOL
-    np.testing.assert_allclose(scene.points, local + far - scene.origin, atol=LOCAL_ATOL)
-    np.testing.assert_allclose(scene.points[4] - scene.points[0], [0.5, 0.5, 1e-3], atol=LOCAL_ATOL)
-    np.testing.assert_allclose(scene.tri_areas[:2], 0.5, rtol=1e-6)
+    assert np.abs(scene.points).max() <= 0.5 + FLOAT32_STORAGE
+    np.testing.assert_allclose(scene.points, local + far - scene.origin, atol=FLOAT32_STORAGE)
+    np.testing.assert_allclose(scene.points[4] - scene.points[0], [0.5, 0.5, 1e-3], atol=FLOAT32_STORAGE)
+    np.testing.assert_allclose(scene.tri_areas[:2], 0.5, rtol=FLOAT32_STORAGE)
 
 
 # --- winding ----------------------------------------------------------------------------------
@@ -167,7 +157,7 @@ def test_winding_follows_orientation_and_determinant(left_handed, mirror):
     flipped = left_handed != mirror
 
     quad = prim_tris(scene, "/World/Box/Quad")
-    np.testing.assert_allclose(scene.tri_normals[quad], [[0, 0, -1 if flipped else 1]] * 2, atol=1e-6)
+    np.testing.assert_allclose(scene.tri_normals[quad], [[0, 0, -1 if flipped else 1]] * 2, atol=FLOAT32_STORAGE)
 
     tetra = prim_tris(scene, "/World/Box/Tetra")
     authored = np.reshape(TETRA_INDICES, (-1, 3)) + scene.prim_point_start[prim_index(scene, "/World/Box/Tetra")]
@@ -236,7 +226,7 @@ def test_point_instancer(invisible_ids, rows):
 
     expected = np.array(expected_instance_matrices(inst, rows))
     expected[:, 3, :3] -= scene.origin
-    np.testing.assert_allclose(instances.instance_transforms, expected, atol=1e-9)
+    np.testing.assert_allclose(instances.instance_transforms, expected, atol=FLOAT64_AMPLIFIED)
 
     # Flattened: one triangle per Tri instance, two per Quad instance, plus the ground quad.
     tris_per_proto = np.array([1, 2])
@@ -259,7 +249,7 @@ def test_point_instancer(invisible_ids, rows):
         local = np.array(UsdGeom.Mesh(mesh_prim).GetPointsAttr().Get(), np.float64)
         world = np.c_[local, np.ones(len(local))] @ relative @ matrix
         extracted = scene.origin + scene.points[scene.prim_points(prims[0])]
-        np.testing.assert_allclose(extracted, world[:, :3], atol=POSITION_ATOL)
+        np.testing.assert_allclose(extracted, world[:, :3], atol=FLOAT32_ACCUMULATED)
 
 
 def test_instanceable_references_are_read_only_proxies():
@@ -277,7 +267,7 @@ def test_instanceable_references_are_read_only_proxies():
     for path in ("/World/A/Seat", "/World/B/Seat"):
         assert stage.GetPrimAtPath(path).IsInstanceProxy()
         assert not scene.prim_writable[prim_index(scene, path)]
-        np.testing.assert_allclose(scene_world_points(scene, path), world_points(stage, path), atol=POSITION_ATOL)
+        np.testing.assert_allclose(scene_world_points(scene, path), world_points(stage, path), atol=FLOAT32_ACCUMULATED)
     assert scene.prim_writable[prim_index(scene, "/World/Floor")]
     np.testing.assert_array_equal(scene.tri_instance, -1)  # proxies are not point-instancer instances
     assert len(scene.instances) == 0
@@ -331,8 +321,8 @@ def test_materials_display_color_and_default_grey():
     }
     for path, (albedo, emission) in expected.items():
         got_albedo, got_emission = shading(path)
-        np.testing.assert_allclose(got_albedo, [albedo] * 2, atol=SHADING_ATOL, err_msg=path)
-        np.testing.assert_allclose(got_emission, [emission] * 2, atol=SHADING_ATOL, err_msg=path)
+        np.testing.assert_allclose(got_albedo, [albedo] * 2, atol=FLOAT32_STORAGE, err_msg=path)
+        np.testing.assert_allclose(got_emission, [emission] * 2, atol=FLOAT32_STORAGE, err_msg=path)
     assert scene.prim_surface[prim_index(scene, "/World/Red")] == "/World/Looks/Red/Surface"
     assert scene.prim_surface[prim_index(scene, "/World/Plain")] == ""
 
@@ -349,9 +339,9 @@ def test_material_bound_to_a_geom_subset_overrides_its_faces():
 
     np.testing.assert_array_equal(scene.tri_face, [0, 0, 1, 1, 2, 2])
     red_rgb, blue_rgb = (0.8, 0.1, 0.2), (0.1, 0.2, 0.9)
-    np.testing.assert_allclose(scene.tri_albedo, [red_rgb] * 2 + [blue_rgb] * 2 + [red_rgb] * 2, atol=SHADING_ATOL)
+    np.testing.assert_allclose(scene.tri_albedo, [red_rgb] * 2 + [blue_rgb] * 2 + [red_rgb] * 2, atol=FLOAT32_STORAGE)
     np.testing.assert_allclose(scene.tri_emission, [(1, 1, 1)] * 2 + [(0, 0, 0)] * 2 + [(1, 1, 1)] * 2,
-                               atol=SHADING_ATOL)
+                               atol=FLOAT32_STORAGE)
 
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
@@ -378,7 +368,7 @@ def test_diffuse_texture_mean(tmp_path):
         "/World/Auto": srgb_to_linear(values).mean(axis=0),  # 8-bit "auto" is sRGB
     }
     for path, mean in expected.items():
-        np.testing.assert_allclose(scene.tri_albedo[prim_tris(scene, path)], [mean] * 2, atol=SHADING_ATOL,
+        np.testing.assert_allclose(scene.tri_albedo[prim_tris(scene, path)], [mean] * 2, atol=FLOAT32_STORAGE,
                                    err_msg=path)
 
 
@@ -428,11 +418,11 @@ def test_lights():
     for row, path in enumerate(lights.light_paths):
         kind, radiance, position, direction, size = expected[path]
         assert lights.light_kind[row] == kind, path
-        np.testing.assert_allclose(lights.light_radiance[row], radiance, rtol=1e-6, err_msg=path)
-        np.testing.assert_allclose(lights.light_position[row] + scene.origin, position, atol=POSITION_ATOL,
+        np.testing.assert_allclose(lights.light_radiance[row], radiance, rtol=FLOAT32_STORAGE, err_msg=path)
+        np.testing.assert_allclose(lights.light_position[row] + scene.origin, position, atol=FLOAT32_ACCUMULATED,
                                    err_msg=path)
-        np.testing.assert_allclose(lights.light_direction[row], direction, atol=1e-6, err_msg=path)
-        np.testing.assert_allclose(lights.light_size[row], size, rtol=1e-6, err_msg=path)
+        np.testing.assert_allclose(lights.light_direction[row], direction, atol=FLOAT32_STORAGE, err_msg=path)
+        np.testing.assert_allclose(lights.light_size[row], size, rtol=FLOAT32_STORAGE, err_msg=path)
 
 
 def test_light_direction_under_a_parent_rotation():
@@ -441,7 +431,7 @@ def test_light_direction_under_a_parent_rotation():
     define_light(stage, UsdLux.DistantLight, "/World/Rig/Sun", rotate_xyz=(90, 0, 0))
     scene = extract_scene(stage)
     # -Z -> (0, 1, 0) by rotateX 90, then (-1, 0, 0) by the parent's rotateZ 90.
-    np.testing.assert_allclose(scene.lights.light_direction, [[-1, 0, 0]], atol=1e-6)
+    np.testing.assert_allclose(scene.lights.light_direction, [[-1, 0, 0]], atol=FLOAT32_STORAGE)
 
 
 # --- units ------------------------------------------------------------------------------------
@@ -511,8 +501,8 @@ def test_degenerate_triangles_have_zero_normals_and_areas():
         scene = extract_scene(stage)
     assert scene.num_triangles == 6
     assert np.isfinite(scene.tri_normals).all() and np.isfinite(scene.tri_areas).all()
-    np.testing.assert_allclose(scene.tri_normals[0], [0, 0, 1], atol=1e-6)
-    np.testing.assert_allclose(scene.tri_areas[0], 0.5, rtol=1e-6)
+    np.testing.assert_allclose(scene.tri_normals[0], [0, 0, 1], atol=FLOAT32_STORAGE)
+    np.testing.assert_allclose(scene.tri_areas[0], 0.5, rtol=FLOAT32_STORAGE)
     np.testing.assert_array_equal(scene.tri_normals[1:], 0.0)
     np.testing.assert_array_equal(scene.tri_areas[1:], 0.0)
 

@@ -10,15 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from tolerances import ON_BOUNDARY, TRIANGULATION_AREA
 from usdbake.stages.triangulate import convex_mask, ear_clip, fan, triangulate
-
-AREA_RTOL = 1e-6
-"""Triangle areas are summed in float64 from float64 corners; 1e-6 leaves room
-for the rotation into 3D and back, far below any missing or overlapping triangle."""
-
-WINDING_ATOL = 1e-9
-"""A triangle counts as wound like its polygon when its signed area (in units
-of the polygon's area) is above -1e-9: float64 noise on a zero-area ear."""
 
 # Polygons in the xy plane, counter-clockwise seen from +z.
 SQUARE = [(0, 0), (2, 0), (2, 2), (0, 2)]
@@ -79,8 +72,8 @@ def check_triangulation(flat: np.ndarray, rotation: np.ndarray, offset=(0.0, 0.0
     area = shoelace(flat)
     normal = rotation[:, 2] * np.sign(area)  # unit polygon normal in 3D
     areas = signed_areas(points, triangles, normal)
-    np.testing.assert_allclose(areas.sum(), abs(area), rtol=AREA_RTOL)
-    assert (areas >= -WINDING_ATOL * abs(area)).all(), areas
+    np.testing.assert_allclose(areas.sum(), abs(area), rtol=TRIANGULATION_AREA)
+    assert (areas >= -ON_BOUNDARY * abs(area)).all(), areas  # a zero-area ear is wound either way
 
     centroids = flat[triangles].mean(axis=1)
     assert all(inside(c, flat) for c in centroids)
