@@ -47,11 +47,9 @@ def run(quick: bool = False) -> dict:
     from usdbake.kernels.sky import uniform_patches
     from usdbake.kernels.tracer import Tracer
     from usdbake.processors.daylight import compute_daylight, relight
-    from usdbake.processors.sky_visibility import (
-        SkyVisibility,
-        compute_point_sky_view,
-        compute_sky_visibility,
-    )
+    from usdbake.processors.sky_visibility import SkyVisibility, compute_sky_visibility
+
+    from .references import compute_point_sky_view
 
     patches = uniform_patches(256)
     defaults = SkyVisibility.Params()

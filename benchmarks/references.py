@@ -2,7 +2,8 @@
 
 They share the light model (kernels/lights.py) with the processors, so they
 check the transport, not the reading of lights: a path tracer for multi-bounce
-indirect irradiance, and a brute-force ray cast of one-bounce irradiance.
+indirect irradiance, a brute-force ray cast of one-bounce irradiance, and the
+sky view of a point (cosine-weighted rays that escape, no sky patches).
 """
 
 from __future__ import annotations
@@ -153,3 +154,63 @@ def point_irradiance(tracer, scene, positions: np.ndarray, normals: np.ndarray, 
         out,
     ])
     return np.nan_to_num(out.numpy(), nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
+
+
+@wp.kernel
+def point_sky_view_kernel(
+    start: int,
+    mesh: wp.uint64,
+    positions: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    up: wp.vec3,
+    strata: int,
+    epsilon: float,
+    seed: int,
+    view: wp.array(dtype=float),
+):
+    """Brute-force reference: share of cosine-weighted rays that escape to the sky (above the horizon).
+
+    Estimates E_sky / (pi L) under a uniform sky of radiance L (dimensionless),
+    the quantity Bosch, Besuievsky & Martin, Sec. 5, Eq. 1 gives as
+    sum_j V_ij dw_j / pi, without patches: Malley's cosine-weighted directions
+    (pdf cos(theta) / pi per sr), a ray counting when it escapes and points
+    above the horizon (``up``).
+    """
+    i = start + wp.tid()
+    n = normals[i]
+    view[i] = 0.0
+    if wp.length(n) < 0.5:
+        return
+    frame = tangent_frame(n)
+    state = wp.rand_init(seed, i)
+    hits = int(0)
+    origin = positions[i] + n * epsilon
+    for k in range(strata * strata):
+        u = stratified_pair(k, strata, state)
+        d = frame * cosine_hemisphere(u[0], u[1])
+        if wp.dot(d, up) > 0.0:
+            if not wp.mesh_query_ray_anyhit(mesh, origin, d, FAR):
+                hits += 1
+    view[i] = float(hits) / float(strata * strata)
+
+
+def compute_point_sky_view(tracer, positions: np.ndarray, normals: np.ndarray, up: np.ndarray, *,
+                           samples: int = 4096, seed: int = 0) -> np.ndarray:
+    """(N,) float32 sky irradiance / (pi L) at points under a uniform sky L, black surroundings.
+
+    Dimensionless; the reference for sum_j V_ij dw_j / pi of Bosch, Besuievsky &
+    Martin, Sec. 5, Eq. 1 with a uniform sky (launches ``point_sky_view_kernel``).
+
+    The independent reference the patch factors are checked against: stratified cosine-weighted
+    hemisphere rays (no patches), a ray counting when it is unoccluded and points above the horizon.
+    """
+    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+    normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
+    strata = strata_for(samples)
+    view = wp.zeros(len(positions), dtype=float, device=tracer.device)
+    up = np.asarray(up, np.float32)
+    tracer.launch(point_sky_view_kernel, len(positions), [
+        tracer.mesh.id, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3),
+        wp.vec3(float(up[0]), float(up[1]), float(up[2])), strata, tracer.epsilon, int(seed), view])
+    tracer.rays_cast += len(positions) * strata * strata
+    return view.numpy()

@@ -200,36 +200,14 @@ def expand565(color: int) -> wp.vec3i:
     return wp.vec3i((r * 510 + 31) // 62, (g * 510 + 63) // 126, (b * 510 + 31) // 62)
 
 
-@wp.func
-def bc1_palette_byte(word0: int, code: int) -> wp.vec3i:
-    """8-bit colour of palette entry ``code`` (0..3) of a block whose first word is ``word0``.
+@wp.struct
+class BC1Palette:
+    """The 4 byte-code colours a BC1 block's 2-bit texel codes choose from."""
 
-    The BC1 palette (Microsoft, "Block Compression (Direct3D 10)", BC1): with
-    color0 > color1, {c0, c1, (2 c0 + c1) / 3, (c0 + 2 c1) / 3}, else {c0, c1,
-    (c0 + c1) / 2, black}, rounded to the nearest byte as OpenImageIO does.
-    The radiosity relight reads the operator's byte codes through it
-    (Shcherbakov, MSU 2017, section 4.2). Values are byte codes 0..255.
-
-    ``word0`` holds color0 in its low 16 bits and color1 in its high 16 bits
-    (pass the uint32 reinterpreted as int; only the low 32 bits are used).
-    """
-    c0 = word0 & 0xFFFF
-    c1 = (word0 >> 16) & 0xFFFF
-    a = expand565(c0)
-    b = expand565(c1)
-    if code == 0:
-        return a
-    if code == 1:
-        return b
-    if c0 > c1:
-        if code == 2:
-            return wp.vec3i((4 * a[0] + 2 * b[0] + 3) // 6, (4 * a[1] + 2 * b[1] + 3) // 6,
-                            (4 * a[2] + 2 * b[2] + 3) // 6)
-        return wp.vec3i((2 * a[0] + 4 * b[0] + 3) // 6, (2 * a[1] + 4 * b[1] + 3) // 6,
-                        (2 * a[2] + 4 * b[2] + 3) // 6)
-    if code == 2:
-        return wp.vec3i((a[0] + b[0] + 1) // 2, (a[1] + b[1] + 1) // 2, (a[2] + b[2] + 1) // 2)
-    return wp.vec3i(0, 0, 0)
+    c0: wp.vec3i
+    c1: wp.vec3i
+    c2: wp.vec3i
+    c3: wp.vec3i
 
 
 @wp.func
@@ -243,6 +221,32 @@ def bc1_third(a: wp.vec3i, b: wp.vec3i) -> wp.vec3i:
 
 
 @wp.func
+def bc1_palette(word0: int) -> BC1Palette:
+    """The palette of a block whose first word is ``word0`` (color0 in its low 16 bits, color1 in its high).
+
+    Microsoft, "Block Compression (Direct3D 10)", BC1: with color0 > color1,
+    {c0, c1, (2 c0 + c1) / 3, (c0 + 2 c1) / 3}, else {c0, c1, (c0 + c1) / 2,
+    black}, rounded to the nearest byte as OpenImageIO does. The radiosity
+    relight reads the operator's byte codes through it (Shcherbakov, MSU 2017,
+    section 4.2). Values are byte codes 0..255.
+    """
+    color0 = word0 & 0xFFFF
+    color1 = (word0 >> 16) & 0xFFFF
+    palette = BC1Palette()
+    palette.c0 = expand565(color0)
+    palette.c1 = expand565(color1)
+    palette.c3 = wp.vec3i(0, 0, 0)
+    a = palette.c0
+    b = palette.c1
+    if color0 > color1:
+        palette.c2 = bc1_third(a, b)
+        palette.c3 = bc1_third(b, a)
+    else:
+        palette.c2 = wp.vec3i((a[0] + b[0] + 1) // 2, (a[1] + b[1] + 1) // 2, (a[2] + b[2] + 1) // 2)
+    return palette
+
+
+@wp.func
 def bc1_index(word1: int, texel: int) -> int:
     """Palette code of texel ``texel`` (0..15, row-major) from the block's second word.
 
@@ -252,29 +256,6 @@ def bc1_index(word1: int, texel: int) -> int:
     return (word1 >> (2 * texel)) & 3
 
 
-@wp.kernel
-def decode_bc1_kernel(start: int, words: wp.array(dtype=wp.int64), texels: wp.array(dtype=wp.vec3i)):
-    """Reference decode (tests): texels[16 * block + k] = 8-bit colour of texel k.
-
-    BC1 decoding per Microsoft, "Block Compression (Direct3D 10)"; byte codes 0..255.
-    """
-    i = start + wp.tid()
-    block = i // 16
-    k = i % 16
-    word0 = int(words[2 * block])
-    word1 = int(words[2 * block + 1])
-    texels[i] = bc1_palette_byte(word0, bc1_index(word1, k))
-
-
 def block_words(blocks: np.ndarray) -> np.ndarray:
     """(N, 8) uint8 blocks -> (2 N,) int64 words (uint32 values, non-negative) for the Warp functions."""
     return np.ascontiguousarray(blocks, np.uint8).reshape(-1, 8).view(np.uint32).reshape(-1).astype(np.int64)
-
-
-def decode_bc1_warp(blocks: np.ndarray, device: str = "cpu") -> np.ndarray:
-    """(N, 8) uint8 -> (N, 16, 3) uint8 through the Warp functions (to test them against numpy)."""
-    words = wp.array(block_words(blocks), dtype=wp.int64, device=device)
-    n = len(blocks) * 16
-    texels = wp.zeros(n, dtype=wp.vec3i, device=device)
-    wp.launch(decode_bc1_kernel, dim=n, inputs=[0, words, texels], device=device)
-    return texels.numpy().reshape(-1, 16, 3).astype(np.uint8)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .bc1 import bc1_third, block_words, expand565
+from .bc1 import bc1_palette, block_words
 from .tracer import launch_chunked
 
 wp.set_module_options({"enable_backward": False})
@@ -56,24 +56,13 @@ def lut_color(lut: wp.array(dtype=float), code: wp.vec3i) -> wp.vec3:
 
 @wp.func
 def block_palette(lut: wp.array(dtype=float), word0: int) -> BlockPalette:
-    """The BC1 palette of a block (Microsoft BC1: with color0 > color1, {c0, c1, (2 c0 + c1) / 3,
-    (c0 + 2 c1) / 3}, else {c0, c1, (c0 + c1) / 2, 0}) as byte codes, looked up in the code table."""
-    c0 = word0 & 0xFFFF
-    c1 = (word0 >> 16) & 0xFFFF
-    a = expand565(c0)
-    b = expand565(c1)
-    q2 = wp.vec3i(0, 0, 0)
-    q3 = wp.vec3i(0, 0, 0)
-    if c0 > c1:
-        q2 = bc1_third(a, b)
-        q3 = bc1_third(b, a)
-    else:
-        q2 = wp.vec3i((a[0] + b[0] + 1) // 2, (a[1] + b[1] + 1) // 2, (a[2] + b[2] + 1) // 2)
+    """The operator values of a block's BC1 palette (``bc1_palette``), looked up in the code table."""
+    codes = bc1_palette(word0)
     palette = BlockPalette()
-    palette.p0 = lut_color(lut, a)
-    palette.p1 = lut_color(lut, b)
-    palette.p2 = lut_color(lut, q2)
-    palette.p3 = lut_color(lut, q3)
+    palette.p0 = lut_color(lut, codes.c0)
+    palette.p1 = lut_color(lut, codes.c1)
+    palette.p2 = lut_color(lut, codes.c2)
+    palette.p3 = lut_color(lut, codes.c3)
     return palette
 
 

@@ -1,12 +1,11 @@
-"""Sampling maps shared by the processors, as Warp functions with numpy twins.
+"""Sampling maps shared by the processors, as Warp functions.
 
-The numpy twins exist so the maps can be tested (hypothesis, closed forms)
-without launching kernels; the kernels use the @wp.func versions.
+Their numpy twins, against which the tests check them (closed forms,
+hypothesis), are in tests/kernel_twins.py.
 """
 
 import math
 
-import numpy as np
 import warp as wp
 
 wp.set_module_options({"enable_backward": False})
@@ -100,26 +99,6 @@ def triangle_point(a: wp.vec3, b: wp.vec3, c: wp.vec3, u1: float, u2: float) -> 
     """
     r1 = wp.sqrt(u1)
     return a * (1.0 - r1) + b * (r1 * (1.0 - u2)) + c * (r1 * u2)
-
-
-def concentric_disk_np(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
-    """numpy twin of concentric_disk: (N,) x (N,) -> (N, 2)."""
-    a = 2.0 * np.asarray(u1, np.float64) - 1.0
-    b = 2.0 * np.asarray(u2, np.float64) - 1.0
-    use_a = a * a > b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.where(use_a, a, b)
-        phi = np.where(use_a, np.pi / 4 * (b / a), np.pi / 2 - np.pi / 4 * (a / b))
-    phi = np.where((a == 0) & (b == 0), 0.0, phi)
-    r = np.where((a == 0) & (b == 0), 0.0, r)
-    return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
-
-
-def cosine_hemisphere_np(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
-    """numpy twin of cosine_hemisphere: (N,) x (N,) -> (N, 3) unit vectors with z >= 0."""
-    d = concentric_disk_np(u1, u2)
-    z = np.sqrt(np.maximum(0.0, 1.0 - (d * d).sum(axis=-1)))
-    return np.concatenate([d, z[:, None]], axis=-1)
 
 
 def strata_for(samples: int) -> int:

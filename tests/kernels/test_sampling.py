@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 from tolerances import (FINITE_DIFFERENCE, FLOAT32_STORAGE, FLOAT32_WARP_MATH, FLOAT64_ROUNDING, MC_SIGMAS,
                         MIDPOINT_MOMENT_FACTOR, MIDPOINT_RIM_FACTOR)
-from usdbake.kernels.sampling import (concentric_disk_np, cosine_hemisphere, cosine_hemisphere_np,
-                                                 stratified_pair, tangent_frame, triangle_point)
+from kernel_twins import concentric_disk_np, cosine_hemisphere_np
+from usdbake.kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
 
 wp.set_module_options({"enable_backward": False})
 

@@ -9,13 +9,8 @@ from scipy.stats import chisquare
 
 from tolerances import (CELL_SPACING_RATIO, CHI2_SIGNIFICANCE, FLOAT32_WARP_MAPS, FLOAT64_AMPLIFIED, FLOAT64_ROUNDING,
                         MALLEY_ROUNDTRIP, WRAP_NEIGHBOUR_SPACING)
-from usdbake.kernels.sampling import cosine_hemisphere_np
-from usdbake.kernels.sphere_maps import (cell_spacing_ratio_np, concentric_disk_to_square_np,
-                                                    equal_area_sphere_to_square, equal_area_sphere_to_square_np,
-                                                    equal_area_square_to_sphere, equal_area_square_to_sphere_np,
-                                                    grid_cell_centers_np, malley_direction_to_square,
-                                                    malley_direction_to_square_np, octahedral_wrap,
-                                                    octahedral_wrap_np)
+from kernel_twins import cell_spacing_ratio_np, concentric_disk_to_square_np, cosine_hemisphere_np, equal_area_sphere_to_square_np, equal_area_square_to_sphere_np, grid_cell_centers_np, malley_direction_to_square_np, octahedral_wrap_np
+from usdbake.kernels.sphere_maps import equal_area_sphere_to_square, equal_area_square_to_sphere, malley_direction_to_square, octahedral_wrap
 
 wp.set_module_options({"enable_backward": False})
 

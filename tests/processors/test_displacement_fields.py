@@ -9,13 +9,12 @@ import pytest
 from tolerances import (BOUNDING_SPHERE_SLACK, FIELD_GRAZING_ERROR, FLOAT32_STORAGE, FLOAT64_AMPLIFIED,
                         ICOSPHERE_SAGITTA, ROUNDING_MEAN_SHARE, UINT8_CODE_STEP)
 
+from kernel_twins import cosine_hemisphere_np, grid_cell_centers_np
 from usdbake.core.products import DisplacementFieldSet
 from usdbake import core
 from usdbake.kernels.displacement_field import MAX_HIT_CODE, MISS_CODE, field_atlas, field_from_atlas
 from usdbake.processors.displacement_fields import (DisplacementFields, build_field, choose_prototypes,
                                                     field_records, prototype_geometry, side_for)
-from usdbake.kernels.sampling import cosine_hemisphere_np
-from usdbake.kernels.sphere_maps import grid_cell_centers_np
 from instanced_scenes import build_scene, grid, icosphere, run_processor, translate
 
 # ---------------------------------------------------------------------------

@@ -18,11 +18,8 @@ from usdbake.kernels.sky import (
 )
 from usdbake.geometry.refine import boundary_edges, is_watertight, weld_points
 from usdbake.core.scene import Scene
-from usdbake.processors.sky_visibility import (
-    compute_patch_visibility,
-    compute_point_sky_view,
-    compute_sky_visibility,
-)
+from usdbake.benchmarks.references import compute_point_sky_view
+from usdbake.processors.sky_visibility import compute_patch_visibility, compute_sky_visibility
 from usdbake.kernels.tracer import Tracer
 
 
