@@ -18,16 +18,6 @@ from usdbake import core
 FAST = ["--set", "ambient_occlusion.samples=16"]
 
 
-@pytest.fixture
-def stage_in(tmp_path):
-    return fakes.write_stage(tmp_path / "in.usda")
-
-
-@pytest.fixture
-def cache(tmp_path):
-    return str(tmp_path / "cache")
-
-
 def run_cli(capsys, *argv):
     capsys.readouterr()
     code = main([str(a) for a in argv])

@@ -18,16 +18,6 @@ from usdbake.cli.main import main
 FAST = ["--set", "ambient_occlusion.samples=16"]
 
 
-@pytest.fixture
-def stage_in(tmp_path):
-    return fakes.write_stage(tmp_path / "in.usda")
-
-
-@pytest.fixture
-def cache(tmp_path):
-    return str(tmp_path / "cache")
-
-
 def digest(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 

@@ -24,11 +24,6 @@ def stage():
     return fakes.build_stage(Usd.Stage.CreateInMemory())
 
 
-@pytest.fixture
-def cache(tmp_path):
-    return str(tmp_path / "cache")
-
-
 def ao_values(stage, path):
     primvar = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath(path)).GetPrimvar("bake:ao")
     return primvar.Get() if primvar else None

@@ -6,6 +6,8 @@ A plain module, imported as ``from stress.stage_builders_stress import ...``
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux, Vt
 
@@ -145,3 +147,25 @@ def fast_params(name: str) -> dict[str, dict]:
     """FAST_PARAMS of a processor; a processor without an entry runs at its defaults (a new processor joins
     every stress and determinism test as it is; give it an entry when its defaults are slow)."""
     return FAST_PARAMS.get(name, {})
+
+
+def walk_values(value, where: str, *, skip_fields: tuple[str, ...] = (), depth: int = 0):
+    """(where, leaf) for every numpy array, bytes value and number reachable from a product or record
+    (dataclasses, dicts, lists, tuples), so every kernel output handed downstream is seen, not only what
+    gets authored; dataclass fields named in ``skip_fields`` are passed over."""
+    if depth > 6:
+        return
+    if isinstance(value, (np.ndarray, bytes, bytearray)) or \
+            (isinstance(value, (float, int, np.number)) and not isinstance(value, bool)):
+        yield where, value
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        for f in dataclasses.fields(value):
+            if f.name not in skip_fields:
+                yield from walk_values(getattr(value, f.name), f"{where}.{f.name}", skip_fields=skip_fields,
+                                       depth=depth + 1)
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            yield from walk_values(item, f"{where}[{key!r}]", skip_fields=skip_fields, depth=depth + 1)
+    elif isinstance(value, (list, tuple)):
+        for k, item in enumerate(value):
+            yield from walk_values(item, f"{where}[{k}]", skip_fields=skip_fields, depth=depth + 1)

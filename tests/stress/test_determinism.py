@@ -12,11 +12,10 @@ the processors that build BVHs of their own (displacement_fields, instance_ao).
 
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 import pytest
-from stress.stage_builders_stress import fast_params, hostile_lit_stage, small_lit_stage
+from stress.stage_builders_stress import fast_params, hostile_lit_stage, small_lit_stage, walk_values
 from usdbake import core
 from usdbake.kernels import tracer
 from usdbake.stages.extract import extract_scene
@@ -37,28 +36,14 @@ NO_KERNELS = ("progressive_mesh",)
 """Processors that launch no Warp kernel (pure numpy): nothing to split."""
 
 
-def record_arrays(value, where: str, depth: int = 0):
+def record_arrays(value, where: str):
     """(where, array) for every value in the output records and products: numpy arrays of any dtype,
-    raw bytes (files) as uint8 arrays, and numeric scalars."""
-    if depth > 6:
-        return
-    if isinstance(value, np.ndarray):
-        yield where, value
-    elif isinstance(value, (bytes, bytearray)):
-        yield where, np.frombuffer(bytes(value), np.uint8)
-    elif isinstance(value, (float, int, np.number)) and not isinstance(value, bool):
-        yield where, np.asarray(value)
-    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
-        for f in dataclasses.fields(value):
-            if f.name in TIMINGS:
-                continue
-            yield from record_arrays(getattr(value, f.name), f"{where}.{f.name}", depth + 1)
-    elif isinstance(value, dict):
-        for key, item in value.items():
-            yield from record_arrays(item, f"{where}[{key!r}]", depth + 1)
-    elif isinstance(value, (list, tuple)):
-        for k, item in enumerate(value):
-            yield from record_arrays(item, f"{where}[{k}]", depth + 1)
+    raw bytes (files) as uint8 arrays, and numeric scalars; wall-clock fields left out."""
+    for key, leaf in walk_values(value, where, skip_fields=TIMINGS):
+        if isinstance(leaf, (bytes, bytearray)):
+            yield key, np.frombuffer(bytes(leaf), np.uint8)
+        else:
+            yield key, np.asarray(leaf)
 
 
 def run_once(name: str, scene, threads: int) -> dict[str, np.ndarray]:

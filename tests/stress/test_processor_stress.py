@@ -9,13 +9,12 @@ ones, a DistantLight, a DomeLight and a PointInstancer with four instances.
 
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 import pytest
 import usdbake
 from pxr import Gf, Sdf, Usd, UsdGeom
-from stress.stage_builders_stress import FAST_PARAMS, fast_params, hostile_lit_stage, small_lit_stage
+from stress.stage_builders_stress import FAST_PARAMS, fast_params, hostile_lit_stage, small_lit_stage, walk_values
 from tolerances import FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_STORAGE, PROCESSOR_RAY_FLIPS
 from usdbake.core.products import FormFactorProduct, ProbeCloud
 from usdbake import core
@@ -74,23 +73,11 @@ def as_float_array(value) -> np.ndarray | None:
     return array if array.dtype.kind == "f" else None
 
 
-def walk_arrays(value, where: str, depth: int = 0):
-    """(where, array) for every float numpy array reachable from a product or record (dataclasses, dicts,
-    lists, tuples), so every kernel output handed downstream is checked, not only what gets authored."""
-    if depth > 6:
-        return
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind == "f":
-            yield where, value
-    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
-        for f in dataclasses.fields(value):
-            yield from walk_arrays(getattr(value, f.name), f"{where}.{f.name}", depth + 1)
-    elif isinstance(value, dict):
-        for key, item in value.items():
-            yield from walk_arrays(item, f"{where}[{key!r}]", depth + 1)
-    elif isinstance(value, (list, tuple)):
-        for k, item in enumerate(value):
-            yield from walk_arrays(item, f"{where}[{k}]", depth + 1)
+def walk_arrays(value, where: str):
+    """(where, array) for every float numpy array reachable from a product or record."""
+    for key, leaf in walk_values(value, where):
+        if isinstance(leaf, np.ndarray) and leaf.dtype.kind == "f":
+            yield key, leaf
 
 
 def test_every_builtin_processor_is_stressed():
