@@ -9,6 +9,7 @@ feeds both the docs and ``usdbake list``, and the generator's errors.
 from __future__ import annotations
 
 import math
+import sys
 import re
 from dataclasses import dataclass
 
@@ -125,3 +126,14 @@ def test_check_exits_1_on_a_stale_page_and_writes_nothing(tmp_path, capsys):
     assert docs_tables.main(["--docs", str(tmp_path)]) == 0
     assert "old" not in page.read_text() and (tmp_path / docs_tables.CATCH_ALL).exists()
     assert docs_tables.main(["--check", "--docs", str(tmp_path)]) == 0
+
+
+def test_processor_docstrings_point_at_the_generated_tables_instead_of_copying_them():
+    """A hand-copied parameter table in a module docstring drifts; each docstring names the generated ones."""
+    for name, cls in registry.builtin().items():
+        doc = sys.modules[cls.__module__].__doc__ or ""
+        assert f"``usdbake list {name}``" in doc, f"{cls.__module__}: no pointer to `usdbake list {name}`"
+        params = [row["name"] for row in cls.Params.describe()]
+        copied = [line for line in doc.splitlines() if line.split()[:1] and line.split()[0] in params
+                  and len(line.split()) >= 3 and line.split()[1] in ("int", "float", "str", "bool")]
+        assert not copied, f"{cls.__module__} docstring repeats its Params: {copied[:2]}"
