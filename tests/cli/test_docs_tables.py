@@ -133,7 +133,7 @@ def test_processor_docstrings_point_at_the_generated_tables_instead_of_copying_t
     for name, cls in registry.builtin().items():
         doc = sys.modules[cls.__module__].__doc__ or ""
         assert f"``usdbake list {name}``" in doc, f"{cls.__module__}: no pointer to `usdbake list {name}`"
-        params = [row["name"] for row in cls.Params.describe()]
-        copied = [line for line in doc.splitlines() if line.split()[:1] and line.split()[0] in params
-                  and len(line.split()) >= 3 and line.split()[1] in ("int", "float", "str", "bool")]
+        defaults = {row["name"]: (row["type"], str(row["default"])) for row in cls.Params.describe()}
+        copied = [line for line in doc.splitlines()
+                  if len(line.split()) >= 3 and tuple(line.split()[1:3]) == defaults.get(line.split()[0])]
         assert not copied, f"{cls.__module__} docstring repeats its Params: {copied[:2]}"
