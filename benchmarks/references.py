@@ -22,7 +22,7 @@ from usdbake.kernels.lights import (
     visible_light_sample,
 )
 from usdbake.kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
-from usdbake.kernels.tracer import FAR
+from usdbake.kernels.tracer import FAR, surface_origin
 
 wp.set_module_options({"enable_backward": False})
 
@@ -65,13 +65,14 @@ def indirect_paths_kernel(
         throughput = wp.vec3(1.0, 1.0, 1.0)
         for h in range(bounces):
             w = tangent_frame(normal) * cosine_hemisphere(wp.randf(state), wp.randf(state))
-            q = wp.mesh_query_ray(mesh, p + normal * epsilon, w, FAR)
+            origin = surface_origin(mesh, p, normal, wp.vec3(0.0, 0.0, 0.0), epsilon)
+            q = wp.mesh_query_ray(mesh, origin, w, FAR)
             if not q.result:
                 break
             hn = surfaces.tri_normals[q.face]
             if wp.dot(w, hn) >= 0.0 or wp.length(hn) < 0.5:
                 break  # back face: absorbed, as in the form factors
-            p = p + normal * epsilon + w * q.t
+            p = origin + w * q.t
             normal = hn
             throughput = wp.cw_mul(throughput, surfaces.tri_albedo[q.face])
             total += wp.cw_mul(throughput, direct_irradiance(mesh, lights, p, normal, 1, 1, epsilon, state))
@@ -112,7 +113,7 @@ def point_irradiance_kernel(
     if wp.length(n) < 0.5:
         irradiance[i] = wp.vec3(0.0, 0.0, 0.0)
         return
-    p = positions[i] + n * epsilon
+    p = surface_origin(mesh, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
     state = wp.rand_init(seed, i)
     frame = tangent_frame(n)
     samples = strata * strata
@@ -184,7 +185,7 @@ def point_sky_view_kernel(
     frame = tangent_frame(n)
     state = wp.rand_init(seed, i)
     hits = int(0)
-    origin = positions[i] + n * epsilon
+    origin = surface_origin(mesh, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
     for k in range(strata * strata):
         u = stratified_pair(k, strata, state)
         d = frame * cosine_hemisphere(u[0], u[1])

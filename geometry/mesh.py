@@ -20,6 +20,40 @@ def vertex_normals(points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np
     return normals.astype(np.float32)
 
 
+INWARD_MIN_RELATIVE = 1e-3
+"""A vertex whose ring centroid lies closer than this fraction of the ring's size (in the tangent plane)
+is inside a flat or smooth region: it gets no inward direction."""
+
+
+def vertex_inward(points: np.ndarray, tri_vertices: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(P, 3) float32 unit tangents pointing from each vertex into its own surface: towards the
+    area-weighted mean centroid of the triangles that use it, projected on the tangent plane of its
+    normal. At an unwelded crease (a flat-shaded box: faces share positions, not vertices) it points
+    into the vertex's own face, off the crease line; zero for isolated points and where the ring is
+    balanced around the vertex (INWARD_MIN_RELATIVE)."""
+    points = np.asarray(points, np.float64)
+    corners = points[tri_vertices]
+    centroids = corners.mean(axis=1)
+    areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    size = np.sqrt(areas)
+    weight = np.zeros(len(points))
+    toward = np.zeros((len(points), 3))
+    scale = np.zeros(len(points))
+    for corner in range(3):
+        np.add.at(weight, tri_vertices[:, corner], areas)
+        np.add.at(toward, tri_vertices[:, corner], centroids * areas[:, None])
+        np.maximum.at(scale, tri_vertices[:, corner], size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        offset = np.where(weight[:, None] > 0, toward / weight[:, None] - points, 0.0)
+    n = np.asarray(normals, np.float64)
+    offset -= n * (offset * n).sum(axis=1, keepdims=True)
+    length = np.linalg.norm(offset, axis=1)
+    keep = (length > INWARD_MIN_RELATIVE * scale) & (length > 0)
+    inward = np.zeros_like(offset)
+    inward[keep] = offset[keep] / length[keep, None]
+    return inward.astype(np.float32)
+
+
 def receiver_prims(scene: Scene) -> np.ndarray:
     """Indices of prims that receive baked values: writable, not marked bake:skip, with triangles."""
     has_triangles = np.bincount(scene.tri_prim, minlength=len(scene.prim_paths)) > 0

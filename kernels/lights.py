@@ -42,7 +42,7 @@ import warp as wp
 
 from ..core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Scene
 from .sampling import concentric_disk, cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
-from .tracer import FAR
+from .tracer import FAR, surface_origin
 
 wp.set_module_options({"enable_backward": False})
 
@@ -277,7 +277,7 @@ def direct_irradiance(mesh: wp.uint64, lights: Lights, p: wp.vec3, n: wp.vec3, s
     strata^2 emissive-triangle samples picked by power (weight / pmf). Unbiased; ``state`` must differ
     between calls that should be independent (the samples are drawn from generators seeded by it)."""
     e = wp.vec3(0.0, 0.0, 0.0)
-    origin = p + n * epsilon
+    origin = surface_origin(mesh, p, n, wp.vec3(0.0, 0.0, 0.0), epsilon)
     for l in range(lights.light_kind.shape[0]):
         acc = float(0.0)
         if lights.light_kind[l] == 1:  # dome

@@ -5,11 +5,15 @@ batched closest-hit and any-hit queries. Large CPU launches are split into
 chunks, one Python thread per core: Warp releases the GIL while a CPU kernel
 runs, so the chunks run in parallel.
 
-Ray offsets: origins are pushed off the surface by ``epsilon`` along the
-normal. The Scene stores points relative to its own centre (Scene.origin),
-so coordinates never exceed the scene's own size and one epsilon
-proportional to the scene diagonal is safe at 1e-3 scale and 1e6 units from
-the world origin alike.
+Ray origins (``surface_origin``, the one rule every processor uses): a point
+on a surface is pushed ``epsilon`` along its normal, then ``epsilon`` in front
+of any other face that still passes within ``epsilon`` of it, so a ray never
+meets a face through its own point at t = 0 (the perpendicular face at an
+unwelded crease of a flat-shaded box, the floor a box's vertex rests on). The
+Scene stores points relative to its own centre (Scene.origin), so
+coordinates never exceed the scene's own size and one epsilon proportional
+to the scene diagonal is safe at 1e-3 scale and 1e6 units from the world
+origin alike.
 """
 
 from __future__ import annotations
@@ -88,6 +92,72 @@ class Hits:
     """(N, 2) float32 barycentrics (u, v) of the hit; the point is u*v0 + v*v1 + (1-u-v)*v2."""
     hit_front: np.ndarray
     """(N,) bool: the ray met the front side (winding) of the triangle."""
+
+
+@wp.func
+def through_point(a: wp.vec3, b: wp.vec3, c: wp.vec3, normal: wp.vec3, p: wp.vec3, tolerance: float) -> bool:
+    """Triangle abc (unit normal ``normal``) passes within ``tolerance`` of p: p lies near its plane and
+    inside it or on its boundary (edge tests with the same tolerance)."""
+    if wp.abs(wp.dot(p - a, normal)) > tolerance:
+        return False
+    inside = True
+    for k in range(3):
+        start = wp.where(k == 0, a, wp.where(k == 1, b, c))
+        end = wp.where(k == 0, b, wp.where(k == 1, c, a))
+        edge = end - start
+        length = wp.length(edge)
+        if length > 0.0 and wp.dot(wp.cross(edge, p - start), normal) < -tolerance * length:
+            inside = False
+    return inside
+
+
+@wp.func
+def surface_origin(mesh: wp.uint64, p: wp.vec3, n: wp.vec3, inward: wp.vec3, epsilon: float) -> wp.vec3:
+    """Ray origin for point p on a surface with unit normal n. ``inward`` is a unit tangent pointing into
+    the point's own surface (zero inside a face or a smooth region): at an unwelded crease it takes the
+    origin off the crease line, to the side where its own face lies. The origin is q + epsilon n,
+    q = p + epsilon inward, then moved to at least epsilon in front of every other face through q whose
+    normal is not opposite n (the face a T-junction vertex rests on, a wall the point touches; their
+    winding side, the outside of a solid). A ray from it meets no face through p at t <= 0. Stage units."""
+    q = p + inward * epsilon
+    o = q + n * epsilon
+    reach = wp.vec3(2.0 * epsilon, 2.0 * epsilon, 2.0 * epsilon)
+    for sweep in range(2):  # a second sweep settles faces that are not perpendicular to each other
+        query = wp.mesh_query_aabb(mesh, q - reach, q + reach)
+        face = int(0)
+        while wp.mesh_query_aabb_next(query, face):
+            normal = wp.mesh_eval_face_normal(mesh, face)
+            if wp.dot(normal, n) > -0.5:
+                a = wp.mesh_eval_position(mesh, face, 1.0, 0.0)
+                b = wp.mesh_eval_position(mesh, face, 0.0, 1.0)
+                c = wp.mesh_eval_position(mesh, face, 0.0, 0.0)
+                if through_point(a, b, c, normal, q, 0.5 * epsilon):
+                    height = wp.dot(o - q, normal)
+                    if height < epsilon:
+                        o = o + normal * (epsilon - height)
+    return o
+
+
+@wp.func
+def triangle_origin(mesh: wp.uint64, a: wp.vec3, b: wp.vec3, c: wp.vec3, x: wp.vec3, n: wp.vec3,
+                    epsilon: float) -> wp.vec3:
+    """Ray origin for point x of triangle abc (unit normal n): x + epsilon n when x lies more than 2 epsilon
+    from every edge (another face can pass through it only where geometry interpenetrates), else
+    ``surface_origin`` with the tangent towards the triangle's centroid as ``inward``. Stage units."""
+    near_edge = False
+    for k in range(3):
+        start = wp.where(k == 0, a, wp.where(k == 1, b, c))
+        edge = wp.where(k == 0, b, wp.where(k == 1, c, a)) - start
+        length = wp.length(edge)
+        if length <= 0.0 or wp.length(wp.cross(edge, x - start)) < 2.0 * epsilon * length:
+            near_edge = True
+    if not near_edge:
+        return x + n * epsilon
+    inward = (a + b + c) / 3.0 - x
+    inward = inward - n * wp.dot(inward, n)
+    if wp.length(inward) > 0.0:
+        inward = wp.normalize(inward)
+    return surface_origin(mesh, x, n, inward, epsilon)
 
 
 @wp.kernel

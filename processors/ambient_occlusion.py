@@ -39,9 +39,10 @@ import warp as wp
 from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
 from ..core.products import AmbientOcclusionProduct
 from ..core.scene import Scene
-from ..geometry.mesh import face_means, missing_receivers, receiver_prims, vertex_normals
+from ..geometry.mesh import face_means, missing_receivers, receiver_prims, vertex_inward, vertex_normals
 from ..kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
 from ..kernels.sampling import strata_for, tangent_frame, triangle_point
+from ..kernels.tracer import surface_origin, triangle_origin
 
 wp.set_module_options({"enable_backward": False})
 
@@ -61,17 +62,18 @@ def occlusion_at(rays: AORays, origin: wp.vec3, frame: wp.mat33, state: wp.uint3
 
 @wp.kernel
 def vertex_ao_kernel(start: int, rays: AORays, positions: wp.array(dtype=wp.vec3),
-                     normals: wp.array(dtype=wp.vec3), ao: wp.array(dtype=float)):
+                     normals: wp.array(dtype=wp.vec3), inward: wp.array(dtype=wp.vec3), ao: wp.array(dtype=float)):
     """AO (dimensionless, [0, 1]) at point i around its unit normal by ``occlusion_at`` (Zhukov et al. 1998
-    integral, PBRT 3rd ed. Section 13.6.3 rays), the origin pushed off by ``epsilon`` (stage units); a
-    point without a normal gets 1."""
+    integral, PBRT 3rd ed. Section 13.6.3 rays) from ``surface_origin`` (``inward``: the vertex's unit
+    tangent into its own faces, ``vertex_inward``); a point without a normal gets 1."""
     i = start + wp.tid()
     n = normals[i]
     if wp.length(n) < 0.5:
         ao[i] = 1.0
         return
     state = wp.rand_init(rays.seed, i)
-    ao[i] = occlusion_at(rays, positions[i] + n * rays.epsilon, tangent_frame(n), state)
+    ao[i] = occlusion_at(rays, surface_origin(rays.mesh, positions[i], n, inward[i], rays.epsilon), tangent_frame(n),
+                         state)
 
 
 @wp.kernel
@@ -95,14 +97,14 @@ def face_ao_kernel(start: int, rays: AORays, points: wp.array(dtype=wp.vec3), tr
     visible = int(0)
     for k in range(rays.strata * rays.strata):
         x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))  # drawn before the direction: keep the order
-        if not wp.mesh_query_ray_anyhit(rays.mesh, x + n * rays.epsilon, ao_direction(rays, frame, k, state),
-                                        rays.max_distance):
+        origin = triangle_origin(rays.mesh, a, b, c, x, n, rays.epsilon)
+        if not wp.mesh_query_ray_anyhit(rays.mesh, origin, ao_direction(rays, frame, k, state), rays.max_distance):
             visible += 1
     ao[i] = float(visible) / float(rays.strata * rays.strata)
 
 
 def compute_vertex_ao(tracer, positions: np.ndarray, normals: np.ndarray, *, samples: int,
-                      max_distance: float = math.inf, seed: int = 0) -> np.ndarray:
+                      max_distance: float = math.inf, seed: int = 0, inward: np.ndarray | None = None) -> np.ndarray:
     """AO at points with unit normals (vertex_ao_kernel: Zhukov et al. 1998 integral, estimated with
     cosine-weighted rays, PBRT 3rd ed. Sections 13.2 and 13.6.3).
 
@@ -112,6 +114,7 @@ def compute_vertex_ao(tracer, positions: np.ndarray, normals: np.ndarray, *, sam
     positions, normals : (N, 3) float32, stage units and unit vectors
     samples : rays per point (rounded to a square)
     max_distance : stage units; farther hits do not occlude
+    inward : (N, 3) float32 unit tangents into each point's own surface (``vertex_inward``); None: zero
 
     Returns
     -------
@@ -119,8 +122,9 @@ def compute_vertex_ao(tracer, positions: np.ndarray, normals: np.ndarray, *, sam
     """
     positions, normals = as_points_and_normals(positions, normals)
     rays = ao_rays(tracer.mesh.id, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed)
+    inward = np.zeros_like(positions) if inward is None else np.ascontiguousarray(inward, np.float32).reshape(-1, 3)
     return launch_ao(tracer, vertex_ao_kernel, len(positions), rays,
-                     [tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3)])
+                     [tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3), tracer.array(inward, wp.vec3)])
 
 
 def compute_face_ao(tracer, points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.ndarray, *,
@@ -163,8 +167,9 @@ class AmbientOcclusion(Processor):
         point_ids = np.flatnonzero(point_mask)
         ao_points = np.ones(scene.num_points, np.float32)
         ctx.progress(0.0)
+        inward = vertex_inward(scene.points, scene.tri_vertices, normals)
         ao_points[point_ids] = compute_vertex_ao(
-            ctx.tracer, scene.points[point_ids], normals[point_ids],
+            ctx.tracer, scene.points[point_ids], normals[point_ids], inward=inward[point_ids],
             samples=p.samples, max_distance=p.max_distance, seed=p.seed)
         ctx.progress(0.5 if p.per_face else 1.0)
 

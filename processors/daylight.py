@@ -69,7 +69,7 @@ from ..kernels.sky import (
     sun_normal_irradiance,
 )
 from ..kernels.solar import parse_times, sun_position
-from ..kernels.tracer import FAR
+from ..kernels.tracer import FAR, triangle_origin
 
 wp.set_module_options({"enable_backward": False})
 
@@ -114,7 +114,7 @@ def sun_visibility_kernel(
         d = frame * wp.vec3(sin_t * wp.cos(phi), sin_t * wp.sin(phi), cos_t)
         x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))
         if wp.dot(n, d) > 0.0:
-            if not wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, d, FAR):
+            if not wp.mesh_query_ray_anyhit(mesh, triangle_origin(mesh, a, b, c, x, n, epsilon), d, FAR):
                 hits += 1
     visible[i] = float(hits) / float(samples)
 

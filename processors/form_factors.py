@@ -88,7 +88,7 @@ from ..geometry.patches import MAX_PATCHES, build_patches, choose_voxel_size
 from ..kernels.operator_codec import compress_operator
 from ..kernels.patches import fragment_of_hit
 from ..kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
-from ..kernels.tracer import FAR, launch_chunked
+from ..kernels.tracer import FAR, launch_chunked, triangle_origin
 
 wp.set_module_options({"enable_backward": False})
 
@@ -166,12 +166,14 @@ def form_factor_kernel(
     fragment = patch_fragments[slot]
     t = fragment_tri[fragment]
     n = tri_normals[t]
-    x = triangle_point(fragment_vertices[3 * fragment], fragment_vertices[3 * fragment + 1],
-                       fragment_vertices[3 * fragment + 2], wp.randf(state), wp.randf(state))
+    fa = fragment_vertices[3 * fragment]
+    fb = fragment_vertices[3 * fragment + 1]
+    fc = fragment_vertices[3 * fragment + 2]
+    x = triangle_point(fa, fb, fc, wp.randf(state), wp.randf(state))
     uv = stratified_pair((k * stride) % rays, strata, state)
     direction = tangent_frame(n) * cosine_hemisphere(uv[0], uv[1])
     hit_patch[item - base] = -1
-    q = wp.mesh_query_ray(mesh, x + n * epsilon, direction, FAR)
+    q = wp.mesh_query_ray(mesh, triangle_origin(mesh, fa, fb, fc, x, n, epsilon), direction, FAR)
     if q.result:
         if wp.dot(direction, tri_normals[q.face]) < 0.0:
             hit_patch[item - base] = fragment_patch[fragment_of_hit(q.face, q.u, q.v, tri_subdivision, tri_fragment_start)]

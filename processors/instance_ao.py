@@ -74,12 +74,12 @@ import warp as wp
 from ..core import Context, Params, Primvar, Processor, Result, param
 from ..core.products import DisplacementFieldSet, InstanceOcclusionProduct
 from ..core.scene import Scene
-from ..geometry.mesh import face_means, missing_receivers, receiver_prims, vertex_normals
+from ..geometry.mesh import face_means, missing_receivers, receiver_prims, vertex_inward, vertex_normals
 from ..geometry.transforms import invertible
 from ..kernels.displacement_field import INTERPOLATION_MODES, FieldArrays, FieldSet, field_visibility
 from ..kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
 from ..kernels.sampling import strata_for, tangent_frame
-from ..kernels.tracer import FAR, Tracer
+from ..kernels.tracer import FAR, Tracer, surface_origin
 
 wp.set_module_options({"enable_backward": False})
 
@@ -113,6 +113,7 @@ def instance_ao_kernel(
     fields: FieldArrays,
     positions: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
+    inward: wp.array(dtype=wp.vec3),
     own: wp.array(dtype=int),
     interpolate: int,
     ao: wp.array(dtype=float),
@@ -134,7 +135,7 @@ def instance_ao_kernel(
         return
     state = wp.rand_init(rays.seed, i)
     frame = tangent_frame(n)
-    origin = positions[i] + n * rays.epsilon
+    origin = surface_origin(rays.mesh, positions[i], n, inward[i], rays.epsilon)
     visible = float(0.0)
     for k in range(rays.strata * rays.strata):
         direction = ao_direction(rays, frame, k, state)
@@ -238,7 +239,8 @@ class InstanceSpheres:
 
 def compute_instance_ao(tracer: Tracer, spheres: InstanceSpheres, positions: np.ndarray, normals: np.ndarray, *,
                         samples: int, epsilon: float, max_distance: float = math.inf, seed: int = 0,
-                        interpolation: str = "nearest", own: np.ndarray | None = None) -> np.ndarray:
+                        interpolation: str = "nearest", own: np.ndarray | None = None,
+                        inward: np.ndarray | None = None) -> np.ndarray:
     """AO at points with unit normals by Algorithm 2 of Gaitatzes et al. 2008 (``instance_ao_kernel``; the
     AO integral of their Section 1): geometry without a field through ``tracer``, instances through
     their fields (Section 3.2).
@@ -253,6 +255,7 @@ def compute_instance_ao(tracer: Tracer, spheres: InstanceSpheres, positions: np.
     own : (N,) int32, optional
         Instance each point belongs to (-1: a receiver); such points trace their own prototype for
         self-occlusion and skip their own field.
+    inward : (N, 3) float32 unit tangents into each point's own surface (``vertex_inward``); None: zero
 
     Returns
     -------
@@ -262,10 +265,11 @@ def compute_instance_ao(tracer: Tracer, spheres: InstanceSpheres, positions: np.
     own = np.full(len(positions), -1, np.int32) if own is None else np.ascontiguousarray(own, np.int32)
     if own.shape != (len(positions),):
         raise ValueError(f"own {own.shape} does not match {len(positions)} positions")
+    inward = np.zeros_like(positions) if inward is None else np.ascontiguousarray(inward, np.float32).reshape(-1, 3)
     rays = ao_rays(tracer.mesh.id, samples=samples, max_distance=max_distance, epsilon=epsilon, seed=seed)
     return launch_ao(tracer, instance_ao_kernel, len(positions), rays, [
         spheres.arrays, spheres.fieldset.arrays, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3),
-        tracer.array(own, wp.int32), INTERPOLATION_MODES[interpolation],
+        tracer.array(inward, wp.vec3), tracer.array(own, wp.int32), INTERPOLATION_MODES[interpolation],
     ])
 
 
@@ -425,6 +429,7 @@ class InstanceAO(Processor):
         fieldset = FieldSet(fields, tracer.device)
         receivers = receiver_prims(scene)
         normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
+        inward = vertex_inward(scene.points, scene.tri_vertices, normals)
         point_ids = np.flatnonzero(np.isin(scene.point_prim, receivers))
         result = Result(products={})
         moving = int((instance_field < 0).sum())
@@ -449,7 +454,8 @@ class InstanceAO(Processor):
             ao_points = np.ones(scene.num_points, np.float32)
             ao_points[point_ids] = compute_instance_ao(
                 tracer, spheres, scene.points[point_ids], normals[point_ids], samples=p.samples,
-                epsilon=tracer.epsilon, max_distance=p.max_distance, seed=p.seed, interpolation=p.interpolation)
+                epsilon=tracer.epsilon, max_distance=p.max_distance, seed=p.seed, interpolation=p.interpolation,
+                inward=inward[point_ids])
             by_frame[frame] = ao_points
             for prim in receivers:
                 result.outputs.append(Primvar(scene.prim_paths[prim], "bake:ao", ao_points[scene.prim_points(prim)],

@@ -58,7 +58,7 @@ from ..kernels.lights import Lights, direct_irradiance, has_light, light_bundle,
 from ..kernels.operator_relight import relight
 from ..kernels.patches import fragment_of_hit
 from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
-from ..kernels.tracer import FAR
+from ..kernels.tracer import FAR, surface_origin
 
 wp.set_module_options({"enable_backward": False})
 
@@ -142,7 +142,7 @@ def gather_kernel(
         return
     state = wp.rand_init(seed, i)
     frame = tangent_frame(n)
-    origin = positions[i] + n * epsilon
+    origin = surface_origin(mesh, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
     rays = strata * strata
     for k in range(rays):
         u = stratified_pair(k, strata, state)
@@ -181,7 +181,7 @@ def gather_direct_kernel(
         return
     state = wp.rand_init(seed, i)
     frame = tangent_frame(n)
-    origin = positions[i] + n * epsilon
+    origin = surface_origin(mesh, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
     rays = strata * strata
     inv = 1.0 / float(strata)
     for k in range(rays):

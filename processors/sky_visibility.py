@@ -65,7 +65,7 @@ from ..geometry.mesh import missing_receivers, receiver_prims
 from ..geometry.refine import refine, weld_points
 from ..kernels.sampling import strata_for, stratified_pair, triangle_point
 from ..kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
-from ..kernels.tracer import FAR
+from ..kernels.tracer import FAR, triangle_origin
 
 wp.set_module_options({"enable_backward": False})
 
@@ -132,7 +132,7 @@ def patch_visibility_kernel(
         u2 = wp.randf(state)
         if cos_theta > 0.0:
             x = triangle_point(a, b, c, u1, u2)
-            if wp.mesh_query_ray_anyhit(mesh, x + n * epsilon, d, FAR):
+            if wp.mesh_query_ray_anyhit(mesh, triangle_origin(mesh, a, b, c, x, n, epsilon), d, FAR):
                 occ += cos_theta
             else:
                 vis += cos_theta
