@@ -6,20 +6,26 @@
     usdbake list [--json]              processors and their params
     usdbake inspect OUT [--json]       the baked data a layer holds
 
-Exit codes: 0 success, 1 a processor failed, 2 bad input (one line, no traceback).
+Exit codes: 0 success, 1 a processor failed, 2 bad input (one line, no traceback),
+130 interrupted (Ctrl-C; nothing half-written). Every input is checked before any compute.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
+import signal
 import sys
+import threading
 import time
 import tomllib
+from contextlib import contextmanager
 from pathlib import Path
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -29,7 +35,7 @@ from ..core.params import TABLE_COLUMNS
 from ..core.pipeline import DEFAULT_PROCESSORS, Pipeline, ProcessorFailed
 from ..stages.bake_layer import open_source
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 class _Parser(argparse.ArgumentParser):
@@ -54,6 +60,8 @@ def make_parser() -> argparse.ArgumentParser:
         sub.add_argument("--force", action="store_true", help="re-run even when results are up to date")
         sub.add_argument("--time", type=float, default=None, help="time code to read (default: default time)")
         sub.add_argument("--json", action="store_true", help="machine-readable output on stdout")
+        sub.add_argument("--allow-missing", action="store_true",
+                         help="bake without missing sublayers, references and payloads (a warning each)")
 
     bake = commands.add_parser("bake", help="bake lighting into a new layer over the input")
     stage_options(bake)
@@ -106,15 +114,55 @@ def main(argv: list[str] | None = None) -> int:
     if hasattr(wp, "LOG_WARNING"):
         wp.config.log_level = wp.LOG_WARNING
     console = Console(stderr=True, soft_wrap=True)
+    args = None
     try:
         args = make_parser().parse_args(argv)
-        return COMMANDS[args.command](args, console)
+        with _interrupts(console, args.command):
+            return COMMANDS[args.command](args, console)
+    except KeyboardInterrupt:  # save_atomically removed its temporary files on the way out
+        console.print(f"[red]{_interrupted_line(getattr(args, 'command', ''))}[/red]", highlight=False)
+        return EXIT_INTERRUPTED
     except UsageError as error:
-        console.print(f"[red]usdbake: error:[/red] {error}", highlight=False)
+        console.print(f"[red]usdbake: error:[/red] {escape(str(error))}", highlight=False)
         return EXIT_USAGE
     except ProcessorFailed as error:
-        console.print(f"[red]usdbake: {error}[/red]; no output was written", highlight=False)
+        console.print(f"[red]usdbake: {escape(str(error))}[/red]; no output was written", highlight=False)
         return EXIT_FAILED
+
+
+def _interrupted_line(command: str) -> str:
+    return "usdbake: interrupted" + ("; no output was written" if command == "bake" else "")
+
+
+@contextmanager
+def _interrupts(console: Console, command: str):
+    """Ctrl-C once: KeyboardInterrupt, which stops the command once the kernel launches under way
+    return (a CPU launch cannot be stopped midway) and removes the bake's temporary files. Ctrl-C
+    again: exit 130 at once; outputs are only ever renamed into place whole, and the temporary
+    files a hard exit leaves are removed by the next bake into the same output. Left alone when
+    SIGINT is ignored (a background job) or off the main thread (a host application's thread)."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        yield
+        return
+    pressed = 0
+
+    def on_sigint(signum, frame):
+        nonlocal pressed
+        pressed += 1
+        if pressed == 1:
+            console.print("usdbake: interrupting once the work under way returns (Ctrl-C again to stop now)",
+                          highlight=False)
+            raise KeyboardInterrupt
+        console.print(f"[red]{_interrupted_line(command)}[/red]", highlight=False)
+        sys.stderr.flush()
+        os._exit(EXIT_INTERRUPTED)
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _default_cache() -> str:
@@ -136,11 +184,17 @@ def resolve_options(args, default=DEFAULT_PROCESSORS) -> tuple[list[str], dict[s
             raise UsageError(f"{args.config}: {error.strerror}") from None
         except tomllib.TOMLDecodeError as error:
             raise UsageError(f"{args.config}: not valid TOML ({error})") from None
-        processors += list(config.pop("processors", []))
+        listed = config.pop("processors", [])
+        if not isinstance(listed, list) or not all(isinstance(name, str) for name in listed):
+            raise UsageError(f"{args.config}: processors must be a list of names, e.g. "
+                             f"processors = [\"ambient_occlusion\"] (got {listed!r})")
+        processors += listed
         for name, values in config.items():
             if not isinstance(values, dict):
                 raise UsageError(f"{args.config}: [{name}] must be a table of parameters")
+            _check_config_types(args.config, name, values)
             params.setdefault(name, {}).update(values)
+        args.config_tables = sorted(config)
     for item in args.set:
         key, sep, value = item.partition("=")
         name, dot, param_name = key.partition(".")
@@ -151,39 +205,102 @@ def resolve_options(args, default=DEFAULT_PROCESSORS) -> tuple[list[str], dict[s
     return processors or list(default), params
 
 
+def _check_config_types(config: str, name: str, values: dict) -> None:
+    """TOML values must have their parameter's type; core.params checks bool, int and float, and a
+    text parameter given a number or a list is refused here (it would fail inside the processor)."""
+    fields = {f.name: f for f in dataclasses.fields(registry.get(name).Params)}
+    for key, value in values.items():
+        field = fields.get(key)
+        if field is not None and isinstance(field.default, str) and not isinstance(value, str):
+            raise UsageError(f"{config}: [{name}] {key}={value!r} is not a valid str (write it in quotes)")
+
+
+def check_run_options(args, pipeline: Pipeline, console: Console) -> None:
+    """Refuse, before any compute, options that could only fail or be ignored later: --set for a
+    processor that is not part of the run, a Warp device that does not exist, a cache folder that
+    cannot be written. Config tables for processors not run are a warning (a shared config file
+    may hold settings for every processor)."""
+    running = [step.name for step in pipeline.steps]
+    for item in args.set:
+        name = item.partition("=")[0].partition(".")[0].strip()
+        if name not in running:
+            raise UsageError(f"--set {item}: {name} is not part of this run ({', '.join(running)}); "
+                             f"add -p {name}")
+    for name in getattr(args, "config_tables", []):
+        if name not in running:
+            message = f"{args.config}: [{name}] is ignored: {name} is not part of this run ({', '.join(running)})"
+            console.print(f"[yellow]warning:[/yellow] {escape(message)}", highlight=False)
+    check_device(args.device)
+    if args.cache:
+        from ..stages.bake_layer import check_writable_folder
+
+        if Path(args.cache).exists() and not Path(args.cache).is_dir():
+            raise UsageError(f"--cache {args.cache}: is a file, not a folder")
+        check_writable_folder(Path(args.cache), what=f"--cache {args.cache}")
+
+
+def check_device(device: str) -> None:
+    """'cpu', or a CUDA device Warp can see ('cuda', 'cuda:N'); Warp is asked only for a CUDA one."""
+    import re
+
+    if device == "cpu":
+        return
+    if not re.fullmatch(r"cuda(:\d+)?", device):
+        raise UsageError(f"--device {device}: expected cpu or cuda:N")
+    import warp as wp
+
+    try:
+        wp.get_device(device)
+    except (ValueError, RuntimeError):
+        available = ", ".join(str(d.alias) for d in wp.get_devices())
+        raise UsageError(f"--device {device}: no such Warp device here (available: {available})") from None
+
+
 # ---------------------------------------------------------------------------
 # Commands
 
 
 def cmd_plan(args, console: Console) -> int:
+    from ..stages.composition import quiet_composition_warnings
     from ..stages.extract import extract_scene
 
     names, params = resolve_options(args, default=sorted(registry.registry()))  # plan: every processor
     pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force)
-    _, stage = open_source(args.input)
-    steps = pipeline.plan(extract_scene(stage, time=args.time))
+    check_run_options(args, pipeline, console)
+    with quiet_composition_warnings():  # extract_scene reports each missing asset in one line
+        _, stage = open_source(args.input)
+    scene = extract_scene(stage, time=args.time, allow_missing=args.allow_missing)
+    for warning in scene.warnings:
+        console.print(f"[yellow]warning:[/yellow] {escape(warning)}", highlight=False)
+    steps = pipeline.plan(scene)
     if args.json:
         print(json.dumps([step.report() for step in steps], indent=2, default=str))
     else:
         console.print(_summary_table(steps, planned=True))
+        if all(step.action == "skip" for step in steps):
+            console.print("nothing to bake: every processor would be skipped; bake would write no output",
+                          highlight=False)
     return EXIT_OK
 
 
 def cmd_bake(args, console: Console) -> int:
-    from ..stages.bake_layer import save_atomically
+    from ..stages.bake_layer import check_output, empty_bake_message, save_atomically
+    from ..stages.composition import check_composition, quiet_composition_warnings
     from ..stages.extract import extract_scene
 
     names, params = resolve_options(args)
     pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force)
-    source, stage = open_source(args.input)
+    check_run_options(args, pipeline, console)
+    with quiet_composition_warnings():  # extract_scene reports each missing asset in one line
+        source, stage = open_source(args.input)
+    check_composition(stage, allow_missing=args.allow_missing)  # a missing asset fails before any progress bar
     output = args.output or _default_output(args.input, source)
-    if Path(output).resolve() == Path(source).resolve():
-        raise UsageError(f"{output}: refusing to overwrite the input layer; choose another -o")
+    check_output(output, source, stage.GetUsedLayers())  # extension, folder, writable, not an input layer
     started = time.perf_counter()
     with Progress(TextColumn("{task.description:<22}"), BarColumn(), TextColumn("{task.percentage:>5.1f}%"),
                   TimeElapsedColumn(), console=console, transient=False, disable=args.json) as progress:
         reading = progress.add_task("reading stage", total=1.0)
-        scene = extract_scene(stage, time=args.time)
+        scene = extract_scene(stage, time=args.time, allow_missing=args.allow_missing)
         progress.update(reading, completed=1.0)
         tasks: dict = {}
 
@@ -193,13 +310,16 @@ def cmd_bake(args, console: Console) -> int:
             progress.update(tasks[name], completed=fraction)
 
         pipeline.run(scene, on_progress=on_progress)
+        outputs = pipeline.outputs()
+        if not outputs:  # every processor skipped: an empty layer would only hide that
+            raise UsageError(empty_bake_message(pipeline.steps))
         writing = progress.add_task("writing layer", total=1.0)
-        save_atomically(output, source, pipeline.outputs(),
+        save_atomically(output, source, outputs,
                         pipeline.provenance({"source": os.path.relpath(source, Path(output).resolve().parent)}))
         progress.update(writing, completed=1.0)
     total = time.perf_counter() - started
     for warning in scene.warnings:
-        console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
+        console.print(f"[yellow]warning:[/yellow] {escape(warning)}", highlight=False)
     if args.json:
         print(json.dumps({"output": output, "seconds": round(total, 3),
                           "steps": [step.report() for step in pipeline.steps]}, indent=2, default=str))
@@ -270,6 +390,8 @@ def cmd_inspect(args, console: Console) -> int:
         return EXIT_OK
     console.print(f"{args.output}: baked by usdbake {report['provenance'].get('version', '?')} "
                   f"from {report['provenance'].get('source', '?')}", highlight=False)
+    for sidecar in report["provenance"].get("sidecars", []):
+        console.print(f"sidecar file: {sidecar}", highlight=False)
     table = Table()
     table.add_column("property", overflow="fold", ratio=1)  # long prim paths wrap instead of being cut
     for column in ("type", "interpolation", "elementSize", "values", "time samples"):

@@ -2,9 +2,18 @@
 
 The bake layer sublayers the untouched input (relative path) and holds only
 bake opinions, all under the ``bake:`` namespace. Every edit is prepared
-first (values converted, textures written) and then authored with the Sdf
-API inside one ``Sdf.ChangeBlock``. Saves are atomic: write a temporary file
-in the destination folder, then rename it over the destination.
+first (values converted, sidecar files written under temporary names) and
+then authored with the Sdf API inside one ``Sdf.ChangeBlock``. Saves are
+atomic: the layer and its sidecars are written to temporary names in the
+destination folder, then renamed, sidecars first and the layer last, so a
+layer on disk never names a file that is not there.
+
+Sidecar files (textures, .dds, .npz, stream files) are named
+``<layer stem>_<record name>_<content hash>.<ext>``: no output can overwrite
+another's, and a re-bake removes the files its previous version named and
+the new one does not. Temporary files are named
+``.<output name>.usdbake-tmp-<pid>-<token>...`` and removed on failure; a
+later bake into the same output removes those a killed process left.
 
 A bake layer holds exactly the results of the last bake into it: re-baking
 replaces its content, it never nests or duplicates.
@@ -12,17 +21,27 @@ replaces its content, it never nests or duplicates.
 
 from __future__ import annotations
 
+import hashlib
 import os
+import re
+import secrets
 import tempfile
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Tf, Usd
+from pxr import Sdf, Tf, Usd, Vt
 
 from ..core.errors import UsageError
 from ..core.records import Attribute, File, Prim, Primvar, Texture
 
 PROVENANCE_KEY = "usdbake"
+
+LAYER_SUFFIXES = (".usd", ".usda", ".usdc")
+"""Output layer types usdbake writes (.usdz is refused: a package would have to hold its sidecars)."""
+
+TEMP_TAG = ".usdbake-tmp-"
+"""Marks usdbake's temporary files: ``.<output name>.usdbake-tmp-<pid>-<token>...``."""
 
 
 def is_bake_layer(layer: Sdf.Layer) -> bool:
@@ -42,32 +61,283 @@ def bake_source(path: str) -> str:
     return layer.realPath or layer.identifier
 
 
-def author(layer: Sdf.Layer, outputs: list, provenance: dict, *, texture_dir: str | None = None) -> None:
+def author(layer: Sdf.Layer, outputs: list, provenance: dict, *, texture_dir: str | None = None,
+           sidecar_prefix: str | None = None, owner: str | None = None, commit: bool = True) -> "StagedFiles":
     """Author output records into ``layer`` (replacing what an earlier bake put there).
 
-    Textures are written to ``texture_dir`` (default: the layer's folder) before any USD edit.
+    Texture and File records become sidecar files in ``texture_dir`` (default: the layer's folder),
+    named ``<sidecar_prefix>_<record name>_<hash8>.<ext>`` (prefix default: the layer's file stem),
+    and asset attributes naming a record are rewritten to the file's path relative to the layer
+    (absolute for an anonymous layer). The files are written under temporary names before any USD
+    edit. With ``commit`` (an in-memory layer: its edits are live at once) they are renamed into
+    place before the layer names them, and the sidecars the layer named before and no longer does
+    are removed after; without, the caller commits the returned StagedFiles once the layer is saved
+    (see save_atomically). The sidecars are listed in the provenance under ``sidecars``.
     """
     check_topology(outputs)
+    directory = Path(texture_dir or Path(layer.realPath or ".").parent).resolve()
+    anchor = Path(layer.realPath).resolve().parent if layer.realPath else None
+    prefix = sidecar_prefix or (Path(layer.realPath).stem if layer.realPath else "usdbake")
+    outputs, sidecars = assign_sidecars(outputs, prefix, directory, anchor)
+    prepared = _prepare(outputs)  # convert every value first: a bad record fails before any edit
+    previous = referenced_sidecars(layer) if is_bake_layer(layer) else set()
+    staged = StagedFiles(owner or prefix)
+    try:
+        for sidecar in sidecars:
+            staged.write(sidecar)
+        if commit:
+            staged.commit()
+        # string[] (Vt.StringArray): a Python list would be a VtValue vector, which usdc cannot store
+        provenance = {**provenance, "sidecars": Vt.StringArray([sidecar.asset_path for sidecar in sidecars])}
+        with Sdf.ChangeBlock():
+            if is_bake_layer(layer):
+                _clear_opinions(layer)
+            for record in outputs:
+                if isinstance(record, Prim):
+                    _author_prim(layer, record)
+            for record, value in prepared:
+                if isinstance(record, Primvar):
+                    _author_primvar(layer, record, value)
+                else:
+                    _author_attribute(layer, record, value)
+            _cover_time_samples(layer, outputs)
+            data = dict(layer.customLayerData)
+            data[PROVENANCE_KEY] = _sanitize(provenance)
+            layer.customLayerData = data
+        if commit:
+            remove_sidecars(previous - staged.finals, base=directory)
+    except BaseException:  # KeyboardInterrupt too: no temporary file outlives a failed bake
+        staged.discard()
+        if commit:
+            staged.take_back()
+        raise
+    return staged
+
+
+def _prepare(outputs: list) -> list[tuple]:
+    """(record, Vt/Gf value or None) for every Primvar and Attribute, converted before authoring."""
+    prepared = []
     for record in outputs:
-        if isinstance(record, Texture):
-            write_texture(record, texture_dir or str(Path(layer.realPath or ".").parent))
-        elif isinstance(record, File):
-            write_file(record, texture_dir or str(Path(layer.realPath or ".").parent))
-    with Sdf.ChangeBlock():
-        if is_bake_layer(layer):
-            _clear_opinions(layer)
-        for record in outputs:
-            if isinstance(record, Prim):
-                _author_prim(layer, record)
-        for record in outputs:
-            if isinstance(record, Primvar):
-                _author_primvar(layer, record)
-            elif isinstance(record, Attribute):
-                _author_attribute(layer, record)
-        _cover_time_samples(layer, outputs)
-        data = dict(layer.customLayerData)
-        data[PROVENANCE_KEY] = _sanitize(provenance)
-        layer.customLayerData = data
+        if isinstance(record, Primvar):
+            prepared.append((record, to_vt(record.values, record.type_name + "[]")))
+        elif isinstance(record, Attribute):
+            value = to_vt(record.value, record.type_name) if record.value is not None else None
+            prepared.append((record, value))
+    return prepared
+
+
+# ---------------------------------------------------------------------------
+# Sidecar files: named by output and content, staged under temporary names
+
+
+@dataclass(frozen=True)
+class Sidecar:
+    """A Texture or File record with the file it becomes."""
+
+    record: Texture | File
+    path: Path
+    """Absolute final path."""
+    asset_path: str
+    """What the layer's asset attributes hold: './name' relative to the layer, or absolute."""
+
+
+def sidecar_name(record: Texture | File, prefix: str) -> str:
+    """``<prefix>_<record path made file-safe, without extension>_<hash8><ext>``.
+
+    The hash is of the content (for a texture: dtype, shape and bytes), so two outputs, or two
+    parameter sets, never share a name unless they share the bytes.
+    """
+    digest = hashlib.sha256()
+    if isinstance(record, Texture):
+        pixels = np.ascontiguousarray(record.pixels)
+        digest.update(f"{pixels.dtype.str}{pixels.shape}".encode())
+        digest.update(pixels.tobytes())
+    else:
+        digest.update(record.data)
+    relative = Path(_asset_key(record.path))
+    stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", relative.with_suffix("").as_posix()).strip("_") or "data"
+    return f"{prefix}_{stem}_{digest.hexdigest()[:8]}{relative.suffix}"
+
+
+def assign_sidecars(outputs: list, prefix: str, directory: Path, anchor: Path | None) -> tuple[list, list[Sidecar]]:
+    """Name every Texture/File record's file and point the asset attributes that name it there.
+
+    ``anchor`` is the layer's folder (asset paths relative to it), None for an anonymous layer
+    (absolute paths: an anonymous layer anchors nothing).
+    """
+    sidecars: dict[str, Sidecar] = {}
+    renamed: dict[str, str] = {}
+    for record in outputs:
+        if not isinstance(record, (Texture, File)):
+            continue
+        path = directory / sidecar_name(record, prefix)
+        if anchor is None:
+            asset = path.as_posix()
+        else:
+            relative = Path(os.path.relpath(path, anchor)).as_posix()
+            asset = relative if relative.startswith("../") else f"./{relative}"
+        sidecars.setdefault(path.name, Sidecar(record, path, asset))
+        renamed[_asset_key(record.path)] = asset
+    if not renamed:
+        return list(outputs), []
+    rewritten = []
+    for record in outputs:
+        if isinstance(record, (Texture, File)):
+            continue
+        if isinstance(record, Attribute) and record.type_name == "asset" and record.value is not None:
+            target = renamed.get(_asset_key(str(record.value)))
+            if target is not None:
+                record = replace(record, value=target)
+        rewritten.append(record)
+    return rewritten, list(sidecars.values())
+
+
+def _asset_key(path: str) -> str:
+    """A record path or asset value as a comparable relative path ('./a/b.png' and 'a/b.png' match)."""
+    return os.path.normpath(path.replace("\\", "/"))
+
+
+class StagedFiles:
+    """Sidecars written under temporary names beside their final ones; commit() renames them into
+    place, discard() removes whatever was not committed."""
+
+    def __init__(self, owner: str):
+        self.owner = owner
+        """The output's file name the temporary names start with."""
+        self.pending: list[tuple[Path, Path]] = []
+        self.finals: set[Path] = set()
+        """Final paths committed."""
+        self.created: set[Path] = set()
+        """Final paths that did not exist before commit (what to take back if the layer never lands)."""
+
+    def write(self, sidecar: Sidecar) -> None:
+        sidecar.path.parent.mkdir(parents=True, exist_ok=True)
+        temp = temp_path(sidecar.path.parent, self.owner, sidecar.path.name)
+        self.pending.append((temp, sidecar.path))
+        if isinstance(sidecar.record, Texture):
+            _write_image(sidecar.record.pixels, temp)
+        else:
+            temp.write_bytes(sidecar.record.data)
+
+    def commit(self) -> None:
+        while self.pending:
+            temp, final = self.pending[0]
+            if not final.exists():
+                self.created.add(final)
+            os.replace(temp, final)
+            self.pending.pop(0)
+            self.finals.add(final)
+
+    def discard(self) -> None:
+        for temp, _ in self.pending:
+            temp.unlink(missing_ok=True)
+        self.pending.clear()
+
+    def take_back(self) -> None:
+        """Remove the committed files that were new: their layer never came to name them."""
+        for path in self.created:
+            path.unlink(missing_ok=True)
+        self.created.clear()
+
+
+def temp_path(folder: Path, owner: str, tail: str) -> Path:
+    """A recognisable temporary name in ``folder``: ``.<owner>.usdbake-tmp-<pid>-<token>-<tail>``.
+
+    ``tail`` keeps the final extension, which Sdf and OpenImageIO pick the file format by.
+    """
+    return Path(folder) / f".{owner}{TEMP_TAG}{os.getpid()}-{secrets.token_hex(4)}-{tail}"
+
+
+def remove_stale_temps(out: Path) -> list[Path]:
+    """Remove temporary files an earlier, killed bake into ``out`` left beside it (returns them).
+
+    Only files whose writing process is gone: a bake into the same output running right now in
+    another process keeps its files.
+    """
+    removed = []
+    pattern = re.compile(rf"^\.{re.escape(out.name)}{re.escape(TEMP_TAG)}(\d+)-")
+    for path in out.parent.glob(f".{out.name}{TEMP_TAG}*"):
+        match = pattern.match(path.name)
+        if match and path.is_file() and not _process_alive(int(match.group(1))):
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    return removed
+
+
+def _process_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True  # another bake of this process (a thread) may be writing them
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except OSError:
+        return False
+    return True
+
+
+def referenced_sidecars(layer: Sdf.Layer, folder: Path | None = None) -> set[Path]:
+    """The sidecar files a bake layer names, as absolute paths: its provenance's ``sidecars``, or
+    (an output written before that list existed) every asset-valued attribute. Relative names are
+    anchored at ``folder`` (default: the layer's own folder; none for an anonymous layer)."""
+    if folder is None and layer.realPath:
+        folder = Path(layer.realPath).resolve().parent
+    names = dict(dict(layer.customLayerData).get(PROVENANCE_KEY, {})).get("sidecars")
+    if names is None:
+        names = []
+
+        def visit(path: Sdf.Path) -> None:
+            spec = layer.GetAttributeAtPath(path) if path.IsPropertyPath() else None
+            if spec is not None and spec.typeName == Sdf.ValueTypeNames.Asset and spec.default:
+                names.append(spec.default.path)
+
+        layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    found = set()
+    for name in names:
+        path = Path(str(name))
+        if not path.is_absolute():
+            if folder is None:
+                continue
+            path = folder / path
+        found.add(Path(os.path.normpath(path)))
+    return found
+
+
+def _referenced_by_file(path: Path) -> set[Path]:
+    """Sidecars the bake layer at ``path`` names (nothing when it is missing or not a bake layer)."""
+    if not path.is_file():
+        return set()
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(path), metadataOnly=True)
+        if layer is None or not is_bake_layer(layer):
+            return set()
+        if "sidecars" not in dict(dict(layer.customLayerData)[PROVENANCE_KEY]):
+            layer = Sdf.Layer.OpenAsAnonymous(str(path))  # an older output: read its asset attributes
+        return referenced_sidecars(layer, folder=path.resolve().parent)
+    except Tf.ErrorException:
+        return set()
+
+
+def remove_sidecars(paths, *, base: Path) -> None:
+    """Delete sidecar files no bake layer names any more (never a layer file); a subfolder of
+    ``base`` they leave empty (an older output's texture folder) goes too."""
+    for path in paths:
+        path = Path(path)
+        if path.suffix.lower() in (*LAYER_SUFFIXES, ".usdz") or not path.is_file():
+            continue
+        path.unlink(missing_ok=True)
+        if path.parent != base and base in path.parent.parents:
+            try:
+                path.parent.rmdir()  # only if empty
+            except OSError:
+                pass
+
+
+def _siblings(out: Path) -> list[Path]:
+    """Other layers whose sidecars share ``out``'s prefix: the same stem with another extension."""
+    return [out.with_suffix(suffix) for suffix in LAYER_SUFFIXES if out.with_suffix(suffix) != out]
 
 
 def _cover_time_samples(layer: Sdf.Layer, outputs: list) -> None:
@@ -132,35 +402,121 @@ def new_output_layer(temp_path: str, source_path: str, out_path: str) -> Sdf.Lay
 
 
 def save_atomically(out_path: str, source_path: str, outputs: list, provenance: dict) -> None:
-    """Write a new bake layer to ``out_path`` via a temporary file and a rename."""
+    """Write a new bake layer and its sidecars to ``out_path``'s folder via temporary names and renames.
+
+    Sidecars are renamed into place first and the layer last; then the sidecars the replaced
+    output named and the new one does not are removed. On any failure, KeyboardInterrupt included,
+    the temporary files are removed and an earlier output stays as it was.
+    """
     out = Path(out_path).resolve()
     if out == Path(source_path).resolve():
         raise UsageError(f"{out_path}: refusing to overwrite the input layer; choose another -o")
     out.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=out.suffix, dir=out.parent)
-    os.close(handle)
-    os.unlink(temp)  # Sdf.Layer.CreateNew refuses an existing file
+    remove_stale_temps(out)
+    temp = temp_path(out.parent, out.name, out.name)  # ends in the output's suffix: Sdf needs it
+    staged, replaced = None, False
     try:
-        layer = new_output_layer(temp, source_path, str(out))
-        author(layer, outputs, provenance, texture_dir=str(out.parent))
+        layer = new_output_layer(str(temp), source_path, str(out))
+        staged = author(layer, outputs, provenance, texture_dir=str(out.parent), sidecar_prefix=out.stem,
+                        owner=out.name, commit=False)
         if not layer.Save():
             raise UsageError(f"{out_path}: could not be written")
+        previous = _referenced_by_file(out)
+        if staged is not None:
+            staged.commit()
         os.replace(temp, out)
+        replaced = True
         reloaded = Sdf.Layer.Find(str(out))
         if reloaded is not None:  # a stale copy from an earlier bake in this process
             reloaded.Reload(force=True)
+        kept = set().union(*(_referenced_by_file(sibling) for sibling in _siblings(out)))
+        remove_sidecars(previous - (staged.finals if staged is not None else set()) - kept, base=out.parent)
     finally:
-        if os.path.exists(temp):
-            os.unlink(temp)
+        if staged is not None:
+            staged.discard()
+            if not replaced:  # sidecars renamed into place for a layer that never landed
+                staged.take_back()
+        temp.unlink(missing_ok=True)
+
+
+def check_output(out_path: str, source_path: str | None = None, used_layers=()) -> Path:
+    """Refuse an output path usdbake cannot or must not write, before any compute; the resolved path.
+
+    Checks the extension, that it is not a folder, that its folder can be created and written, that
+    it is neither the input nor any layer the input uses, and that an existing file there is a
+    usdbake output (a bake replaces only its own outputs).
+    """
+    path = Path(out_path)
+    accepted = f"{', '.join(LAYER_SUFFIXES[:-1])} or {LAYER_SUFFIXES[-1]}"
+    if path.is_dir():
+        raise UsageError(f"{out_path}: is a folder; give a layer file name ending in {accepted}")
+    suffix = path.suffix.lower()
+    if suffix == ".usdz":
+        raise UsageError(f"{out_path}: usdbake does not write .usdz packages (the bake layer sublayers its "
+                         f"input and names its sidecar files); write {accepted}")
+    if suffix not in LAYER_SUFFIXES:
+        found = f"unsupported extension '{path.suffix}'" if path.suffix else "no extension"
+        raise UsageError(f"{out_path}: {found}; the output must be a {accepted} layer")
+    out = path.resolve()
+    if source_path is not None and out == Path(source_path).resolve():
+        raise UsageError(f"{out_path}: refusing to overwrite the input layer; choose another -o")
+    for layer in used_layers:
+        real = getattr(layer, "realPath", "") or ""
+        if real and Path(real).resolve() == out:
+            raise UsageError(f"{out_path}: refusing to overwrite {Path(real).name}, a layer the input uses; "
+                             f"choose another -o")
+    check_writable_folder(out.parent, what=out_path)
+    if out.exists():
+        try:
+            existing = Sdf.Layer.OpenAsAnonymous(str(out), metadataOnly=True)
+        except Tf.ErrorException:
+            existing = None
+        if existing is None or not is_bake_layer(existing):
+            raise UsageError(f"{out_path}: exists and was not written by usdbake; refusing to replace it "
+                             f"(remove it or choose another -o)")
+    return out
+
+
+def check_writable_folder(folder: Path, *, what: str) -> None:
+    """Refuse a folder that cannot be created or written: its nearest existing ancestor must be a
+    folder we can create files in (tried, not guessed from permission bits: root, read-only mounts)."""
+    ancestor = Path(folder).resolve()
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise UsageError(f"{what}: {ancestor} is a file, not a folder")
+    try:
+        handle, probe = tempfile.mkstemp(prefix=f".usdbake{TEMP_TAG}{os.getpid()}-", dir=ancestor)
+    except OSError as error:
+        raise UsageError(f"{what}: cannot write in {ancestor} ({error.strerror})") from None
+    os.close(handle)
+    os.unlink(probe)
+
+
+def empty_bake_message(steps) -> str:
+    """Why a bake that would author nothing writes nothing: what became of each step."""
+    parts = []
+    for step in steps:
+        if step.action == "skip":
+            parts.append(f"{step.name} skipped ({step.reason})" if step.reason else f"{step.name} skipped")
+        else:
+            parts.append(f"{step.name} authored nothing")
+    return f"nothing to bake: {'; '.join(parts) or 'no processors'}; no output was written"
 
 
 def write_texture(texture: Texture, directory: str) -> str:
-    """Write an image with OpenImageIO (float -> EXR/half data as given, uint8 -> PNG)."""
-    import OpenImageIO as oiio
-
+    """Write an image with OpenImageIO (float -> EXR/half data as given, uint8 -> PNG) to
+    ``directory / texture.path``; returns the path."""
     path = Path(directory) / texture.path
     path.parent.mkdir(parents=True, exist_ok=True)
-    pixels = np.ascontiguousarray(texture.pixels)
+    _write_image(texture.pixels, path)
+    return str(path)
+
+
+def _write_image(pixels: np.ndarray, path: Path) -> None:
+    import OpenImageIO as oiio
+
+    pixels = np.ascontiguousarray(pixels)
     if pixels.ndim == 2:
         pixels = pixels[:, :, None]
     fmt = oiio.UINT8 if pixels.dtype == np.uint8 else oiio.FLOAT
@@ -168,17 +524,11 @@ def write_texture(texture: Texture, directory: str) -> str:
     output = oiio.ImageOutput.create(str(path))
     if output is None or not output.open(str(path), spec):
         raise UsageError(f"{path}: OpenImageIO cannot write it ({oiio.geterror()})")
-    output.write_image(pixels)
-    output.close()
-    return str(path)
-
-
-def write_file(record: File, directory: str) -> str:
-    """Write a raw file record (bytes) to ``directory / record.path``."""
-    path = Path(directory) / record.path
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(record.data)
-    return str(path)
+    try:
+        if not output.write_image(pixels):
+            raise UsageError(f"{path}: could not be written ({output.geterror()})")
+    finally:
+        output.close()
 
 
 def _author_prim(layer: Sdf.Layer, record: Prim) -> None:
@@ -203,19 +553,19 @@ def _attribute_spec(layer: Sdf.Layer, prim_path: str, name: str, type_name: str,
     return Sdf.AttributeSpec(prim_spec, name, value_type, variability, custom)
 
 
-def _author_primvar(layer: Sdf.Layer, record: Primvar) -> None:
+def _author_primvar(layer: Sdf.Layer, record: Primvar, value) -> None:
     spec = _attribute_spec(layer, record.prim, f"primvars:{record.name}", record.type_name + "[]")
     spec.SetInfo("interpolation", record.interpolation)
     spec.SetInfo("elementSize", int(record.element_size))
-    _set_value(layer, spec, to_vt(record.values, record.type_name + "[]"), record.time)
+    _set_value(layer, spec, value, record.time)
 
 
-def _author_attribute(layer: Sdf.Layer, record: Attribute) -> None:
+def _author_attribute(layer: Sdf.Layer, record: Attribute, value) -> None:
     spec = _attribute_spec(layer, record.prim, record.name, record.type_name, uniform=record.uniform)
     if record.connect_to:
         spec.connectionPathList.explicitItems = [Sdf.Path(record.connect_to)]
-    if record.value is not None:
-        _set_value(layer, spec, to_vt(record.value, record.type_name), record.time)
+    if value is not None:
+        _set_value(layer, spec, value, record.time)
 
 
 def _set_value(layer: Sdf.Layer, spec: Sdf.AttributeSpec, value, time: float | None) -> None:
@@ -261,13 +611,13 @@ def open_source(path: str):
         source = bake_source(path)
         stage = Usd.Stage.Open(source)
     except Tf.ErrorException as error:
-        raise UsageError(f"{path}: cannot be read as USD ({_usd_reason(error)})") from None
+        raise UsageError(f"{path}: cannot be read as USD ({usd_reason(error)})") from None
     if stage is None:
         raise UsageError(f"{path}: cannot be read as USD")
     return source, stage
 
 
-def _usd_reason(error: Exception) -> str:
+def usd_reason(error: Exception) -> str:
     """The human part of a Tf error: the text after the last ' : ', without the quotes."""
     # Whitespace is collapsed first: a parser message can end in a newline inside its quotes.
     return " ".join(str(error).split()).rsplit(" : ", 1)[-1].strip("'\" ")

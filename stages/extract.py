@@ -17,6 +17,7 @@ from pxr import Gf, Usd, UsdGeom, UsdLux
 
 from ..core.errors import StageError
 from ..core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Instances, Lights, Scene
+from .composition import check_composition
 from .materials import MaterialReader
 from .triangulate import triangulate
 
@@ -55,16 +56,19 @@ class _Builder:
         self.meshes.append((mesh, world, writable, instance))
 
 
-def extract_scene(stage: Usd.Stage, *, time: float | None = None) -> Scene:
+def extract_scene(stage: Usd.Stage, *, time: float | None = None, allow_missing: bool = False) -> Scene:
     """Flatten ``stage`` at ``time`` (None: the default time) into a Scene.
 
     Raises StageError naming prim, attribute and value for data that cannot be baked
-    (NaN/inf points, out-of-range indices, mismatched counts).
+    (NaN/inf points, out-of-range indices, mismatched counts), and naming the asset and
+    the layer that asks for it for a missing or unreadable sublayer, reference or payload
+    (unless ``allow_missing``: then each becomes a warning and its geometry is left out).
+    A texture that cannot be read becomes a warning naming the fallback albedo used.
     """
     timecode = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     xforms = UsdGeom.XformCache(timecode)
-    materials = MaterialReader(timecode)
-    builder = _Builder()
+    builder = _Builder(warnings=check_composition(stage, allow_missing=allow_missing))
+    materials = MaterialReader(timecode, warnings=builder.warnings)
     local_meshes: dict[str, LocalMesh] = {}
     light_prims: list[Usd.Prim] = []
     instances = _InstanceTable()

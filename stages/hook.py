@@ -7,24 +7,34 @@
 Results go into a layer the call returns: by default a new anonymous layer
 inserted as the strongest sublayer of the stage's session layer (reused on
 the next call), so no layer of the user's is touched.
+
+Sidecar files (textures, .dds, .npz, streams) go to ``texture_dir`` named
+``<stage stem>.usdbake_<record>_<content hash>.<ext>`` (``<layer stem>_...``
+when ``layer`` is a file); an anonymous layer names them by absolute path,
+since it anchors no relative one. A bake that would author nothing (every
+processor skipped) raises UsageError and leaves the layer as it was, as the
+command does.
 """
 
 from __future__ import annotations
 
 import tempfile
+import warnings
 from pathlib import Path
 
-from pxr import Sdf, Usd
+from pxr import Sdf, Usd, Vt
 
+from ..core.errors import UsageError
+from ..core.params import ParamError
 from ..core.pipeline import Pipeline
 from ..core.records import File, Texture
-from .bake_layer import PROVENANCE_KEY, author, is_bake_layer
+from .bake_layer import PROVENANCE_KEY, author, empty_bake_message, is_bake_layer
 from .extract import extract_scene
 
 
 def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | None = None,
          time: float | None = None, device: str = "cpu", cache_dir: str | None = None, force: bool = False,
-         texture_dir: str | None = None, on_progress=None) -> Sdf.Layer:
+         texture_dir: str | None = None, on_progress=None, allow_missing: bool = False) -> Sdf.Layer:
     """Run processors on ``stage`` and author their results into a bake layer.
 
     Parameters
@@ -35,26 +45,38 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     layer : where to author; default: the session layer's usdbake sublayer (created if missing)
     time : time code to read the stage at (None: default time)
     texture_dir : folder for texture outputs (default: beside the stage's root layer, else a temp folder)
+    allow_missing : bake without missing or unreadable sublayers, references and payloads (each one a
+        warning) instead of raising StageError naming the first
+
+    Warnings (missing assets allowed, textures that could not be read and the fallback used, faces
+    left out) are issued as Python warnings and kept in the layer's report: ``last_warnings(layer)``.
 
     Returns
     -------
     The Sdf.Layer holding the results. On failure nothing is authored.
     """
     pipeline = Pipeline.build(processors, params, device=device, cache_dir=cache_dir, force=force)
+    check_param_targets(params or {}, [step.name for step in pipeline.steps])
     target = layer if layer is not None else _session_bake_layer(stage)
     muted = _mute_for_extraction(stage, target)
     try:
-        scene = extract_scene(stage, time=time)
+        scene = extract_scene(stage, time=time, allow_missing=allow_missing)
     finally:
         if muted:
             stage.UnmuteLayer(target.identifier)
     pipeline.run(scene, on_progress=on_progress)
+    outputs = pipeline.outputs()
+    if not outputs:
+        raise UsageError(empty_bake_message(pipeline.steps))
     if layer is None and target.identifier not in stage.GetSessionLayer().subLayerPaths:
         stage.GetSessionLayer().subLayerPaths.insert(0, target.identifier)
-    outputs = pipeline.outputs()
     if texture_dir is None and any(isinstance(record, (Texture, File)) for record in outputs):
         texture_dir = _default_texture_dir(stage)  # only when needed: it may create a temp folder
-    author(target, outputs, pipeline.provenance({"source": scene.source}), texture_dir=texture_dir)
+    report = {"source": scene.source, "warnings": Vt.StringArray(list(scene.warnings))}  # string[]: usdc stores it
+    author(target, outputs, pipeline.provenance(report), texture_dir=texture_dir,
+           sidecar_prefix=_sidecar_prefix(stage, target))
+    for message in scene.warnings:
+        warnings.warn(f"usdbake: {message}", stacklevel=2)
     return target
 
 
@@ -62,6 +84,11 @@ def last_report(layer: Sdf.Layer) -> list[dict]:
     """What the last bake into ``layer`` did, one dict per processor, from the layer's provenance."""
     provenance = dict(layer.customLayerData).get(PROVENANCE_KEY, {})
     return [{"processor": name, **info} for name, info in provenance.get("processors", {}).items()]
+
+
+def last_warnings(layer: Sdf.Layer) -> list[str]:
+    """The warnings of the last bake into ``layer`` (missing assets allowed, unreadable textures), one line each."""
+    return list(dict(layer.customLayerData).get(PROVENANCE_KEY, {}).get("warnings", []))
 
 
 def _session_bake_layer(stage: Usd.Stage) -> Sdf.Layer:
@@ -82,6 +109,22 @@ def _mute_for_extraction(stage: Usd.Stage, layer: Sdf.Layer) -> bool:
         stage.MuteLayer(layer.identifier)
         return True
     return False
+
+
+def check_param_targets(params: dict, names: list[str], *, origin: str = "params") -> None:
+    """Refuse parameters for a processor that is not part of the run (they would be ignored)."""
+    for name in params:
+        if name not in names:
+            raise ParamError(f"{origin} for {name!r}, which is not part of this run ({', '.join(names)}); "
+                             f"add it to the processors")
+
+
+def _sidecar_prefix(stage: Usd.Stage, layer: Sdf.Layer) -> str:
+    """File-name prefix of a bake's sidecars: the layer's stem, else '<root layer stem>.usdbake'."""
+    if layer.realPath:
+        return Path(layer.realPath).stem
+    root = stage.GetRootLayer().realPath
+    return f"{Path(root).stem}.usdbake" if root else "usdbake"
 
 
 def _default_texture_dir(stage: Usd.Stage) -> str:

@@ -4,17 +4,22 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pxr import Sdf
+from pxr import Sdf, Tf
 
 from ..core.errors import UsageError
-from .bake_layer import PROVENANCE_KEY, is_bake_layer
+from .bake_layer import PROVENANCE_KEY, is_bake_layer, usd_reason
 
 
 def inspect_layer(path: str) -> dict:
     """{'provenance': {...}, 'properties': [{path, type, interpolation, element_size, values, time_samples}]}."""
     if not Path(path).exists():
         raise UsageError(f"{path}: no such file")
-    layer = Sdf.Layer.FindOrOpen(path)
+    if Path(path).is_dir():
+        raise UsageError(f"{path}: is a folder, not a layer")
+    try:
+        layer = Sdf.Layer.FindOrOpen(path)
+    except Tf.ErrorException as error:
+        raise UsageError(f"{path}: cannot be read as USD ({usd_reason(error)})") from None
     if layer is None:
         raise UsageError(f"{path}: cannot be read as USD")
     if not is_bake_layer(layer):
@@ -39,5 +44,15 @@ def inspect_layer(path: str) -> dict:
 
     layer.Traverse(Sdf.Path.absoluteRootPath, visit)
     properties.sort(key=lambda row: row["path"])
-    return {"provenance": dict(layer.customLayerData[PROVENANCE_KEY]), "properties": properties,
+    return {"provenance": _plain(dict(layer.customLayerData[PROVENANCE_KEY])), "properties": properties,
             "sublayers": list(layer.subLayerPaths)}
+
+
+def _plain(value):
+    """Layer metadata as plain Python for --json: Vt arrays (string[] sidecars, warnings) become lists."""
+    if isinstance(value, dict):
+        return {key: _plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)) or (hasattr(value, "__len__") and hasattr(value, "__getitem__")
+                                           and not isinstance(value, (str, bytes))):
+        return [_plain(item) for item in value]
+    return value
