@@ -29,6 +29,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from .. import init_warp
 from ..core import registry
 from ..core.errors import UsageError
 from ..core.params import TABLE_COLUMNS
@@ -106,17 +107,12 @@ def make_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import warp as wp
-
-    # Keep stdout clean for --json; our own progress goes to stderr. Warp >= 1.19 replaced
-    # config.quiet with config.log_level (info messages such as the init banner go to stdout).
-    wp.config.quiet = True
-    if hasattr(wp, "LOG_WARNING"):
-        wp.config.log_level = wp.LOG_WARNING
     console = Console(stderr=True, soft_wrap=True)
     args = None
     try:
         args = make_parser().parse_args(argv)
+        if hasattr(args, "device") or args.command == "bench":  # --help, list and inspect never load Warp
+            _quiet_warp(getattr(args, "device", "cpu"))
         with _interrupts(console, args.command):
             return COMMANDS[args.command](args, console)
     except KeyboardInterrupt:  # save_atomically removed its temporary files on the way out
@@ -128,6 +124,18 @@ def main(argv: list[str] | None = None) -> int:
     except ProcessorFailed as error:
         console.print(f"[red]usdbake: {escape(str(error))}[/red]; no output was written", highlight=False)
         return EXIT_FAILED
+
+
+def _quiet_warp(device: str) -> None:
+    """Keep stdout clean for --json (Warp logs info messages such as module load times to stdout;
+    our own progress goes to stderr) and start Warp with no CUDA notice unless CUDA was asked for."""
+    import warp as wp
+
+    if hasattr(wp, "LOG_WARNING"):
+        wp.config.log_level = wp.LOG_WARNING
+    else:  # Warp < 1.14: config.quiet
+        wp.config.quiet = True
+    init_warp(device)
 
 
 def _interrupted_line(command: str) -> str:

@@ -20,12 +20,15 @@ Mapping (code ``c``, ``i = c & 15``, ``j = c >> 4``):
 
 Encoding picks the codebook direction nearest in angle (brute force over the
 256 entries, not the cell the vector falls in), so the error is the codebook's
-covering radius: ``MAX_ANGLE_ERROR_DEG``. Decoded directions stay at least
-``MIN_AXIS_COSINE`` above the hemisphere's rim, which keeps the paper's colour
+covering radius: ``MAX_ANGLE_ERROR_DEG`` (``max_angle_error_deg()``, measured on
+first use, not at import). Decoded directions stay at least ``MIN_AXIS_COSINE``
+above the hemisphere's rim, which keeps the paper's colour
 ``c = I . delta / (d . delta)`` bounded.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 import warp as wp
@@ -66,9 +69,14 @@ MIN_AXIS_COSINE = float(CODEBOOK[:, 2].min())
 """Smallest delta-cosine of a decoded direction (about 0.067: 3.8 degrees above the rim)."""
 
 
-def _covering_radius_deg() -> float:
-    # Dense deterministic cover of the hemisphere (a fine octahedral lattice, rim included): the largest
-    # angle to the nearest code over it, plus the lattice's own spacing as a safety margin.
+@functools.cache
+def max_angle_error_deg() -> float:
+    """Largest angle between a hemisphere direction and its decoded code, in degrees (about 8.8).
+
+    Measured on a dense deterministic cover of the hemisphere (a 512 x 512 octahedral lattice, rim
+    included) as the largest angle to the nearest code, plus the lattice's own spacing as a safety
+    margin. A (262144, 256) product: computed on first use, then cached, never at import.
+    """
     n = 512
     u, v = np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n))
     px, py = (u + v) / 2.0, (u - v) / 2.0
@@ -80,9 +88,11 @@ def _covering_radius_deg() -> float:
     return float(np.degrees(np.arccos(np.clip(best.min(), -1, 1))) + spacing)
 
 
-MAX_ANGLE_ERROR_DEG = _covering_radius_deg()
-"""Largest angle between a hemisphere direction and its decoded code (about 8.8 degrees, measured
-on a dense lattice plus its spacing)."""
+def __getattr__(name: str):
+    # PEP 562: ``MAX_ANGLE_ERROR_DEG`` reads as a module constant but is measured on first access.
+    if name == "MAX_ANGLE_ERROR_DEG":
+        return max_angle_error_deg()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def encode_hemisphere(directions: np.ndarray, hemisphere: np.ndarray) -> np.ndarray:

@@ -76,8 +76,11 @@ def launch_chunked(kernel, dim: int, inputs: list, *, device, threads: int, offs
         if hi > lo:
             wp.launch(kernel, dim=hi - lo, inputs=[offset + lo, *inputs], device=device, block_dim=CPU_BLOCK_DIM)
 
-    with ThreadPoolExecutor(max_workers=threads) as pool:
+    pool = ThreadPoolExecutor(max_workers=threads)
+    try:
         list(pool.map(run, range(chunks)))
+    finally:  # on Ctrl-C, drop the chunks not started: stop after the ones running, not the whole launch
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 @dataclass(frozen=True)
