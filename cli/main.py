@@ -273,13 +273,16 @@ def cmd_plan(args, console: Console) -> int:
     from ..stages.extract import extract_scene
 
     names, params = resolve_options(args, default=sorted(registry.registry()))  # plan: every processor
-    pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force)
+    pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force,
+                              allow_conflicts=True)
     check_run_options(args, pipeline, console)
     with quiet_composition_warnings():  # extract_scene reports each missing asset in one line
         _, stage = open_source(args.input)
     scene = extract_scene(stage, time=args.time, allow_missing=args.allow_missing)
     for warning in scene.warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(warning)}", highlight=False)
+    for conflict in pipeline.conflicts():  # bake refuses these before any compute
+        console.print(f"[yellow]conflict:[/yellow] {escape(conflict)}", highlight=False)
     steps = pipeline.plan(scene)
     if args.json:
         print(json.dumps([step.report() for step in steps], indent=2, default=str))

@@ -20,7 +20,7 @@ from .cache import ResultCache, step_key
 from .errors import UsageError
 from .params import ParamError, Params
 from .processor import Context, Processor, Result
-from .records import Attribute, Primvar
+from .records import Attribute, Prim, Primvar
 from .registry import get as get_processor
 from .registry import registry as all_processors
 from .scene import Scene
@@ -67,8 +67,10 @@ class Step:
                 "messages": list(self.result.messages) if self.result else []}
 
 
-def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dict] | None = None) -> list[Step]:
-    """Requested processors plus everything they depend on, in dependency order."""
+def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dict] | None = None, *,
+                allow_conflicts: bool = False) -> list[Step]:
+    """Requested processors plus everything they depend on, in dependency order. Two of them declaring
+    one property in ``writes`` is a GraphError unless ``allow_conflicts`` (``plan`` lists them instead)."""
     params = dict(params or {})
     registry = all_processors()
     for name in params:
@@ -100,6 +102,8 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
         graph[name] = deps
         wanted.append(name)
         pending.extend(deps)
+    if not allow_conflicts and write_conflicts(wanted, registry):
+        raise GraphError(write_conflicts(wanted, registry)[0])
     try:
         order = list(TopologicalSorter(graph).static_order())
     except CycleError as error:
@@ -110,6 +114,31 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
         step_params = cls.Params.from_dict(params.get(name, {}))
         steps.append(Step(name, cls(step_params), step_params))
     return steps
+
+
+def writes_overlap(a: str, b: str) -> bool:
+    """Two declared property names (or ``namespace:`` prefixes) can name one property."""
+    return a == b or (a.endswith(":") and b.startswith(a)) or (b.endswith(":") and a.startswith(b))
+
+
+def write_conflicts(names: list[str], registry: dict) -> list[str]:
+    """One line per pair of the named processors that declare a property both would author."""
+    lines = []
+    names = sorted(names)
+    for i, first in enumerate(names):
+        for second in names[i + 1:]:
+            shared = [a for a in registry[first].writes for b in registry[second].writes if writes_overlap(a, b)]
+            if shared:
+                lines.append(f"{first} and {second} both write {shared[0]}; run one of them")
+    return lines
+
+
+def declared(step: Step, record, defined: set[str]) -> bool:
+    """The record authors a property on a prim its step defines, or one its step declares in ``writes``."""
+    if any(record.prim == path or record.prim.startswith(path + "/") for path in defined):
+        return True
+    name = f"primvars:{record.name}" if isinstance(record, Primvar) else record.name
+    return any(writes_overlap(name, w) and (w.endswith(":") or w == name) for w in step.processor.writes)
 
 
 def checked_products(step: Step, result: Result) -> dict:
@@ -145,9 +174,15 @@ class Pipeline:
                        progress=progress, device=self.device, threads=self.threads)
 
     @classmethod
-    def build(cls, names=None, params=None, *, device="cpu", cache_dir=None, force=False, threads=None):
-        return cls(build_steps(names, params), device=device, cache=ResultCache(cache_dir), force=force,
-                   threads=threads)
+    def build(cls, names=None, params=None, *, device="cpu", cache_dir=None, force=False, threads=None,
+              allow_conflicts=False):
+        return cls(build_steps(names, params, allow_conflicts=allow_conflicts), device=device,
+                   cache=ResultCache(cache_dir), force=force, threads=threads)
+
+    def conflicts(self) -> list[str]:
+        """The pairs of its steps that would author one property (see Processor.writes)."""
+        return write_conflicts([step.name for step in self.steps], {step.name: type(step.processor)
+                                                                     for step in self.steps})
 
     def plan(self, scene: Scene) -> list[Step]:
         """Decide per step: run, cached (up to date) or skip (not applicable), with the reason."""
@@ -206,8 +241,13 @@ class Pipeline:
         writers: dict[tuple, str] = {}
         records = []
         for step in self.steps:
-            for record in step.result.outputs if step.result else []:
+            outputs = step.result.outputs if step.result else []
+            defined = {record.path for record in outputs if isinstance(record, Prim) and record.type_name}
+            for record in outputs:
                 if isinstance(record, (Primvar, Attribute)):
+                    if not declared(step, record, defined):
+                        raise ProcessorFailed(step.name, TypeError(
+                            f"it wrote {record.prim}.{record.name}, which its `writes` does not declare"))
                     name = f"primvars:{record.name}" if isinstance(record, Primvar) else record.name
                     key = (record.prim, name, record.time)
                     if writers.setdefault(key, step.name) != step.name:

@@ -66,6 +66,10 @@ class Processor:
     requires: ClassVar[tuple[str, ...]] = ()
     provides: ClassVar[tuple[str, ...]] = ()
     facets: ClassVar[tuple[str, ...]] = ("geometry",)
+    writes: ClassVar[tuple[str, ...]] = ()
+    """Properties it authors on prims it does not define itself (the receivers' meshes, prototypes,
+    materials): full names (``primvars:bake:ao``), or a namespace ending in ``:`` (``bake:field:``).
+    Two processors in one run may not share one; the runner checks before any compute."""
     Params: ClassVar[type[Params]] = Params
     summary: ClassVar[str] = ""
 

@@ -258,6 +258,7 @@ class Daylight(Processor):
     version = "2"
     summary = "Sky (Preetham/Perez/CIE overcast/uniform) + sun relighting of the sky_visibility mesh, time-sampled."
     facets = ("geometry", "materials")
+    writes = ("primvars:bake:daylight", "primvars:displayColor")
     requires = (SkyVisibilityProduct,)
     provides = (DaylightProduct,)
 

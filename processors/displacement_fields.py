@@ -273,6 +273,7 @@ class DisplacementFields(Processor):
     version = "1"
     summary = "Per-prototype presampled visibility (displacement fields) for instance_ao."
     facets = ("geometry", "instancers")
+    writes = ("bake:field:",)
     provides = (DisplacementFieldSet,)
 
     @dataclass(frozen=True)

@@ -379,6 +379,8 @@ class SkyVisibility(Processor):
     version = "2"
     summary = "Per-face sky patch visibility with adaptive crack-free refinement (Bosch et al.)."
     facets = ("geometry",)
+    writes = ("points", "faceVertexCounts", "faceVertexIndices", "orientation", "primvars:normals",
+              "primvars:bake:sourceFace", "primvars:bake:skyVisibility", "primvars:bake:skyExposure", "bake:sky:")
     provides = (SkyVisibilityProduct,)
 
     @dataclass(frozen=True)

@@ -74,6 +74,7 @@ class FakeB(Processor):
     requires = (ProductA,)
     provides = (ProductB,)
     facets = ("geometry",)
+    writes = ("primvars:bake:fakeB",)
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -241,11 +242,24 @@ def write_stage(path, *, material: bool = False) -> str:
     return str(path)
 
 
+class FakeUndeclared(Processor):
+    """Writes a primvar its `writes` does not declare."""
+
+    name = "fake_undeclared"
+    facets = ("geometry",)
+
+    def run(self, ctx):
+        prim = ctx.scene.prim_points(0)
+        values = np.zeros(prim.stop - prim.start, np.float32)
+        return Result(outputs=[Primvar(ctx.scene.prim_paths[0], "bake:stray", values, "float", "vertex")])
+
+
 class FakeSamePrimvar(Processor):
     """Writes the same primvar as fake_b (two estimators of one quantity), for the conflict check."""
 
     name = "fake_same_primvar"
     facets = ("geometry",)
+    writes = ("primvars:bake:fakeB",)
 
     def run(self, ctx):
         prim = ctx.scene.prim_points(0)

@@ -14,7 +14,7 @@ import fake_processors as fakes
 from usdbake import core
 from usdbake.processors.ambient_occlusion import AmbientOcclusion
 from usdbake.core.pipeline import GraphError, Pipeline, ProcessorFailed, build_steps, step_key
-from usdbake.core.errors import UsageError
+
 
 
 @pytest.fixture
@@ -283,12 +283,24 @@ def test_params_describe_rows_have_default_and_doc():
     assert all(row["doc"] for row in rows.values())
 
 
-def test_two_processors_writing_one_property_is_an_error(register, tmp_path):
+def test_two_processors_declaring_one_property_are_refused_before_compute(register, tmp_path):
     register(fakes.FakeA, fakes.FakeB, fakes.FakeSamePrimvar)
-    pipeline = Pipeline.build(["fake_b", "fake_same_primvar"], cache_dir=tmp_path)
+    with pytest.raises(GraphError, match=r"(fake_b and fake_same_primvar|fake_same_primvar and fake_b) both write "
+                                         r"primvars:bake:fakeB; run one of them"):
+        Pipeline.build(["fake_b", "fake_same_primvar"], cache_dir=tmp_path)
+
+
+def test_a_property_the_processor_did_not_declare_is_refused(register, tmp_path):
+    register(fakes.FakeUndeclared)
+    pipeline = Pipeline.build(["fake_undeclared"], cache_dir=tmp_path)
     pipeline.run(fakes.make_scene())
-    with pytest.raises(UsageError, match=r"primvars:bake:fakeB is written by both (fake_b and fake_same_primvar|fake_same_primvar and fake_b)"):
+    with pytest.raises(ProcessorFailed, match=r"bake:stray, which its `writes` does not declare"):
         pipeline.outputs()
+
+
+def test_the_built_in_processors_that_write_ao_are_refused_together():
+    with pytest.raises(GraphError, match="ambient_occlusion and instance_ao both write primvars:bake:ao"):
+        Pipeline.build(["ambient_occlusion", "instance_ao"])
 
 
 def test_cache_key_changes_with_the_processor_code(register, tmp_path, monkeypatch):

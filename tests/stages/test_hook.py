@@ -107,6 +107,7 @@ from usdbake.core import Primvar, Processor, Result
 class FakeProcessor(Processor):
     name = "fake_ep"
     summary = "a processor from another distribution"
+    writes = ("primvars:bake:ep",)
 
     def run(self, ctx):
         scene = ctx.scene

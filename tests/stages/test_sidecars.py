@@ -30,6 +30,7 @@ class FakeSidecars(Processor):
 
     name = "fake_sidecars"
     facets = ("geometry",)
+    writes = ("bake:fake:",)
 
     @dataclass(frozen=True)
     class Params(Params):
