@@ -34,7 +34,7 @@ from ..core import registry
 from ..core.errors import UsageError
 from ..core.params import TABLE_COLUMNS
 from ..core.pipeline import DEFAULT_PROCESSORS, Pipeline, ProcessorFailed
-from ..stages.bake_layer import open_source
+from ..stages.inputs import open_source
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -240,7 +240,7 @@ def check_run_options(args, pipeline: Pipeline, console: Console) -> None:
             console.print(f"[yellow]warning:[/yellow] {escape(message)}", highlight=False)
     check_device(args.device)
     if args.cache:
-        from ..stages.bake_layer import check_writable_folder
+        from ..stages.inputs import check_writable_folder
 
         if Path(args.cache).exists() and not Path(args.cache).is_dir():
             raise UsageError(f"--cache {args.cache}: is a file, not a folder")
@@ -295,7 +295,8 @@ def cmd_plan(args, console: Console) -> int:
 
 
 def cmd_bake(args, console: Console) -> int:
-    from ..stages.bake_layer import check_output, empty_bake_message, save_atomically
+    from ..stages.bake_layer import save_atomically
+    from ..stages.inputs import check_output, empty_bake_message
     from ..stages.composition import check_composition, quiet_composition_warnings
     from ..stages.extract import extract_scene
 

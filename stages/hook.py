@@ -28,7 +28,8 @@ from ..core.errors import UsageError
 from ..core.params import ParamError
 from ..core.pipeline import Pipeline
 from ..core.records import File, Texture
-from .bake_layer import PROVENANCE_KEY, author, empty_bake_message, is_bake_layer
+from .bake_layer import PROVENANCE_KEY, author, is_bake_layer
+from .inputs import empty_bake_message
 from .extract import extract_scene
 
 

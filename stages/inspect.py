@@ -7,7 +7,8 @@ from pathlib import Path
 from pxr import Sdf, Tf
 
 from ..core.errors import UsageError
-from .bake_layer import PROVENANCE_KEY, is_bake_layer, usd_reason
+from .bake_layer import PROVENANCE_KEY, is_bake_layer
+from .inputs import usd_reason
 
 
 def inspect_layer(path: str) -> dict:

@@ -1,0 +1,100 @@
+"""What a user points usdbake at, checked before any compute: the stage to open and the output path.
+
+One line naming the problem for each (a UsageError, exit 2 on the command line).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from pxr import Sdf, Tf, Usd
+
+from ..core.errors import UsageError
+from .bake_layer import LAYER_SUFFIXES, TEMP_TAG, bake_source, is_bake_layer
+
+
+def open_source(path: str):
+    """Open the stage to bake: the input, or the source of a usdbake output."""
+    if not Path(path).exists():
+        raise UsageError(f"{path}: no such file")
+    try:
+        source = bake_source(path)
+        stage = Usd.Stage.Open(source)
+    except Tf.ErrorException as error:
+        raise UsageError(f"{path}: cannot be read as USD ({usd_reason(error)})") from None
+    if stage is None:
+        raise UsageError(f"{path}: cannot be read as USD")
+    return source, stage
+
+
+def usd_reason(error: Exception) -> str:
+    """The human part of a Tf error: the text after the last ' : ', without the quotes."""
+    # Whitespace is collapsed first: a parser message can end in a newline inside its quotes.
+    return " ".join(str(error).split()).rsplit(" : ", 1)[-1].strip("'\" ")
+
+
+def check_output(out_path: str, source_path: str | None = None, used_layers=()) -> Path:
+    """Refuse an output path usdbake cannot or must not write, before any compute; the resolved path.
+
+    Checks the extension, that it is not a folder, that its folder can be created and written, that
+    it is neither the input nor any layer the input uses, and that an existing file there is a
+    usdbake output (a bake replaces only its own outputs).
+    """
+    path = Path(out_path)
+    accepted = f"{', '.join(LAYER_SUFFIXES[:-1])} or {LAYER_SUFFIXES[-1]}"
+    if path.is_dir():
+        raise UsageError(f"{out_path}: is a folder; give a layer file name ending in {accepted}")
+    suffix = path.suffix.lower()
+    if suffix == ".usdz":
+        raise UsageError(f"{out_path}: usdbake does not write .usdz packages (the bake layer sublayers its "
+                         f"input and names its sidecar files); write {accepted}")
+    if suffix not in LAYER_SUFFIXES:
+        found = f"unsupported extension '{path.suffix}'" if path.suffix else "no extension"
+        raise UsageError(f"{out_path}: {found}; the output must be a {accepted} layer")
+    out = path.resolve()
+    if source_path is not None and out == Path(source_path).resolve():
+        raise UsageError(f"{out_path}: refusing to overwrite the input layer; choose another -o")
+    for layer in used_layers:
+        real = getattr(layer, "realPath", "") or ""
+        if real and Path(real).resolve() == out:
+            raise UsageError(f"{out_path}: refusing to overwrite {Path(real).name}, a layer the input uses; "
+                             f"choose another -o")
+    check_writable_folder(out.parent, what=out_path)
+    if out.exists():
+        try:
+            existing = Sdf.Layer.OpenAsAnonymous(str(out), metadataOnly=True)
+        except Tf.ErrorException:
+            existing = None
+        if existing is None or not is_bake_layer(existing):
+            raise UsageError(f"{out_path}: exists and was not written by usdbake; refusing to replace it "
+                             f"(remove it or choose another -o)")
+    return out
+
+
+def check_writable_folder(folder: Path, *, what: str) -> None:
+    """Refuse a folder that cannot be created or written: its nearest existing ancestor must be a
+    folder we can create files in (tried, not guessed from permission bits: root, read-only mounts)."""
+    ancestor = Path(folder).resolve()
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise UsageError(f"{what}: {ancestor} is a file, not a folder")
+    try:
+        handle, probe = tempfile.mkstemp(prefix=f".usdbake{TEMP_TAG}{os.getpid()}-", dir=ancestor)
+    except OSError as error:
+        raise UsageError(f"{what}: cannot write in {ancestor} ({error.strerror})") from None
+    os.close(handle)
+    os.unlink(probe)
+
+
+def empty_bake_message(steps) -> str:
+    """Why a bake that would author nothing writes nothing: what became of each step."""
+    parts = []
+    for step in steps:
+        if step.action == "skip":
+            parts.append(f"{step.name} skipped ({step.reason})" if step.reason else f"{step.name} skipped")
+        else:
+            parts.append(f"{step.name} authored nothing")
+    return f"nothing to bake: {'; '.join(parts) or 'no processors'}; no output was written"
