@@ -54,6 +54,8 @@ Parameters: ``usdbake list displacement_fields`` or docs/displacement_fields.md,
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import math
 import re
 import time
@@ -136,6 +138,23 @@ def bounding_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
     center = (points.min(axis=0) + points.max(axis=0)) / 2
     radius = float(np.sqrt(((points - center) ** 2).sum(axis=1).max()))
     return center, radius * (1.0 + SPHERE_INFLATION)
+
+
+CONTENT_GRID_RELATIVE = 1e-5
+"""Prototype points are compared on a grid of this fraction of their bounding box: the same prototype
+recovered from two instances differs by float rounding of the inverse transform."""
+
+
+def content_key(points: np.ndarray, triangles: np.ndarray) -> str:
+    """Hash of a prototype's shape (its triangles and its points on a CONTENT_GRID_RELATIVE grid), so
+    identical prototypes of different instancers or native instances share one field."""
+    points = np.asarray(points, np.float64)
+    size = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
+    step = max(size * CONTENT_GRID_RELATIVE, 1e-30)
+    digest = hashlib.sha256(f"{size:.5e}".encode())  # the size itself: a scaled copy is another shape
+    digest.update(np.round(points / step).astype(np.int64).tobytes())
+    digest.update(np.ascontiguousarray(triangles, np.int32).tobytes())
+    return digest.hexdigest()
 
 
 def prototype_geometry(scene: Scene, prototype: int) -> tuple[np.ndarray, np.ndarray, int]:
@@ -317,11 +336,19 @@ class DisplacementFields(Processor):
         device = ctx.device
         result = Result(products={DisplacementFieldSet: DisplacementFieldSet({})}, messages=messages)
         rays = 0
+        built: dict[str, DisplacementField] = {}
         for step, index in enumerate(chosen):
             path = scene.instances.prototype_paths[index]
             points, triangles, instance = prototype_geometry(scene, index)
             if instance < 0:
                 result.messages.append(f"{path}: no field (no instance with triangles and an invertible transform)")
+                continue
+            key = content_key(points, triangles)
+            if key in built:  # the same shape as a prototype already done: share its field
+                field = dataclasses.replace(built[key], prototype=path)
+                result.products[DisplacementFieldSet].fields[path] = field
+                result.outputs.extend(field_records(field))
+                result.messages.append(f"{path}: shares the field of {built[key].prototype} (same shape)")
                 continue
             try:
                 field = build_field(points, triangles, prototype=path, positional_samples=p.positional_samples,
@@ -331,6 +358,7 @@ class DisplacementFields(Processor):
                 result.messages.append(f"{path}: no field ({error})")
                 continue
             rays += field.side ** 2 * field.map_size ** 2
+            built[key] = field
             result.products[DisplacementFieldSet].fields[path] = field
             result.outputs.extend(field_records(field))
             result.stats[f"bytes:{path}"] = float(field.nbytes)

@@ -205,3 +205,23 @@ def test_degenerate_prototype_is_skipped_with_a_reason():
     result = run_processor(DisplacementFields, scene, {"positional_samples": 16, "direction_map_size": 8})
     assert result.products[DisplacementFieldSet].fields == {}
     assert any("no extent" in message for message in result.messages)
+
+
+def test_identical_prototypes_share_one_field():
+    """Two instancers' copies of one ball (different paths, instances at other places and rotations) get
+    one field, built once; a different shape gets its own."""
+    ball, ball_tris = icosphere(2)
+    floor, floor_tris = grid(5, 4)
+    prototypes = [("/World/A/Prototypes/Ball", ball * 0.4, ball_tris),
+                  ("/World/B/Prototypes/Ball", ball * 0.4, ball_tris),
+                  ("/World/C/Prototypes/Ball", ball * 0.5, ball_tris)]
+    instances = [(k % 3, translate(-3 + k, 0.5, 1.5 * (k % 2), rotate_y=37.0 * k)) for k in range(9)]
+    scene = build_scene([("/World/Floor", floor, floor_tris)], prototypes, instances)
+    params = {"positional_samples": 64, "direction_map_size": 8, "min_instances": 1}
+    result = run_processor(DisplacementFields, scene, params)
+    fields = result.products[DisplacementFieldSet].fields
+    assert set(fields) == {path for path, _, _ in prototypes}
+    a, b, c = (fields[path] for path, _, _ in prototypes)
+    assert a.texels is b.texels and a.prototype != b.prototype and c.texels is not a.texels
+    assert "/World/B/Prototypes/Ball: shares the field of /World/A/Prototypes/Ball (same shape)" in result.messages
+    assert result.stats["rays"] == 2 * a.side ** 2 * a.map_size ** 2  # two fields built, not three
