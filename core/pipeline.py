@@ -138,7 +138,7 @@ def declared(step: Step, record, defined: set[str]) -> bool:
     if any(record.prim == path or record.prim.startswith(path + "/") for path in defined):
         return True
     name = f"primvars:{record.name}" if isinstance(record, Primvar) else record.name
-    return any(writes_overlap(name, w) and (w.endswith(":") or w == name) for w in step.processor.writes)
+    return any(name == w or (w.endswith(":") and name.startswith(w)) for w in step.processor.writes)
 
 
 def checked_products(step: Step, result: Result) -> dict:

@@ -125,7 +125,11 @@ def surface_origin(mesh: wp.uint64, p: wp.vec3, n: wp.vec3, inward: wp.vec3, eps
     q = p + inward * epsilon
     o = q + n * epsilon
     reach = wp.vec3(2.0 * epsilon, 2.0 * epsilon, 2.0 * epsilon)
-    for sweep in range(2):  # a second sweep settles faces that are not perpendicular to each other
+    sweeps = int(0)
+    moved = bool(True)
+    while moved and sweeps < 2:  # a second sweep, after a move, settles faces that are not perpendicular
+        moved = bool(False)
+        sweeps += 1
         query = wp.mesh_query_aabb(mesh, q - reach, q + reach)
         face = int(0)
         while wp.mesh_query_aabb_next(query, face):
@@ -138,6 +142,7 @@ def surface_origin(mesh: wp.uint64, p: wp.vec3, n: wp.vec3, inward: wp.vec3, eps
                     height = wp.dot(o - q, normal)
                     if height < epsilon:
                         o = o + normal * (epsilon - height)
+                        moved = True
     return o
 
 
