@@ -299,6 +299,7 @@ def cmd_bake(args, console: Console) -> int:
     from ..stages.inputs import check_output, empty_bake_message
     from ..stages.composition import check_composition, quiet_composition_warnings
     from ..stages.extract import extract_scene
+    from ..stages.refined_mesh import complete_outputs, refinement_guard
 
     names, params = resolve_options(args)
     pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force)
@@ -321,8 +322,8 @@ def cmd_bake(args, console: Console) -> int:
                 tasks[name] = progress.add_task(name, total=1.0)
             progress.update(tasks[name], completed=fraction)
 
-        pipeline.run(scene, on_progress=on_progress)
-        outputs = pipeline.outputs()
+        pipeline.run(scene, on_progress=on_progress, before_compute=refinement_guard(stage, scene))
+        outputs = complete_outputs(stage, pipeline.outputs())
         if not outputs:  # every processor skipped: an empty layer would only hide that
             raise UsageError(empty_bake_message(pipeline.steps))
         writing = progress.add_task("writing layer", total=1.0)

@@ -10,8 +10,8 @@ from . import registry
 from .errors import StageError, UsageError
 from .params import ParamError, Params, param
 from .processor import Context, Processor, Result
-from .records import Attribute, File, Output, Prim, Primvar, Texture
+from .records import Attribute, Block, File, Output, Prim, Primvar, RefinedMesh, Texture
 from .scene import Scene
 
-__all__ = ["Attribute", "Context", "File", "Output", "ParamError", "Params", "Prim", "Primvar", "Processor",
-           "Result", "Scene", "StageError", "Texture", "UsageError", "param", "registry"]
+__all__ = ["Attribute", "Block", "Context", "File", "Output", "ParamError", "Params", "Prim", "Primvar", "Processor",
+           "RefinedMesh", "Result", "Scene", "StageError", "Texture", "UsageError", "param", "registry"]

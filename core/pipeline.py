@@ -20,6 +20,7 @@ from .cache import ResultCache, step_key
 from .errors import UsageError
 from .params import ParamError, Params
 from .processor import Context, Processor, Result
+from .products import RefinedScene
 from .records import Attribute, Prim, Primvar
 from .registry import get as get_processor
 from .registry import registry as all_processors
@@ -48,6 +49,8 @@ class Step:
     processor: Processor
     params: Params
     key: str = ""
+    after: tuple[str, ...] = ()
+    """A mesh refiner this step runs after, on its refined Scene (Processor.follows_refinement)."""
     action: str = "run"
     """'run', 'cached' (up to date) or 'skip' (not applicable)."""
     reason: str = ""
@@ -104,6 +107,9 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
         pending.extend(deps)
     if not allow_conflicts and write_conflicts(wanted, registry):
         raise GraphError(write_conflicts(wanted, registry)[0])
+    after = _after_refinement(wanted, graph, registry)
+    for name, refiner in after.items():
+        graph[name].add(refiner)
     try:
         order = list(TopologicalSorter(graph).static_order())
     except CycleError as error:
@@ -112,8 +118,31 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
     for name in order:
         cls = registry[name]
         step_params = cls.Params.from_dict(params.get(name, {}))
-        steps.append(Step(name, cls(step_params), step_params))
+        steps.append(Step(name, cls(step_params), step_params, after=(after[name],) if name in after else ()))
     return steps
+
+
+def _after_refinement(wanted: list[str], graph: dict[str, set[str]], registry: dict) -> dict[str, str]:
+    """{step: the refiner it runs after}: processors that follow refinement, and what they require,
+    in a run with a processor providing RefinedScene (not the refiner's own dependencies)."""
+    refiners = [name for name in wanted if RefinedScene in registry[name].provides]
+    if not refiners:
+        return {}
+    refiner = refiners[0]
+    upstream, pending = set(), [refiner]
+    while pending:
+        for dep in graph[pending.pop()]:
+            if dep not in upstream:
+                upstream.add(dep)
+                pending.append(dep)
+    chosen, pending = set(), [name for name in wanted if registry[name].follows_refinement]
+    while pending:
+        name = pending.pop()
+        if name in chosen or name == refiner or name in upstream:
+            continue
+        chosen.add(name)
+        pending.extend(graph[name])
+    return {name: refiner for name in chosen}
 
 
 def writes_overlap(a: str, b: str) -> bool:
@@ -191,7 +220,7 @@ class Pipeline:
         producers = {product: step.name for step in self.steps for product in step.processor.provides}
         for step in self.steps:
             upstream = sorted({producers[p] for p in step.processor.requires})
-            step.key = step_key(step, scene, [keys[name] for name in upstream])
+            step.key = step_key(step, scene, [keys[name] for name in sorted({*upstream, *step.after})])
             keys[step.name] = step.key
             blocked = [name for name in upstream if name in skipped]
             applies, why = step.processor.applies(self.context(step, scene))
@@ -208,9 +237,16 @@ class Pipeline:
                 skipped.add(step.name)
         return self.steps
 
-    def run(self, scene: Scene, *, on_progress: Callable[[str, float], None] | None = None) -> list[Step]:
-        """Run the plan; raises ProcessorFailed (nothing is written by the runner itself)."""
+    def run(self, scene: Scene, *, on_progress: Callable[[str, float], None] | None = None,
+            before_compute: Callable[[list[Step]], None] | None = None) -> list[Step]:
+        """Run the plan; raises ProcessorFailed (nothing is written by the runner itself).
+
+        ``before_compute(steps)`` is called once the plan is made and before any step runs: the place
+        for checks of the input that depend on which steps run (it raises to stop the bake).
+        """
         self.plan(scene)
+        if before_compute:
+            before_compute(self.steps)
         products: dict = {}
         for step in self.steps:
             if step.action == "skip":
@@ -221,7 +257,8 @@ class Pipeline:
             result = self.cache.load(step.name, step.key) if step.action == "cached" else None
             if result is None:
                 step.action = "run"
-                ctx = self.context(step, scene, {p: products[p] for p in step.processor.requires},
+                step_scene = products[RefinedScene].scene if step.after and RefinedScene in products else scene
+                ctx = self.context(step, step_scene, {p: products[p] for p in step.processor.requires},
                                    (lambda f, n=step.name: on_progress(n, f)) if on_progress else None)
                 try:
                     result = step.processor.run(ctx)

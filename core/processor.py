@@ -70,6 +70,10 @@ class Processor:
     """Properties it authors on prims it does not define itself (the receivers' meshes, prototypes,
     materials): full names (``primvars:bake:ao``), or a namespace ending in ``:`` (``bake:field:``).
     Two processors in one run may not share one; the runner checks before any compute."""
+    follows_refinement: ClassVar[bool] = False
+    """It writes per-vertex or per-face results on receiver meshes: in a run with a processor that
+    provides RefinedScene (a mesh refiner), it runs after it on the refined Scene, and so does
+    everything it requires, so its results fit the re-authored topology."""
     Params: ClassVar[type[Params]] = Params
     summary: ClassVar[str] = ""
 

@@ -44,6 +44,10 @@ class SkyVisibilityProduct:
     """(F,) int32 authored face of the source prim."""
     face_level: np.ndarray
     """(F,) int32 area halvings below the source triangle."""
+    face_corner_weights: np.ndarray
+    """(F, 3, 3) float64 barycentric coordinates of each face corner in its source triangle."""
+    point_source: np.ndarray
+    """(P,) int64 Scene point each of face_points is (-1 for a point the refinement added)."""
     visibility: np.ndarray
     """(F, N) uint8 V_ij * 255 (rounded)."""
     visibility_scale: float
@@ -83,6 +87,18 @@ class SkyVisibilityProduct:
 
     def __setstate__(self, state):
         self.__dict__.update(state)
+
+
+@dataclass(frozen=True)
+class RefinedScene:
+    """The Scene after a processor refined receiver meshes (product of ``sky_visibility``): those
+    prims have the refined triangles as their authored faces, exactly as extraction would read the
+    bake's output. Processors with ``follows_refinement`` run on it in the same run."""
+
+    scene: Any
+    """usdbake.core.scene.Scene."""
+    prims: np.ndarray
+    """(R,) int32 prims whose topology changed."""
 
 
 @dataclass(frozen=True)

@@ -70,4 +70,35 @@ class File:
     data: bytes
 
 
-Output = Primvar | Attribute | Prim | Texture | File
+@dataclass(frozen=True)
+class RefinedMesh:
+    """A mesh prim re-authored as the triangles of a conforming refinement of its authored faces.
+
+    Point i < ``point_count`` is authored point i (kept at its index); later points are new. Every
+    triangle lies inside one triangle of its authored face's triangulation (its *source*), and each
+    of its corners is a barycentric combination of the source's corners: that is how
+    ``usdbake.stages.refined_mesh`` carries every authored attribute (points, normals, velocities,
+    primvars of every interpolation, GeomSubsets, creases, holes) onto the new topology, in the
+    prim's own space. Authored with ``orientation = rightHanded``.
+    """
+
+    prim: str
+    point_count: int
+    """Authored points of the prim (the first points of the refined mesh)."""
+    triangles: np.ndarray
+    """(F, 3) int32 indices into the refined points, wound for rightHanded in the prim's space."""
+    face: np.ndarray
+    """(F,) int32 authored face each triangle lies in."""
+    source_corners: np.ndarray
+    """(F, 3) int32 face-vertex slots (positions in the authored faceVertexIndices) of the source's corners."""
+    corner_weights: np.ndarray
+    """(F, 3, 3) float64: corner i of triangle t is sum_k corner_weights[t, i, k] * source corner k."""
+
+
+@dataclass(frozen=True)
+class Block:
+    """An explicit absence of value (Sdf.ValueBlock) for an Attribute: hides what weaker layers author
+    (e.g. the ``:indices`` of a primvar a processor replaces with unindexed values)."""
+
+
+Output = Primvar | Attribute | Prim | Texture | File | RefinedMesh

@@ -130,8 +130,14 @@ class Scene:
     """Identifier of the stage's root layer (for messages only)."""
     warnings: tuple[str, ...] = ()
     """What extraction left out and why (holes, degenerate faces), for people."""
+    tri_corner: np.ndarray | None = None
+    """(T, 3) int32 face-vertex slot of each triangle corner: its position in the prim's authored
+    faceVertexIndices, in ``tri_vertices`` corner order (faceVarying data of corner k is
+    ``data[tri_corner[:, k]]``). -1 where unknown (a Scene not read from USD: the default)."""
 
     def __post_init__(self) -> None:
+        if self.tri_corner is None:
+            object.__setattr__(self, "tri_corner", np.full((len(self.tri_vertices), 3), -1, np.int32))
         for f in fields(self):
             value = getattr(self, f.name)
             if isinstance(value, np.ndarray):
@@ -178,7 +184,7 @@ class Scene:
 # Which Scene fields each fingerprint facet reads.
 FACETS: dict[str, tuple[str, ...]] = {
     "geometry": (
-        "points", "tri_vertices", "tri_prim", "tri_face", "tri_instance", "tri_double_sided",
+        "points", "tri_vertices", "tri_corner", "tri_prim", "tri_face", "tri_instance", "tri_double_sided",
         "point_prim", "prim_paths", "prim_point_start", "prim_writable", "prim_skip",
         "origin", "up_axis", "meters_per_unit", "prim_to_world",
     ),

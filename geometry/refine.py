@@ -46,6 +46,11 @@ class Refinement:
     """(T',) bool: the triangle is new (its parent was split)."""
     halvings: np.ndarray
     """(T',) int64 area halvings from the parent: 0 unchanged, 1 (half) or 2 (quarter)."""
+    corner_weights: np.ndarray
+    """(T', 3, 3) float64: corner i of output triangle t is sum_k corner_weights[t, i, k] * corner k of
+    its parent (identity for unchanged triangles, halves at edge midpoints). Composing them over passes
+    gives every corner's barycentric coordinates in the input triangle, which is how authored vertex
+    and faceVarying data is interpolated onto the refined mesh."""
 
 
 def weld_points(points: np.ndarray, groups: np.ndarray | None = None) -> np.ndarray:
@@ -88,7 +93,8 @@ def refine(points: np.ndarray, triangles: np.ndarray, marked: np.ndarray, *,
     weld = np.arange(len(points), dtype=np.int64) if weld is None else np.asarray(weld, np.int64)
     n_tri = len(triangles)
     if n_tri == 0 or not marked.any():
-        return Refinement(points, weld, triangles, np.arange(n_tri), np.zeros(n_tri, bool), np.zeros(n_tri, np.int64))
+        return Refinement(points, weld, triangles, np.arange(n_tri), np.zeros(n_tri, bool), np.zeros(n_tri, np.int64),
+                          np.broadcast_to(np.eye(3), (n_tri, 3, 3)).copy())
 
     tri_edge, n_edges = triangle_edges(triangles, weld)
     corners = points[triangles]
@@ -134,6 +140,7 @@ def refine(points: np.ndarray, triangles: np.ndarray, marked: np.ndarray, *,
     parts = [triangles[keep]]
     parents = [rows[keep]]
     halvings = [np.zeros(int(keep.sum()), np.int64)]
+    weights = [np.broadcast_to(np.eye(3), (int(keep.sum()), 3, 3))]
 
     # Split triangles: bisect the longest edge A-B (midpoint M, opposite corner C), then bisect
     # the half (A, M, C) at the midpoint N of C-A and the half (M, B, C) at the midpoint Q of B-C
@@ -146,23 +153,25 @@ def refine(points: np.ndarray, triangles: np.ndarray, marked: np.ndarray, *,
     m = midpoint[cut, k]
     n = midpoint[cut, _OPPOSITE[k]]
     q = midpoint[cut, _NEXT[k]]
+    # The same six vertices as weights over the parent's corners (rows of the identity, and midpoints).
+    unit = np.eye(3)
+    wa, wb, wc = unit[k], unit[_NEXT[k]], unit[_OPPOSITE[k]]
+    wm, wn, wq = 0.5 * (wa + wb), 0.5 * (wc + wa), 0.5 * (wb + wc)
     for half_split, whole, pieces in (
-        (n >= 0, (a, m, c), ((a, m, n), (m, c, n))),
-        (q >= 0, (m, b, c), ((m, b, q), (m, q, c))),
+        (n >= 0, ((a, wa), (m, wm), (c, wc)), (((a, wa), (m, wm), (n, wn)), ((m, wm), (c, wc), (n, wn)))),
+        (q >= 0, ((m, wm), (b, wb), (c, wc)), (((m, wm), (b, wb), (q, wq)), ((m, wm), (q, wq), (c, wc)))),
     ):
         one = ~half_split
-        parts.append(np.stack([v[one] for v in whole], 1))
-        parents.append(cut[one])
-        halvings.append(np.ones(int(one.sum()), np.int64))
-        for piece in pieces:
-            parts.append(np.stack([v[half_split] for v in piece], 1))
-            parents.append(cut[half_split])
-            halvings.append(np.full(int(half_split.sum()), 2, np.int64))
+        for mask, corners_of, halving in [(one, whole, 1)] + [(half_split, piece, 2) for piece in pieces]:
+            parts.append(np.stack([v[mask] for v, _ in corners_of], 1))
+            weights.append(np.stack([w[mask] for _, w in corners_of], 1))
+            parents.append(cut[mask])
+            halvings.append(np.full(int(mask.sum()), halving, np.int64))
 
     new_triangles = np.concatenate(parts)
     parent = np.concatenate(parents)
     halv = np.concatenate(halvings)
-    return Refinement(new_points, new_weld, new_triangles, parent, halv > 0, halv)
+    return Refinement(new_points, new_weld, new_triangles, parent, halv > 0, halv, np.concatenate(weights))
 
 
 def boundary_edges(triangles: np.ndarray, weld: np.ndarray) -> np.ndarray:

@@ -145,6 +145,7 @@ class AmbientOcclusion(Processor):
     version = "2"
     summary = "Per-vertex ambient occlusion by cosine-weighted hemisphere ray casts (the reference AO)."
     facets = ("geometry",)
+    follows_refinement = True
     writes = ("primvars:bake:ao", "primvars:bake:aoFace", "inputs:occlusion")
     provides = (AmbientOcclusionProduct,)
 

@@ -390,6 +390,7 @@ class InstanceAO(Processor):
     version = "2"
     summary = "Per-vertex AO with instanced prototypes looked up in displacement fields (per frame, no BVH rebuild)."
     facets = ("geometry", "instancers")
+    follows_refinement = True
     writes = ("primvars:bake:ao",)
     requires = (DisplacementFieldSet,)
     provides = (InstanceOcclusionProduct,)

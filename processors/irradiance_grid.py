@@ -465,6 +465,7 @@ class IrradianceGrid(Processor):
     version = "1"
     summary = "Irradiance vector grid: 6 vectors per vertex, 8-bit direction + RGB9E5, progressive stream."
     facets = ("geometry", "materials", "lights")
+    follows_refinement = True
     writes = ("primvars:bake:irradianceGrid",)
     provides = (IrradianceGridProduct,)
 

@@ -222,6 +222,7 @@ class ProgressiveMesh(Processor):
     version = "1"
     summary = "Progressive meshes by half-edge collapse: stream order and vertex lookup table per mesh."
     facets = ("geometry",)
+    follows_refinement = True
     writes = ("primvars:bake:pmRank", "primvars:bake:pmCollapseTo")
     provides = (ProgressiveMeshProduct,)
 

@@ -358,6 +358,7 @@ class Radiosity(Processor):
     requires = (FormFactorProduct,)
     provides = (RadiosityProduct,)
     facets = ("geometry", "materials", "lights")
+    follows_refinement = True
     writes = ("primvars:bake:irradianceDirect", "primvars:bake:irradianceIndirect")
 
     @dataclass(frozen=True)

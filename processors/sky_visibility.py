@@ -40,13 +40,19 @@ points                           point3f[]                the refined mesh, in t
 faceVertexCounts                 int[]                    all 3
 faceVertexIndices                int[]                    refined triangles
 orientation                      token                    ``rightHanded`` (winding is written for it)
-primvars:normals                 normal3f[] uniform       local face normals (faceted)
+(every authored attribute)                                carried onto the refined faces (see below)
 primvars:bake:sourceFace         int[]      uniform       authored face of the input mesh per face
 primvars:bake:skyVisibility      uchar[]    uniform       V_ij quantized to 0..255, elementSize = N
 primvars:bake:skyExposure        float[]    uniform       sum_j V_ij dw_j / pi: open-sky share of irradiance
 bake:sky:visibilityScale         float                    V = value * scale (1/255)
 bake:sky:patchCount ... upAxis   (SkyVisibilityAPI, applied) patch layout, directions, solid angles
 ================================ ========== ============= =============================================
+
+The refined mesh keeps the authored points at their indices and adds new ones; normals,
+velocities, primvars of every interpolation (indexed or not), GeomSubsets, creases and holes are
+carried onto it (``stages/refined_mesh.py``: barycentric interpolation at new vertices, uniform
+values copied to child faces). Its Scene is the ``RefinedScene`` product: processors that write
+per-vertex results run on it in the same run.
 
 Parameters: ``usdbake list sky_visibility`` or docs/daylight.md, both generated from ``Params`` below.
 """
@@ -59,10 +65,11 @@ import numpy as np
 import warp as wp
 
 from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
-from ..core.products import SkyVisibilityProduct
+from ..core.products import RefinedScene, SkyVisibilityProduct
 from ..core.scene import Scene
 from ..geometry.mesh import missing_receivers, receiver_prims
 from ..geometry.refine import refine, weld_points
+from ..geometry.refined_scene import refine_scene
 from ..kernels.sampling import strata_for, stratified_pair, triangle_point
 from ..kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
 from ..kernels.tracer import FAR, triangle_origin
@@ -203,13 +210,6 @@ def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, p
     return visible, partial
 
 
-# ---------------------------------------------------------------------------
-# The product
-
-
-
-
-
 def _areas_normals(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     corners = points[triangles]
     cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
@@ -244,10 +244,12 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     tris = np.flatnonzero(np.isin(scene.tri_prim, prims))
     used, local = np.unique(scene.tri_vertices[tris], return_inverse=True)
     points = scene.points[used].astype(np.float64)
+    point_source = used.astype(np.int64)
     weld = weld_points(scene.points[used], scene.point_prim[used])
     triangles = local.reshape(-1, 3).astype(np.int64)
     source = tris.astype(np.int64)
     level = np.zeros(len(tris), np.int64)
+    weights = np.broadcast_to(np.eye(3), (len(tris), 3, 3)).copy()  # corners in their source triangle
     # V is kept quantized (uint8) while refining: 1 byte per factor bounds memory on big meshes.
     quantized = np.zeros((len(tris), n_patch), np.uint8)
     exposure = np.zeros(len(tris), np.float64)
@@ -265,6 +267,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
             result = refine(points, triangles, np.ones(len(triangles), bool), weld=weld)
             points, weld, triangles = result.points, result.weld, result.triangles
             source, level = source[result.parent], level[result.parent] + result.halvings
+            weights = np.einsum("tij,tjk->tik", result.corner_weights, weights[result.parent])
         quantized = np.zeros((len(triangles), n_patch), np.uint8)
         exposure = np.zeros(len(triangles), np.float64)
         score = np.zeros(len(triangles), np.float64)
@@ -297,6 +300,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
             break
         result = refine(points, triangles, marked, weld=weld)
         points, weld, triangles = result.points, result.weld, result.triangles
+        weights = np.einsum("tij,tjk->tik", result.corner_weights, weights[result.parent])
         quantized, exposure, score = quantized[result.parent], exposure[result.parent], score[result.parent]
         source, ids = source[result.parent], ids[result.parent]
         level = level[result.parent] + result.halvings
@@ -304,7 +308,8 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
 
     # Faces grouped by prim (stable), so each prim's faces are contiguous and in refinement order.
     order = np.argsort(scene.tri_prim[source], kind="stable")
-    triangles, source, level = triangles[order], source[order], level[order]
+    triangles, source, level, weights = triangles[order], source[order], level[order], weights[order]
+    point_source = np.concatenate([point_source, np.full(len(points) - len(point_source), -1, np.int64)])
     # The patch quadrature of sum_j V_ij dw_j / pi can exceed 1 by a fraction of a percent on a fully
     # open face; exposure is a share of the sky, so it is clamped to [0, 1].
     quantized, exposure = quantized[order], np.clip(exposure[order], 0.0, 1.0).astype(np.float32)
@@ -314,6 +319,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
         face_normals=scene.tri_normals[source].astype(np.float32), face_areas=areas.astype(np.float32),
         face_source=source.astype(np.int32), face_prim=scene.tri_prim[source].astype(np.int32),
         face_face=scene.tri_face[source].astype(np.int32), face_level=level.astype(np.int32),
+        face_corner_weights=weights, point_source=point_source,
         visibility=quantized, visibility_scale=1.0 / QUANT_LEVELS, exposure=exposure,
         patches=patches, to_world=to_world, up_axis=scene.up_axis, prims=prims.astype(np.int32),
     )
@@ -324,32 +330,6 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
         "visibility_mb": quantized.nbytes / 2 ** 20,
     }
     return product, stats
-
-
-def local_mesh_records(scene: Scene, product: SkyVisibilityProduct, prim: int) -> list:
-    """Records authoring the refined mesh of one prim over the original, in its local space."""
-    path = scene.prim_paths[prim]
-    faces = np.flatnonzero(product.face_prim == prim)
-    tri = product.face_vertices[faces]
-    used, inverse = np.unique(tri, return_inverse=True)
-    indices = inverse.reshape(-1, 3)
-    matrix = np.asarray(scene.prim_to_world[prim], np.float64)
-    if np.linalg.det(matrix[:3, :3]) < 0:
-        indices = indices[:, ::-1]  # the scene winding was flipped for a mirroring transform
-    homogeneous = np.c_[product.face_points[used], np.ones(len(used))]
-    try:
-        local = (homogeneous @ np.linalg.inv(matrix))[:, :3]
-    except np.linalg.LinAlgError:
-        local = homogeneous[:, :3]  # singular transform: nothing sensible to invert to
-    _, normals = _areas_normals(local, indices)
-    return [
-        Attribute(path, "points", local.astype(np.float32), "point3f[]"),
-        Attribute(path, "faceVertexCounts", np.full(len(indices), 3, np.int32), "int[]"),
-        Attribute(path, "faceVertexIndices", indices.astype(np.int32).ravel(), "int[]"),
-        Attribute(path, "orientation", "rightHanded", "token", uniform=True),
-        Primvar(path, "normals", normals.astype(np.float32), "normal3f", "uniform"),
-        Primvar(path, "bake:sourceFace", product.face_face[faces].astype(np.int32), "int", "uniform"),
-    ]
 
 
 SKY_CHECK_BATCH = 1 << 18
@@ -379,9 +359,9 @@ class SkyVisibility(Processor):
     version = "2"
     summary = "Per-face sky patch visibility with adaptive crack-free refinement (Bosch et al.)."
     facets = ("geometry",)
-    writes = ("points", "faceVertexCounts", "faceVertexIndices", "orientation", "primvars:normals",
+    writes = ("points", "faceVertexCounts", "faceVertexIndices", "orientation",
               "primvars:bake:sourceFace", "primvars:bake:skyVisibility", "primvars:bake:skyExposure", "bake:sky:")
-    provides = (SkyVisibilityProduct,)
+    provides = (SkyVisibilityProduct, RefinedScene)
 
     @dataclass(frozen=True)
     class Params(Params):
@@ -420,18 +400,22 @@ class SkyVisibility(Processor):
             ctx.tracer, scene, patches=patches, samples=p.samples, tolerance=p.tolerance,
             min_area=p.min_area, max_level=p.max_level, max_triangles=p.max_triangles, seed=p.seed,
             criterion=p.criterion, progress=ctx.progress)
-        result = Result(products={SkyVisibilityProduct: product}, stats=stats)
+        refined, meshes = refine_scene(scene, product.face_points, product.point_source, product.face_vertices,
+                                       product.face_source, product.face_corner_weights)
+        result = Result(products={SkyVisibilityProduct: product,
+                                  RefinedScene: RefinedScene(refined, product.prims.astype(np.int32))},
+                        stats=stats, outputs=list(meshes))
         directions = (patches.patch_directions @ product.to_world.T).astype(np.float32)
         n_patch = len(patches)
         for prim in product.prims:
             path = scene.prim_paths[prim]
             faces = np.flatnonzero(product.face_prim == prim)
             result.outputs.append(Prim(path, api_schemas=("SkyVisibilityAPI",)))
-            result.outputs.extend(local_mesh_records(scene, product, prim))
             result.outputs += [
                 Primvar(path, "bake:skyVisibility", product.visibility[faces].ravel(), "uchar", "uniform",
                         element_size=n_patch),
                 Primvar(path, "bake:skyExposure", product.exposure[faces], "float", "uniform"),
+                Primvar(path, "bake:sourceFace", product.face_face[faces], "int", "uniform"),
                 Attribute(path, "bake:sky:visibilityScale", float(product.visibility_scale), "float"),
                 Attribute(path, "bake:sky:patchCount", n_patch, "int"),
                 Attribute(path, "bake:sky:patchLayout", patches.layout, "token"),

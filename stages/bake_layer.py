@@ -32,7 +32,7 @@ import numpy as np
 from pxr import Sdf, Tf, Vt
 
 from ..core.errors import UsageError
-from ..core.records import Attribute, File, Prim, Primvar, Texture
+from ..core.records import Attribute, Block, File, Prim, Primvar, RefinedMesh, Texture
 
 PROVENANCE_KEY = "usdbake"
 
@@ -352,30 +352,36 @@ def _cover_time_samples(layer: Sdf.Layer, outputs: list) -> None:
 
 
 def check_topology(outputs: list) -> None:
-    """Refuse outputs whose vertex/uniform primvars do not fit a mesh another record re-authors.
-
-    A processor that refines meshes (sky_visibility) authors new points and faces; per-vertex or
-    per-face data computed on the original topology by a processor that did not read the refined
-    mesh would no longer line up, and the output would be corrupt.
-    """
-    points, faces = {}, {}
+    """Refuse outputs whose vertex/varying/uniform/faceVarying primvars do not fit a mesh another
+    record re-authors (a refined mesh): the layer would be corrupt. Processors that follow a
+    refinement run on the refined Scene, so their results fit; this is the last guard."""
+    unexpanded = [record.prim for record in outputs if isinstance(record, RefinedMesh)]
+    if unexpanded:
+        raise TypeError(f"{unexpanded[0]}: a RefinedMesh record reached the layer; expand it with "
+                        f"usdbake.stages.refined_mesh.complete_outputs first")
+    points, faces, corners = {}, {}, {}
     for record in outputs:
-        if isinstance(record, Attribute) and record.value is not None:
+        if isinstance(record, Attribute) and record.value is not None and not isinstance(record.value, Block):
             if record.name == "points":
                 points[record.prim] = len(record.value)
             elif record.name == "faceVertexCounts":
                 faces[record.prim] = len(record.value)
+            elif record.name == "faceVertexIndices":
+                corners[record.prim] = len(record.value)
+    indexed = {(record.prim, record.name, record.time): record.value for record in outputs
+               if isinstance(record, Attribute) and record.name.endswith(":indices")
+               and record.value is not None and not isinstance(record.value, Block)}
     for record in outputs:
         if not isinstance(record, Primvar):
             continue
-        expected = {"vertex": points, "uniform": faces}.get(record.interpolation, {}).get(record.prim)
-        count = len(record.values) // max(1, record.element_size) if np.ndim(record.values) == 1 \
-            else len(record.values)
+        expected = {"vertex": points, "varying": points, "uniform": faces,
+                    "faceVarying": corners}.get(record.interpolation, {}).get(record.prim)
+        indices = indexed.get((record.prim, f"primvars:{record.name}:indices", record.time))
+        count = len(indices if indices is not None else record.values) // max(1, record.element_size)
         if expected is not None and count != expected:
             raise UsageError(
-                f"{record.prim}.primvars:{record.name}: {count} {record.interpolation} values, but another "
-                f"processor re-authors this mesh with {expected}; bake mesh-refining processors "
-                f"(sky_visibility, daylight) in a run of their own")
+                f"{record.prim}.primvars:{record.name}: {count} {record.interpolation} values for a mesh "
+                f"re-authored with {expected}; refusing to write data that does not fit its topology")
 
 
 def _clear_opinions(layer: Sdf.Layer) -> None:
@@ -512,6 +518,8 @@ def _set_value(layer: Sdf.Layer, spec: Sdf.AttributeSpec, value, time: float | N
 def to_vt(value, type_name: str):
     """Convert numpy data to the Vt/Gf value Sdf expects for ``type_name`` (e.g. 'color3f[]')."""
     value_type = Sdf.ValueTypeNames.Find(type_name)
+    if isinstance(value, Block):
+        return Sdf.ValueBlock()
     if type_name == "asset":
         return Sdf.AssetPath(str(value))
     if value_type.isArray:

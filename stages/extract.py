@@ -19,7 +19,7 @@ from ..core.errors import StageError
 from ..core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Instances, Lights, Scene
 from .composition import check_composition
 from .materials import MaterialReader
-from .triangulate import triangulate
+from .triangulate import triangulate_corners
 
 RENDERABLE_PURPOSES = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
 LIGHT_TYPES = (
@@ -35,6 +35,7 @@ class LocalMesh:
     path: str
     points: np.ndarray        # (P, 3) float64 local
     triangles: np.ndarray     # (T, 3) int32, authored winding
+    tri_corner: np.ndarray    # (T, 3) int32 face-vertex slot of each corner (faceVertexIndices position)
     tri_face: np.ndarray      # (T,) int32
     face_count: int
     tri_albedo: np.ndarray    # (T, 3) float32
@@ -122,11 +123,12 @@ def _read_mesh(prim: Usd.Prim, timecode: Usd.TimeCode, materials: "MaterialReade
     if len(holes):
         skip_faces[holes] = True
         warnings.append(f"{path}: {len(holes)} hole faces skipped")
-    triangles, tri_face = triangulate(points, counts, indices, skip_faces)
+    tri_corner, tri_face = triangulate_corners(points, counts, indices, skip_faces)
+    triangles = indices[tri_corner].astype(np.int32).reshape(-1, 3)
     albedo, emission, surface = materials.face_shading(prim, len(counts))
     skip_attr = prim.GetAttribute("bake:skip")
     return LocalMesh(
-        path=path, points=points, triangles=triangles, tri_face=tri_face, face_count=len(counts),
+        path=path, points=points, triangles=triangles, tri_corner=tri_corner, tri_face=tri_face, face_count=len(counts),
         tri_albedo=albedo[tri_face], tri_emission=emission[tri_face],
         left_handed=mesh.GetOrientationAttr().Get(timecode) == UsdGeom.Tokens.leftHanded,
         double_sided=bool(mesh.GetDoubleSidedAttr().Get(timecode)),
@@ -223,12 +225,13 @@ def _assemble(stage, builder: _Builder, light_prims, instances: _InstanceTable, 
     origin = ((all_points.min(axis=0) + all_points.max(axis=0)) / 2) if len(all_points) else np.zeros(3)
 
     point_start = np.zeros(len(builder.meshes) + 1, np.int64)
-    tri_parts, face_parts, prim_parts = [], [], []
+    tri_parts, corner_parts, face_parts, prim_parts = [], [], [], []
     for m_index, ((mesh, world, _, _), points) in enumerate(zip(builder.meshes, world_points)):
         point_start[m_index + 1] = point_start[m_index] + len(points)
         flip = mesh.left_handed ^ (np.linalg.det(world[:3, :3]) < 0)
         triangles = mesh.triangles[:, ::-1] if flip else mesh.triangles
         tri_parts.append(triangles + point_start[m_index])
+        corner_parts.append(mesh.tri_corner[:, ::-1] if flip else mesh.tri_corner)
         prim_parts.append(np.full(len(triangles), m_index, np.int32))
         face_parts.append(mesh.tri_face)
 
@@ -244,7 +247,7 @@ def _assemble(stage, builder: _Builder, light_prims, instances: _InstanceTable, 
     return Scene(
         points=points, tri_vertices=tri_vertices, tri_normals=tri_normals, tri_areas=tri_areas,
         tri_albedo=per_tri("tri_albedo", (0, 3)), tri_emission=per_tri("tri_emission", (0, 3)),
-        tri_prim=tri_prim, tri_face=cat(face_parts, 0, np.int32),
+        tri_prim=tri_prim, tri_face=cat(face_parts, 0, np.int32), tri_corner=cat(corner_parts, (0, 3), np.int32),
         tri_instance=np.array([inst for _, _, _, inst in builder.meshes], np.int32)[tri_prim]
         if len(tri_prim) else np.zeros(0, np.int32),
         tri_double_sided=np.array([m.double_sided for m in meshes], bool)[tri_prim]

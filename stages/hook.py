@@ -31,6 +31,7 @@ from ..core.records import File, Texture
 from .bake_layer import PROVENANCE_KEY, author, is_bake_layer
 from .inputs import empty_bake_message
 from .extract import extract_scene
+from .refined_mesh import complete_outputs, refinement_guard
 
 
 def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | None = None,
@@ -60,13 +61,13 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     check_param_targets(params or {}, [step.name for step in pipeline.steps])
     target = layer if layer is not None else _session_bake_layer(stage)
     muted = _mute_for_extraction(stage, target)
-    try:
+    try:  # the stage is read without an earlier bake's opinions, also where refined meshes are completed
         scene = extract_scene(stage, time=time, allow_missing=allow_missing)
+        pipeline.run(scene, on_progress=on_progress, before_compute=refinement_guard(stage, scene))
+        outputs = complete_outputs(stage, pipeline.outputs())
     finally:
         if muted:
             stage.UnmuteLayer(target.identifier)
-    pipeline.run(scene, on_progress=on_progress)
-    outputs = pipeline.outputs()
     if not outputs:
         raise UsageError(empty_bake_message(pipeline.steps))
     if layer is None and target.identifier not in stage.GetSessionLayer().subLayerPaths:

@@ -89,7 +89,17 @@ def _points_in_triangle(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarr
 
 def triangulate(points: np.ndarray, counts: np.ndarray, indices: np.ndarray,
                 skip_faces: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Triangulate a polygon mesh.
+    """Triangulate a polygon mesh: ((T, 3) int32 point indices, (T,) int32 source face).
+
+    See ``triangulate_corners``; the triangles are ``indices[corners]``.
+    """
+    corners, tri_face = triangulate_corners(points, counts, indices, skip_faces)
+    return np.asarray(indices, np.int64)[corners].astype(np.int32).reshape(-1, 3), tri_face
+
+
+def triangulate_corners(points: np.ndarray, counts: np.ndarray, indices: np.ndarray,
+                        skip_faces: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Triangulate a polygon mesh into face-vertex slots.
 
     Parameters
     ----------
@@ -100,7 +110,8 @@ def triangulate(points: np.ndarray, counts: np.ndarray, indices: np.ndarray,
 
     Returns
     -------
-    triangles : (T, 3) int32 point indices, winding of the source polygons
+    corners : (T, 3) int32 face-vertex slots (positions in ``indices``) of each triangle's corners,
+        winding of the source polygons; faceVarying data of corner k is ``data[corners[:, k]]``
     tri_face : (T,) int32 source face of each triangle
     """
     counts = np.asarray(counts, np.int64)
@@ -112,20 +123,20 @@ def triangulate(points: np.ndarray, counts: np.ndarray, indices: np.ndarray,
     tri_parts, face_parts = [], []
     for n in np.unique(counts[keep]):
         faces = np.flatnonzero(keep & (counts == n))
-        face_indices = indices[starts[faces, None] + np.arange(n)]
+        slots = starts[faces, None] + np.arange(n)
         if n == 3:
-            tri_parts.append(face_indices)
+            tri_parts.append(slots)
             face_parts.append(faces)
             continue
-        convex = convex_mask(points[face_indices].astype(np.float64))
-        tri_parts.append(fan(face_indices[convex]))
+        convex = convex_mask(points[indices[slots]].astype(np.float64))
+        tri_parts.append(fan(slots[convex]))
         face_parts.append(np.repeat(faces[convex], n - 2))
-        for face, local in zip(faces[~convex], face_indices[~convex]):
-            tri_parts.append(local[ear_clip(points[local])])
+        for face, local in zip(faces[~convex], slots[~convex]):
+            tri_parts.append(local[ear_clip(points[indices[local]])])
             face_parts.append(np.full(n - 2, face))
     if not tri_parts:
         return np.zeros((0, 3), np.int32), np.zeros(0, np.int32)
-    triangles = np.concatenate(tri_parts).astype(np.int32)
+    corners = np.concatenate(tri_parts).astype(np.int32)
     tri_face = np.concatenate(face_parts).astype(np.int32)
     order = np.argsort(tri_face, kind="stable")
-    return triangles[order], tri_face[order]
+    return corners[order], tri_face[order]
