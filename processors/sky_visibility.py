@@ -306,8 +306,8 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
         level = level[result.parent] + result.halvings
         pending = result.changed.copy()
 
-    # Faces grouped by prim (stable), so each prim's faces are contiguous and in refinement order.
-    order = np.argsort(scene.tri_prim[source], kind="stable")
+    # Faces grouped by prim, then by source triangle (so by authored face), in refinement order within one.
+    order = np.lexsort((source, scene.tri_prim[source]))
     triangles, source, level, weights = triangles[order], source[order], level[order], weights[order]
     point_source = np.concatenate([point_source, np.full(len(points) - len(point_source), -1, np.int64)])
     # The patch quadrature of sum_j V_ij dw_j / pi can exceed 1 by a fraction of a percent on a fully

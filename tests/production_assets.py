@@ -123,11 +123,15 @@ def carried_values(stage: Usd.Stage, path: str) -> dict:
     }
 
 
-def primvar_count(primvar: UsdGeom.Primvar) -> int:
-    """Elements a primvar provides (its indices' length when indexed)."""
-    if primvar.IsIndexed():
-        return len(primvar.GetIndices())
-    return len(primvar.Get()) // max(1, primvar.GetElementSize())
+def primvar_counts(primvar: UsdGeom.Primvar) -> list[int]:
+    """Elements a primvar provides (its indices' length when indexed), at its default and every time sample."""
+    times = [Usd.TimeCode.Default()] + [Usd.TimeCode(t) for t in primvar.GetAttr().GetTimeSamples()]
+    counts = []
+    for time in times:
+        values = primvar.ComputeFlattened(time)
+        if values is not None:
+            counts.append(len(values) // max(1, primvar.GetElementSize()))
+    return counts
 
 
 def expected_count(mesh: UsdGeom.Mesh, interpolation: str) -> int | None:
@@ -152,9 +156,10 @@ def topology_mismatches(stage: Usd.Stage) -> list[str]:
             problems.append(f"{prim.GetPath()}: {why}")
         for primvar in UsdGeom.PrimvarsAPI(prim).GetPrimvarsWithValues():
             expected = expected_count(mesh, primvar.GetInterpolation())
-            if expected is not None and primvar_count(primvar) != expected:
-                problems.append(f"{primvar.GetAttr().GetPath()}: {primvar_count(primvar)} values for "
-                                f"{expected} {primvar.GetInterpolation()} elements")
+            for count in primvar_counts(primvar):
+                if expected is not None and count != expected:
+                    problems.append(f"{primvar.GetAttr().GetPath()}: {count} values for "
+                                    f"{expected} {primvar.GetInterpolation()} elements")
         normals = mesh.GetNormalsAttr().Get()
         if normals is not None:
             expected = expected_count(mesh, mesh.GetNormalsInterpolation())
