@@ -299,6 +299,8 @@ class Pipeline:
         data = {"version": __version__, "device": self.device,
                 "processors": {step.name: {"action": step.action, "reason": step.reason,
                                            "params": step.params.as_dict(), "fingerprint": step.key,
-                                           "seconds": round(step.seconds, 4)} for step in self.steps}}
+                                           "seconds": round(step.seconds, 4),
+                                           "messages": list(step.result.messages) if step.result else []}
+                               for step in self.steps}}
         data.update(extra or {})
         return data

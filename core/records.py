@@ -49,6 +49,8 @@ class Prim:
     path: str
     type_name: str = ""
     api_schemas: tuple[str, ...] = ()
+    instanceable: bool | None = None
+    """Set the prim's instanceable metadata (False: de-instance it); None leaves it alone."""
 
 
 @dataclass(frozen=True)

@@ -135,7 +135,14 @@ class Scene:
     faceVertexIndices, in ``tri_vertices`` corner order (faceVarying data of corner k is
     ``data[tri_corner[:, k]]``). -1 where unknown (a Scene not read from USD: the default)."""
 
+    prim_instance_roots: tuple[tuple[str, ...], ...] | None = None
+    """Per prim: the native instances (instanceable prims) it is an instance proxy under, outermost
+    first; () for a prim that is not (the default). Where per-instance results go, and what
+    de-instancing a receiver unsets."""
+
     def __post_init__(self) -> None:
+        if self.prim_instance_roots is None:
+            object.__setattr__(self, "prim_instance_roots", ((),) * len(self.prim_paths))
         if self.tri_corner is None:
             object.__setattr__(self, "tri_corner", np.full((len(self.tri_vertices), 3), -1, np.int32))
         for f in fields(self):
@@ -185,7 +192,7 @@ class Scene:
 FACETS: dict[str, tuple[str, ...]] = {
     "geometry": (
         "points", "tri_vertices", "tri_corner", "tri_prim", "tri_face", "tri_instance", "tri_double_sided",
-        "point_prim", "prim_paths", "prim_point_start", "prim_writable", "prim_skip",
+        "point_prim", "prim_paths", "prim_point_start", "prim_writable", "prim_skip", "prim_instance_roots",
         "origin", "up_axis", "meters_per_unit", "prim_to_world",
     ),
     "materials": ("tri_albedo", "tri_emission", "prim_surface"),

@@ -25,6 +25,14 @@ inputs:occlusion         float     (connection)  ``connect_occlusion``, on each 
                                                  UsdPrimvarReader_float
 ======================== ========= ============= ===================================
 
+Instanced receivers (``instances``; ``geometry/instances.py``): USD holds no per-vertex data on an
+instance, so with ``mean`` (the default) each instance gets the area-weighted mean AO of its
+surface: ``primvars:bake:ao`` (constant) on a native instance's root prim, which its meshes
+inherit, and ``primvars:bake:ao`` (vertex: one value per instance, 1 for masked rows) on a
+PointInstancer. ``deinstance`` sets ``instanceable = false`` on the native instances in the bake
+layer and writes per-vertex AO on their meshes (PointInstancers still get means); ``skip`` leaves
+instances out. The bake's messages say which was done.
+
 Parameters: ``usdbake list ambient_occlusion`` or docs/ambient_occlusion.md, both generated from ``Params`` below.
 """
 
@@ -39,7 +47,8 @@ import warp as wp
 from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
 from ..core.products import AmbientOcclusionProduct
 from ..core.scene import Scene
-from ..geometry.mesh import face_means, missing_receivers, receiver_prims, vertex_inward, vertex_normals
+from ..geometry.instances import instanced_receivers, native_instanced, per_instance_means
+from ..geometry.mesh import NO_RECEIVERS, face_means, receiver_prims, vertex_inward, vertex_normals
 from ..kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
 from ..kernels.sampling import strata_for, tangent_frame, triangle_point
 from ..kernels.tracer import surface_origin, triangle_origin
@@ -156,16 +165,22 @@ class AmbientOcclusion(Processor):
         per_face: bool = param(False, "also write per-face AO as primvars:bake:aoFace (uniform)")
         connect_occlusion: bool = param(False, "wire bake:ao into each bound UsdPreviewSurface inputs:occlusion")
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
+        instances: str = param("mean", "instanced receivers: mean (per-instance mean AO on the instance root "
+                               "or PointInstancer), deinstance (per-vertex AO on de-instanced native "
+                               "instances) or skip", choices=("mean", "deinstance", "skip"))
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
-        reason = missing_receivers(ctx.scene)
-        return not reason, reason
+        scene = ctx.scene
+        if len(receiver_prims(scene)) or (self.params.instances != "skip" and len(instanced_receivers(scene))):
+            return True, ""
+        return False, NO_RECEIVERS
 
     def run(self, ctx: Context) -> Result:
         scene, p = ctx.scene, ctx.params
         receivers = receiver_prims(scene)
+        instanced = instanced_receivers(scene) if p.instances != "skip" else np.zeros(0, np.int64)
         normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
-        point_mask = np.isin(scene.point_prim, receivers)
+        point_mask = np.isin(scene.point_prim, np.concatenate([receivers, instanced]))
         point_ids = np.flatnonzero(point_mask)
         ao_points = np.ones(scene.num_points, np.float32)
         ctx.progress(0.0)
@@ -184,14 +199,42 @@ class AmbientOcclusion(Processor):
             ctx.progress(1.0)
         if p.connect_occlusion:
             result.outputs.extend(occlusion_network(scene, receivers))
+        if len(instanced):
+            self._instances(scene, p, instanced, ao_points, result)
         rays_per_point = strata_for(p.samples) ** 2
         result.stats["rays"] = float(len(point_ids) * rays_per_point
                                      + (int(np.isin(scene.tri_prim, receivers).sum()) * rays_per_point
                                         if p.per_face else 0))
-        skipped = int((~scene.prim_writable).sum())
+        skipped = len(instanced_receivers(scene)) if p.instances == "skip" else 0
         if skipped:
-            result.messages.append(f"{skipped} instanced prims occlude but receive no AO (read-only in USD)")
+            result.messages.append(f"{skipped} instanced meshes occlude but receive no AO (instances=skip)")
         return result
+
+    @staticmethod
+    def _instances(scene: Scene, p, instanced: np.ndarray, ao_points: np.ndarray, result: Result) -> None:
+        """Per-instance means, or per-vertex AO on de-instanced native instances (module docstring)."""
+        if p.instances == "deinstance":
+            native = native_instanced(scene, instanced)
+            roots = sorted({root for prim in native for root in scene.prim_instance_roots[prim]})
+            result.outputs += [Prim(root, instanceable=False) for root in roots]
+            for prim in native:
+                result.outputs.append(Primvar(scene.prim_paths[prim], "bake:ao",
+                                              ao_points[scene.prim_points(prim)], "float", "vertex"))
+            if len(native):
+                result.messages.append(f"de-instanced {len(roots)} native instances (instanceable = false in the "
+                                       f"bake layer) to write per-vertex AO on their {len(native)} meshes")
+            instanced = np.setdiff1d(instanced, native)
+        means = per_instance_means(scene, ao_points, instanced, fill=1.0)
+        for root, value in means.native.items():
+            result.outputs.append(Primvar(root, "bake:ao", np.array([value], np.float32), "float", "constant"))
+        for instancer, values in means.instancers.items():
+            result.outputs.append(Primvar(instancer, "bake:ao", values, "float", "vertex"))
+        if means.native:
+            result.messages.append(f"{len(means.native)} native instances: per-instance mean AO as constant "
+                                   f"primvars:bake:ao on their roots (instances=deinstance for per-vertex AO)")
+        for instancer, values in means.instancers.items():
+            result.messages.append(f"{instancer}: per-instance mean AO of its {len(values)} instances as "
+                                   f"primvars:bake:ao (one value per instance)")
 
     @staticmethod
     def _per_face(scene: Scene, p, tracer, receivers: np.ndarray, result: Result) -> None:

@@ -478,6 +478,8 @@ def _author_prim(layer: Sdf.Layer, record: Prim) -> None:
         spec.typeName = record.type_name
     if record.api_schemas:
         spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=list(record.api_schemas)))
+    if record.instanceable is not None:
+        spec.instanceable = record.instanceable
 
 
 def _attribute_spec(layer: Sdf.Layer, prim_path: str, name: str, type_name: str, *,
@@ -535,6 +537,8 @@ def _sanitize(value):
     if isinstance(value, dict):
         return {str(k): _sanitize(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
+        if all(isinstance(v, str) for v in value):
+            return Vt.StringArray(list(value))  # string[]: a list would be a VtValue vector usdc cannot store
         return [_sanitize(v) for v in value]
     if value is None:
         return ""

@@ -51,10 +51,13 @@ class _Builder:
     """Accumulates per-prim arrays, then concatenates them into a Scene."""
 
     meshes: list = field(default_factory=list)       # (LocalMesh, world matrix (4,4) float64, writable, instance)
+    instance_roots: list = field(default_factory=list)  # per mesh: native instance roots above it, outermost first
     warnings: list = field(default_factory=list)
 
-    def add(self, mesh: LocalMesh, world: np.ndarray, writable: bool, instance: int = -1) -> None:
+    def add(self, mesh: LocalMesh, world: np.ndarray, writable: bool, instance: int = -1,
+            roots: tuple[str, ...] = ()) -> None:
         self.meshes.append((mesh, world, writable, instance))
+        self.instance_roots.append(roots)
 
 
 def extract_scene(stage: Usd.Stage, *, time: float | None = None, allow_missing: bool = False) -> Scene:
@@ -91,11 +94,23 @@ def extract_scene(stage: Usd.Stage, *, time: float | None = None, allow_missing:
             iterator.PruneChildren()
         elif prim.IsA(UsdGeom.Mesh):
             world = np.array(xforms.GetLocalToWorldTransform(prim), np.float64)
-            builder.add(local_mesh(prim), world, writable=not prim.IsInstanceProxy())
+            proxy = prim.IsInstanceProxy()
+            builder.add(local_mesh(prim), world, writable=not proxy, roots=_instance_roots(prim) if proxy else ())
         elif any(prim.IsA(light_type) for light_type, _ in LIGHT_TYPES):
             light_prims.append(prim)
 
     return _assemble(stage, builder, light_prims, instances, xforms, timecode, time)
+
+
+def _instance_roots(prim: Usd.Prim) -> tuple[str, ...]:
+    """The native instances an instance proxy lies under (nested ones too), outermost first."""
+    roots = []
+    parent = prim.GetParent()
+    while parent:
+        if parent.IsInstance():
+            roots.append(str(parent.GetPath()))
+        parent = parent.GetParent()
+    return tuple(reversed(roots))
 
 
 def _renderable(prim: Usd.Prim, timecode: Usd.TimeCode) -> bool:
@@ -258,6 +273,7 @@ def _assemble(stage, builder: _Builder, light_prims, instances: _InstanceTable, 
         prim_face_count=np.array([m.face_count for m in meshes], np.int32),
         prim_writable=np.array([w for _, _, w, _ in builder.meshes], bool),
         prim_skip=np.array([m.skip for m in meshes], bool),
+        prim_instance_roots=tuple(builder.instance_roots),
         prim_surface=tuple(m.surface for m in meshes),
         lights=_read_lights(light_prims, xforms, timecode, origin),
         instances=_instances(instances, origin),

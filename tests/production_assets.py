@@ -171,3 +171,49 @@ def topology_mismatches(stage: Usd.Stage) -> list[str]:
             if len(indices) and (indices.max() >= faces or indices.min() < 0):
                 problems.append(f"{subset.GetPath()}.indices: outside 0..{faces - 1}")
     return problems
+
+
+PAWN_SPACING_CM = 80.0
+
+
+def add_pawn_prototype(stage: Usd.Stage, path: str) -> None:
+    """A 'pawn': a flat-shaded box on a smaller box (two meshes), defined at ``path``."""
+    UsdGeom.Xform.Define(stage, path)
+    add_box(stage, f"{path}/Base", size=40.0, offset=(-20.0, 0.0, -20.0))
+    add_box(stage, f"{path}/Head", size=20.0, offset=(-10.0, 40.0, -10.0))
+
+
+def instanced_board(folder: Path, *, instanced: bool = True, name: str | None = None, floor: bool = True) -> Path:
+    """A floor with pawns: a row as native instances (instanceable internal references to a
+    prototype under /Assets), and a row as a PointInstancer whose prototype is defined under it.
+
+    With ``instanced=False`` the same geometry is plain: the references are not instanceable and
+    every PointInstancer instance is an ordinary Xform referencing the prototype (the flattened twin).
+    """
+    path = Path(folder) / (name or ("board_instanced.usda" if instanced else "board_flat.usda"))
+    stage = new_stage(path)
+    assets = stage.DefinePrim("/Assets")
+    assets.SetSpecifier(Sdf.SpecifierClass)  # not rendered itself
+    add_pawn_prototype(stage, "/Assets/Pawn")
+    if floor:
+        add_floor(stage, "/World/Floor", size=FLOOR_CM * 2)
+    for k in range(4):
+        pawn = UsdGeom.Xform.Define(stage, f"/World/Pawns/Pawn_{k}")
+        pawn.AddTranslateOp().Set(Gf.Vec3d(-120.0 + k * PAWN_SPACING_CM, 0.0, -80.0))
+        pawn.GetPrim().GetReferences().AddInternalReference("/Assets/Pawn")
+        pawn.GetPrim().SetInstanceable(instanced)
+    positions = [Gf.Vec3f(-120.0 + k * PAWN_SPACING_CM, 0.0, 80.0) for k in range(4)]
+    if instanced:
+        instancer = UsdGeom.PointInstancer.Define(stage, "/World/Row")
+        prototype = UsdGeom.Xform.Define(stage, "/World/Row/Prototypes/Pawn").GetPrim()
+        prototype.GetReferences().AddInternalReference("/Assets/Pawn")
+        instancer.CreatePrototypesRel().SetTargets([prototype.GetPath()])
+        instancer.CreateProtoIndicesAttr([0] * len(positions))
+        instancer.CreatePositionsAttr(positions)
+    else:
+        for k, position in enumerate(positions):
+            copy = UsdGeom.Xform.Define(stage, f"/World/Row/Pawn_{k}")
+            copy.AddTranslateOp().Set(Gf.Vec3d(*position))
+            copy.GetPrim().GetReferences().AddInternalReference("/Assets/Pawn")
+    stage.Save()
+    return path

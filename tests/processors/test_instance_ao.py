@@ -24,6 +24,8 @@ from usdbake.kernels.tracer import Tracer
 
 
 def exact_ao(scene, samples=256, **params) -> np.ndarray:
+    """ambient_occlusion's AO at the receivers' points (1 at instances' points, as instance_ao leaves them)."""
+    params = {"instances": "skip", **params}
     ctx = core.Context(scene=scene, params=AmbientOcclusion.Params(samples=samples, **params),
                        tracer=Tracer.from_scene(scene))
     return AmbientOcclusion().run(ctx).products[AmbientOcclusionProduct].point_ao

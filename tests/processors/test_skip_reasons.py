@@ -42,8 +42,14 @@ def plan(stage: Usd.Stage, names, params=None, cache_dir=None) -> dict:
 
 
 def test_no_writable_meshes():
-    assert plan(instancer_stage(3), ["ambient_occlusion"])["ambient_occlusion"] == (
+    assert plan(instancer_stage(3), ["progressive_mesh"])["progressive_mesh"] == (
         "skip", "not applicable: no writable meshes (all instanced, bake:skip or empty)")
+    assert plan(instancer_stage(3), ["ambient_occlusion"], {"ambient_occlusion": {"instances": "skip"}})[
+        "ambient_occlusion"] == ("skip", "not applicable: no writable meshes (all instanced, bake:skip or empty)")
+
+
+def test_instances_alone_are_baked_by_ambient_occlusion():
+    assert plan(instancer_stage(3), ["ambient_occlusion"])["ambient_occlusion"][0] == "run"
 
 
 def test_no_instanced_prototypes_and_dependents_follow():

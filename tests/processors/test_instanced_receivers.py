@@ -1,0 +1,99 @@
+"""Instanced receivers get AO where USD can hold it (issue: real assets, item 3).
+
+The reference is the flattened twin of the same board (``production_assets.instanced_board``
+with ``instanced=False``): the same pawns as ordinary prims, baked per vertex. An instance's
+mean is the area-weighted mean of its surface's per-vertex AO, as ``geometry/instances.py``
+defines it, recomputed here from the twin's Scene.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pxr import Usd, UsdGeom
+
+import usdbake
+from production_assets import instanced_board
+from usdbake.core.errors import UsageError
+from usdbake.stages.extract import extract_scene
+from usdbake.stages.hook import last_report
+
+from tolerances import INSTANCE_MEAN_AO, INSTANCE_VERTEX_AO
+
+SAMPLES = 256
+
+
+def bake(path, **ao_params):
+    stage = Usd.Stage.Open(str(path))
+    layer = usdbake.bake(stage, ["ambient_occlusion"],
+                         {"ambient_occlusion": {"samples": SAMPLES, **ao_params}}, cache_dir=None)
+    return stage, layer
+
+
+def ao(stage, path) -> np.ndarray:
+    return np.asarray(UsdGeom.PrimvarsAPI(stage.GetPrimAtPath(path)).GetPrimvar("bake:ao").Get())
+
+
+def flat_instance_means(tmp_path) -> dict[str, float]:
+    """Area-weighted mean AO of each pawn of the flattened twin, by the pawn's prim path."""
+    stage, _ = bake(instanced_board(tmp_path, instanced=False))
+    scene = extract_scene(stage)
+    means = {}
+    for root in [f"/World/Pawns/Pawn_{k}" for k in range(4)] + [f"/World/Row/Pawn_{k}" for k in range(4)]:
+        total = weight = 0.0
+        for prim, path in enumerate(scene.prim_paths):
+            if path.startswith(root + "/"):
+                values = ao(stage, path)
+                tris = scene.tri_prim == prim
+                local = scene.tri_vertices[tris] - scene.prim_point_start[prim]
+                total += float((values[local].mean(axis=1) * scene.tri_areas[tris]).sum())
+                weight += float(scene.tri_areas[tris].sum())
+        means[root] = total / weight
+    return means
+
+
+def test_native_instances_and_point_instancer_rows_get_their_mean(tmp_path):
+    expected = flat_instance_means(tmp_path)
+    stage, layer = bake(instanced_board(tmp_path))
+    for k in range(4):
+        root = f"/World/Pawns/Pawn_{k}"
+        primvar = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath(root)).GetPrimvar("bake:ao")
+        assert primvar.GetInterpolation() == "constant"
+        assert abs(float(primvar.Get()[0]) - expected[root]) < INSTANCE_MEAN_AO
+    row = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Row")).GetPrimvar("bake:ao")
+    assert row.GetInterpolation() == "vertex" and len(row.Get()) == 4  # one per instance
+    np.testing.assert_allclose(row.Get(), [expected[f"/World/Row/Pawn_{k}"] for k in range(4)],
+                               atol=INSTANCE_MEAN_AO)
+    messages = last_report(layer)[0]["messages"]
+    assert any("4 native instances: per-instance mean AO" in m for m in messages)
+    assert any(m.startswith("/World/Row: per-instance mean AO of its 4 instances") for m in messages)
+    # the meshes a renderer draws inherit the instance's value
+    proxy = stage.GetPrimAtPath("/World/Pawns/Pawn_0/Base")
+    inherited = UsdGeom.PrimvarsAPI(proxy).FindPrimvarWithInheritance("bake:ao")
+    assert inherited and inherited.GetInterpolation() == "constant"
+
+
+def test_deinstancing_gives_per_vertex_ao_like_the_flattened_twin(tmp_path):
+    flat, _ = bake(instanced_board(tmp_path, instanced=False))
+    stage, layer = bake(instanced_board(tmp_path), instances="deinstance")
+    for k in range(4):
+        root = f"/World/Pawns/Pawn_{k}"
+        assert not stage.GetPrimAtPath(root).IsInstanceable()
+        for part in ("Base", "Head"):
+            values, reference = ao(stage, f"{root}/{part}"), ao(flat, f"{root}/{part}")
+            assert len(values) == len(reference) == 24
+            assert abs(values.mean() - reference.mean()) < INSTANCE_MEAN_AO
+            assert np.abs(np.sort(values) - np.sort(reference)).max() < INSTANCE_VERTEX_AO
+    assert any(m.startswith("de-instanced 4 native instances") for m in last_report(layer)[0]["messages"])
+    assert UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Row")).GetPrimvar("bake:ao").HasValue()
+
+
+def test_a_scene_made_only_of_instances_is_baked(tmp_path):
+    stage, layer = bake(instanced_board(tmp_path, floor=False, name="only_instances.usda"))
+    assert last_report(layer)[0]["action"] == "run"
+    assert UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Pawns/Pawn_0")).GetPrimvar("bake:ao").HasValue()
+
+
+def test_instances_skip_keeps_them_out(tmp_path):
+    with pytest.raises(UsageError, match="nothing to bake"):
+        bake(instanced_board(tmp_path, floor=False, name="only_instances.usda"), instances="skip")
