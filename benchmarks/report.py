@@ -45,6 +45,8 @@ TARGETS = [
     ("radiosity: indirect vs path-traced reference, cornell_box, relative RMS", "radiosity",
      "cornell_error_default", "<=", 0.10),
     ("preview: atrium 640x480 with legend (s)", "preview", "atrium_640x480_with_legend_seconds", "<=", 2.0),
+    ("plan: 270k-triangle stage, every processor (s)", "plan", "plan_seconds", "<=", 5.0),
+    ("usdbake --help (s)", "plan", "help_seconds", "<=", 1.0),
 ]
 
 
