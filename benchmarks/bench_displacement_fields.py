@@ -234,7 +234,7 @@ def _instance_vertices(scene) -> dict:
     exact_ao = exact.products[AmbientOcclusionProduct].point_ao
     exact_seconds = time.perf_counter() - started
     normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
-    instance_points = InstancePoints(scene, normals, np.zeros(len(scene.instances), np.int32))
+    instance_points = InstancePoints(scene, normals, np.zeros_like(normals), np.zeros(len(scene.instances), np.int32))
     exact_means = instance_points.means(exact_ao[instance_points.point_ids])
     return {"instances_rms_of_per_instance_mean_ao": round(float(np.sqrt(np.mean((means - exact_means) ** 2))), 5),
             "instances_max_abs_per_instance_mean_ao": round(float(np.abs(means - exact_means).max()), 5),

@@ -66,6 +66,22 @@ class Instances:
     """(I,) int32 row of the instance in its instancer's authored arrays (protoIndices; masked rows are skipped)."""
     instancer_instance_count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     """(N,) int32 authored instances per instancer (len(protoIndices)), masked ones included."""
+    instancer_native: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    """(N,) bool: the 'instancer' is a native instance's root prim (one instance, of its USD prototype),
+    not a PointInstancer. Per-instance data goes on it as a constant primvar."""
+    prototype_targets: tuple[tuple[str, ...], ...] = ()
+    """Per prototype: the prims its per-prototype data (a displacement field) is authored on: the
+    PointInstancer prototype itself, or every root of a native prototype (its USD prototype is
+    read-only). Empty: each prototype's own path."""
+
+    def targets(self, prototype: int) -> tuple[str, ...]:
+        """Where per-prototype data of ``prototype`` is authored (``prototype_targets``)."""
+        if len(self.prototype_targets) == len(self.prototype_paths):
+            return self.prototype_targets[prototype]
+        return (self.prototype_paths[prototype],)
+
+    def is_native(self, instancer: int) -> bool:
+        return bool(len(self.instancer_native) == len(self.instancer_paths) and self.instancer_native[instancer])
 
     def __len__(self) -> int:
         return len(self.instance_prototype)
@@ -204,7 +220,8 @@ FACETS: dict[str, tuple[str, ...]] = {
         "instances.instancer_paths", "instances.prototype_paths", "instances.instance_instancer",
         "instances.instance_prototype", "instances.instance_transforms",
         "instances.instance_times", "instances.instance_transforms_at_times",
-        "instances.instance_index", "instances.instancer_instance_count",
+        "instances.instance_index", "instances.instancer_instance_count", "instances.instancer_native",
+        "instances.prototype_targets",
     ),
     "time": ("time_code",),
 }

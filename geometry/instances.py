@@ -72,8 +72,8 @@ def per_instance_means(scene: Scene, point_values: np.ndarray, prims: np.ndarray
         authored_rows = len(table.instance_index) == len(table)  # else: a Scene not read from USD
         for index, path in enumerate(table.instancer_paths):
             rows = np.flatnonzero(table.instance_instancer == index)
-            if not baked[rows].any():
-                continue
+            if table.is_native(index) or not baked[rows].any():
+                continue  # a native instance is keyed by its root above
             slots = table.instance_index[rows] if authored_rows else np.arange(len(rows))
             count = int(table.instancer_instance_count[index]) if authored_rows else len(rows)
             column = np.full(count, fill, np.float32)

@@ -246,7 +246,8 @@ def _read_instance_values(stage, scene: Scene, candidates, element, time, has: n
         values, primvar = found
         attribute = primvar.attribute
         members = np.flatnonzero(instances.instance_instancer == k)
-        if primvar.interpolation == "constant" or len(values) != len(members):
+        native = instances.is_native(k)  # a native instance's root: its one value is constant
+        if (primvar.interpolation == "constant") != native or len(values) != len(members):
             messages.append(f"{attribute}: {len(values)} values for {len(members)} instances; skipped")
             continue
         components = primvar.components

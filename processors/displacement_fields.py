@@ -28,6 +28,10 @@ expected_rays_per_instance``, exceed that, and the prototype has at least
 ``min_instances`` instances. ``force`` and ``forbid`` override it; every
 prototype left out is listed in the messages with the reason.
 
+Prototypes are those of PointInstancers and of native instancing (``Scene.instances``: one per USD
+prototype, named by what its instances reference); a native prototype's field is authored on every
+instance root, its USD prototype being read-only, all naming one texture.
+
 USD written (bake layer), per prototype with a field:
 
 =============================== ======== =======================================================
@@ -231,22 +235,26 @@ def field_file_name(prototype: str) -> str:
     return f"displacement_fields/{stem}.png"
 
 
-def field_records(field: DisplacementField) -> list:
-    """Texture + applied DisplacementFieldAPI + its attributes for one field."""
-    path = field.prototype
-    file_name = field_file_name(path)
-    return [
-        Texture(file_name, field_atlas(field)[:, :, None]),
-        Prim(path, api_schemas=("DisplacementFieldAPI",)),
-        Attribute(path, "bake:field:file", f"./{file_name}", "asset"),
-        Attribute(path, "bake:field:center", np.asarray(field.center, np.float32), "point3f"),
-        Attribute(path, "bake:field:radius", float(field.radius), "float"),
-        Attribute(path, "bake:field:positionalSamples", int(field.side * field.side), "int"),
-        Attribute(path, "bake:field:directionMapSize", np.array([field.map_size] * 2, np.int32), "int2"),
-        Attribute(path, "bake:field:encoding", field.encoding, "token"),
-        Attribute(path, "bake:field:positionMapping", POSITION_MAPPING, "token"),
-        Attribute(path, "bake:field:directionMapping", DIRECTION_MAPPING, "token"),
-    ]
+def field_records(field: DisplacementField, targets: tuple[str, ...] | None = None, *,
+                  shared_from: str | None = None) -> list:
+    """The field's texture, and the applied DisplacementFieldAPI with its attributes on each of
+    ``targets`` (default: the field's prototype; for a native prototype, every instance root).
+    ``shared_from``: the prototype whose texture (in the same outputs) this field reuses."""
+    file_name = field_file_name(shared_from or field.prototype)
+    records: list = [] if shared_from else [Texture(file_name, field_atlas(field)[:, :, None])]
+    for path in targets or (field.prototype,):
+        records += [
+            Prim(path, api_schemas=("DisplacementFieldAPI",)),
+            Attribute(path, "bake:field:file", f"./{file_name}", "asset"),
+            Attribute(path, "bake:field:center", np.asarray(field.center, np.float32), "point3f"),
+            Attribute(path, "bake:field:radius", float(field.radius), "float"),
+            Attribute(path, "bake:field:positionalSamples", int(field.side * field.side), "int"),
+            Attribute(path, "bake:field:directionMapSize", np.array([field.map_size] * 2, np.int32), "int2"),
+            Attribute(path, "bake:field:encoding", field.encoding, "token"),
+            Attribute(path, "bake:field:positionMapping", POSITION_MAPPING, "token"),
+            Attribute(path, "bake:field:directionMapping", DIRECTION_MAPPING, "token"),
+        ]
+    return records
 
 
 def _matches(path: str, names: set[str]) -> bool:
@@ -347,7 +355,8 @@ class DisplacementFields(Processor):
             if key in built:  # the same shape as a prototype already done: share its field
                 field = dataclasses.replace(built[key], prototype=path)
                 result.products[DisplacementFieldSet].fields[path] = field
-                result.outputs.extend(field_records(field))
+                result.outputs.extend(field_records(field, scene.instances.targets(index),
+                                                    shared_from=built[key].prototype))
                 result.messages.append(f"{path}: shares the field of {built[key].prototype} (same shape)")
                 continue
             try:
@@ -360,7 +369,7 @@ class DisplacementFields(Processor):
             rays += field.side ** 2 * field.map_size ** 2
             built[key] = field
             result.products[DisplacementFieldSet].fields[path] = field
-            result.outputs.extend(field_records(field))
+            result.outputs.extend(field_records(field, scene.instances.targets(index)))
             result.stats[f"bytes:{path}"] = float(field.nbytes)
             ctx.progress((step + 1) / max(1, len(chosen)))
         result.stats["rays"] = float(rays)

@@ -300,7 +300,7 @@ def query_field(field, transform: np.ndarray, origins: np.ndarray, directions: n
 class InstancePoints:
     """The instances' own vertices as AO sample points, moved rigidly with their instance per frame."""
 
-    def __init__(self, scene: Scene, normals: np.ndarray, instance_field: np.ndarray):
+    def __init__(self, scene: Scene, normals: np.ndarray, inward: np.ndarray, instance_field: np.ndarray):
         inst = scene.instances
         prim_instance = np.full(len(scene.prim_paths), -1, np.int32)
         prim_instance[scene.tri_prim] = scene.tri_instance
@@ -313,6 +313,8 @@ class InstancePoints:
         self.own = np.where(self.moving, self.instance, -1).astype(np.int32)
         self.points = scene.points[self.point_ids].astype(np.float64)
         self.normals = normals[self.point_ids].astype(np.float64)
+        self.inward = inward[self.point_ids].astype(np.float64)
+        """Tangents into each point's own face (the one ray-origin rule: an unwelded crease is not self-occluding)."""
         area = np.zeros(scene.num_points)
         np.add.at(area, scene.tri_vertices.ravel(), np.repeat(scene.tri_areas.astype(np.float64) / 3, 3))
         self.weights = area[self.point_ids]
@@ -329,8 +331,9 @@ class InstancePoints:
                 mine = np.flatnonzero(inst.instance_instancer == n)
                 self.row[mine] = np.arange(len(mine))
 
-    def at(self, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 3) float32 positions and unit normals with each instance moved by transforms (I, 4, 4)."""
+    def at(self, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(N, 3) float32 positions, unit normals and unit inward tangents with each instance moved by
+        transforms (I, 4, 4)."""
         relative = self.base_inverse @ np.where(invertible(transforms)[:, None, None], transforms, np.eye(4))
         per_point = relative[self.instance]
         points = np.einsum("ni,nij->nj", np.c_[self.points, np.ones(len(self.points))], per_point)[:, :3]
@@ -338,9 +341,13 @@ class InstancePoints:
         normals = np.einsum("ni,nij->nj", self.normals, normal_map)
         length = np.linalg.norm(normals, axis=1, keepdims=True)
         normals = np.where(length > 0, normals / np.maximum(length, 1e-300), 0.0)
+        inward = np.einsum("ni,nij->nj", self.inward, per_point[:, :3, :3])  # a tangent moves with the surface
+        length = np.linalg.norm(inward, axis=1, keepdims=True)
+        inward = np.where(length > 0, inward / np.maximum(length, 1e-300), 0.0)
         points = np.where(self.moving[:, None], points, self.points)
         normals = np.where(self.moving[:, None], normals, self.normals)
-        return points.astype(np.float32), normals.astype(np.float32)
+        inward = np.where(self.moving[:, None], inward, self.inward)
+        return points.astype(np.float32), normals.astype(np.float32), inward.astype(np.float32)
 
     def means(self, ao: np.ndarray) -> np.ndarray:
         """(I,) float32 area-weighted mean AO per instance (1 for an instance without area)."""
@@ -348,14 +355,16 @@ class InstancePoints:
         return face_means(ao, self.weights, self.instance, len(self.scene.instances))
 
     def records(self, means: np.ndarray, frame: float | None) -> list:
-        """primvars:bake:ao on each PointInstancer: one value per authored instance (vertex = per instance)."""
+        """primvars:bake:ao on each PointInstancer: one value per authored instance (vertex = per instance);
+        on a native instance's root: its value, constant (its meshes inherit it)."""
         inst = self.scene.instances
         records = []
         for n, path in enumerate(inst.instancer_paths):
             values = np.ones(int(self.instancer_count[n]), np.float32)  # masked instances: 1
             mine = np.flatnonzero(inst.instance_instancer == n)
             values[self.row[mine]] = means[mine]
-            records.append(Primvar(path, "bake:ao", values, "float", "vertex", time=frame))
+            interpolation = "constant" if inst.is_native(n) else "vertex"
+            records.append(Primvar(path, "bake:ao", values, "float", interpolation, time=frame))
         return records
 
 
@@ -439,7 +448,7 @@ class InstanceAO(Processor):
             result.messages.append(f"{moving} instance(s) without a field keep their extraction-time position in "
                                    f"every frame")
         spheres = InstanceSpheres(fieldset, instance_field, inst.instance_transforms)
-        on_instances = InstancePoints(scene, normals, instance_field) if p.instances and len(inst) else None
+        on_instances = InstancePoints(scene, normals, inward, instance_field) if p.instances and len(inst) else None
         by_frame, by_frame_instances = {}, {}
         for step, frame in enumerate(frames or [None]):
             transforms = inst.instance_transforms
@@ -447,10 +456,11 @@ class InstanceAO(Processor):
                 transforms = inst.instance_transforms_at_times[int(np.abs(inst.instance_times - frame).argmin())]
                 spheres.update(transforms)
             if on_instances is not None:
-                positions, instance_normals = on_instances.at(transforms)
+                positions, instance_normals, instance_inward = on_instances.at(transforms)
                 ao_instances = compute_instance_ao(
                     tracer, spheres, positions, instance_normals, samples=p.samples, epsilon=tracer.epsilon,
-                    max_distance=p.max_distance, seed=p.seed, interpolation=p.interpolation, own=on_instances.own)
+                    max_distance=p.max_distance, seed=p.seed, interpolation=p.interpolation, own=on_instances.own,
+                    inward=instance_inward)
                 by_frame_instances[frame] = on_instances.means(ao_instances)
                 result.outputs.extend(on_instances.records(by_frame_instances[frame], frame))
             ao_points = np.ones(scene.num_points, np.float32)

@@ -11,6 +11,7 @@ ear clipping for concave), holes are skipped with a warning, winding follows
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux
@@ -94,8 +95,9 @@ def extract_scene(stage: Usd.Stage, *, time: float | None = None, allow_missing:
             iterator.PruneChildren()
         elif prim.IsA(UsdGeom.Mesh):
             world = np.array(xforms.GetLocalToWorldTransform(prim), np.float64)
-            proxy = prim.IsInstanceProxy()
-            builder.add(local_mesh(prim), world, writable=not proxy, roots=_instance_roots(prim) if proxy else ())
+            roots = _instance_roots(prim) if prim.IsInstanceProxy() else ()
+            instance = instances.native(stage.GetPrimAtPath(roots[0]), xforms) if roots else -1
+            builder.add(local_mesh(prim), world, writable=not roots, instance=instance, roots=roots)
         elif any(prim.IsA(light_type) for light_type, _ in LIGHT_TYPES):
             light_prims.append(prim)
 
@@ -168,18 +170,65 @@ def _validate_mesh(path: str, points: np.ndarray, counts: np.ndarray, indices: n
 
 
 class _InstanceTable:
-    """Collects PointInstancer instances for Scene.instances."""
+    """Collects PointInstancer instances and native instances (each its own 'instancer') for Scene.instances."""
 
     def __init__(self):
         self.instancer_paths: list[str] = []
+        self.instancer_counts: list[int] = []
+        self.instancer_native: list[bool] = []
         self.prototype_paths: list[str] = []
-        self.rows: list[tuple[int, int, np.ndarray]] = []
+        self.prototype_targets: list[list[str]] = []
+        self.rows: list[tuple[int, int, np.ndarray, int]] = []  # (instancer, prototype, to-world, authored row)
         self.sources: list[tuple] = []  # (instancer prim, kept rows, protoIndices, first instance index)
+        self.native_rows: dict[str, int] = {}  # instance root path -> instance
+        self.native_prototypes: dict[str, int] = {}  # USD prototype path -> prototype
+        self.stage: Usd.Stage | None = None
 
     def prototype(self, path: str) -> int:
         if path not in self.prototype_paths:
             self.prototype_paths.append(path)
+            self.prototype_targets.append([path])
         return self.prototype_paths.index(path)
+
+    def instancer(self, path: str, count: int, native: bool) -> int:
+        self.instancer_paths.append(path)
+        self.instancer_counts.append(count)
+        self.instancer_native.append(native)
+        return len(self.instancer_paths) - 1
+
+    def native(self, root: Usd.Prim, xforms) -> int:
+        """The instance of a native instance root (registered on first use): an instancer of one instance
+        whose prototype is the root's USD prototype, named by what it references."""
+        key = str(root.GetPath())
+        if key in self.native_rows:
+            return self.native_rows[key]
+        self.stage = root.GetStage()
+        usd_prototype = str(root.GetPrototype().GetPath())
+        if usd_prototype not in self.native_prototypes:
+            name = _native_prototype_name(root)
+            if name in self.prototype_paths:  # another USD prototype of the same source (e.g. other variants)
+                name = f"{name} ({usd_prototype})"
+            self.native_prototypes[usd_prototype] = len(self.prototype_paths)
+            self.prototype_paths.append(name)
+            self.prototype_targets.append([])
+        prototype = self.native_prototypes[usd_prototype]
+        self.prototype_targets[prototype].append(key)
+        instancer = self.instancer(key, 1, native=True)
+        self.rows.append((instancer, prototype, np.array(xforms.GetLocalToWorldTransform(root), np.float64), 0))
+        self.native_rows[key] = len(self.rows) - 1
+        return self.native_rows[key]
+
+
+def _native_prototype_name(root: Usd.Prim) -> str:
+    """What a native instance references: '/Assets/Pawn' (internal), 'props/pawn.usda:/Pawn' (external),
+    else its USD prototype's path."""
+    for arc in Usd.PrimCompositionQuery.GetDirectReferences(root).GetCompositionArcs():
+        target = str(arc.GetTargetPrimPath())
+        layer = arc.GetTargetLayer()
+        if layer is None or layer == root.GetStage().GetRootLayer():
+            return target
+        return f"{Path(layer.identifier).name}:{target}"
+    return str(root.GetPrototype().GetPath())
 
 
 def _add_point_instancer(prim, timecode, xforms, local_mesh, builder: _Builder, instances: _InstanceTable) -> None:
@@ -200,8 +249,7 @@ def _add_point_instancer(prim, timecode, xforms, local_mesh, builder: _Builder, 
                                             "orientations and protoIndices must have matching lengths)")
     mask = instancer.ComputeMaskAtTime(timecode) or [True] * len(proto_indices)
     instancer_world = np.array(xforms.GetLocalToWorldTransform(prim), np.float64)
-    instancer_index = len(instances.instancer_paths)
-    instances.instancer_paths.append(path)
+    instancer_index = instances.instancer(path, len(proto_indices), native=False)
     stage = prim.GetStage()
     proto_meshes = {}
     for proto_index, target in enumerate(targets):
@@ -215,7 +263,7 @@ def _add_point_instancer(prim, timecode, xforms, local_mesh, builder: _Builder, 
             continue
         to_world = np.array(matrix, np.float64) @ instancer_world
         instance = len(instances.rows)
-        instances.rows.append((instancer_index, instances.prototype(str(targets[proto_index])), to_world))
+        instances.rows.append((instancer_index, instances.prototype(str(targets[proto_index])), to_world, row))
         for mesh, relative in proto_meshes[proto_index]:
             builder.add(mesh, relative @ to_world, writable=False, instance=instance)
 
@@ -305,16 +353,18 @@ def _triangle_normals(points: np.ndarray, tri_vertices: np.ndarray) -> tuple[np.
 
 
 def _instances(table: _InstanceTable, origin: np.ndarray) -> Instances:
-    transforms = np.array([m for _, _, m in table.rows], np.float64).reshape(-1, 4, 4)
+    transforms = np.array([m for _, _, m, _ in table.rows], np.float64).reshape(-1, 4, 4)
     transforms[:, 3, :3] -= origin
     times, at_times = _instance_time_samples(table, origin)
     return Instances(
         instancer_paths=tuple(table.instancer_paths), prototype_paths=tuple(table.prototype_paths),
-        instance_instancer=np.array([i for i, _, _ in table.rows], np.int32),
-        instance_prototype=np.array([p for _, p, _ in table.rows], np.int32),
+        instance_instancer=np.array([i for i, _, _, _ in table.rows], np.int32),
+        instance_prototype=np.array([p for _, p, _, _ in table.rows], np.int32),
         instance_transforms=transforms, instance_times=times, instance_transforms_at_times=at_times,
-        instance_index=np.concatenate([kept for _, kept, _, _ in table.sources] or [np.zeros(0)]).astype(np.int32),
-        instancer_instance_count=np.array([len(ids) for _, _, ids, _ in table.sources], np.int32),
+        instance_index=np.array([r for _, _, _, r in table.rows], np.int32),
+        instancer_instance_count=np.array(table.instancer_counts, np.int32),
+        instancer_native=np.array(table.instancer_native, bool),
+        prototype_targets=tuple(tuple(targets) for targets in table.prototype_targets),
     )
 
 
@@ -355,6 +405,9 @@ def _instance_time_samples(table: _InstanceTable, origin: np.ndarray) -> tuple[n
             world = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(timecode), np.float64)
             local = np.array(matrices, np.float64).reshape(-1, 4, 4)[kept]
             frame[first:first + len(kept)] = local @ world
+        for root, instance in table.native_rows.items():  # native instances follow their root's transform
+            root_prim = table.stage.GetPrimAtPath(root)
+            frame[instance] = np.array(UsdGeom.Xformable(root_prim).ComputeLocalToWorldTransform(timecode), np.float64)
         if ok:
             frame[:, 3, :3] -= origin
             times_kept.append(t)

@@ -8,6 +8,8 @@ defines it, recomputed here from the twin's Scene.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
@@ -97,3 +99,36 @@ def test_a_scene_made_only_of_instances_is_baked(tmp_path):
 def test_instances_skip_keeps_them_out(tmp_path):
     with pytest.raises(UsageError, match="nothing to bake"):
         bake(instanced_board(tmp_path, floor=False, name="only_instances.usda"), instances="skip")
+
+
+# ---------------------------------------------------------------------------
+# Native instances are instances for displacement_fields and instance_ao too
+
+FIELD_PARAMS = {"force": "Pawn", "positional_samples": 1089, "direction_map_size": 16}
+
+
+def test_native_and_point_instanced_copies_of_one_asset_share_one_field(tmp_path):
+    stage = Usd.Stage.Open(str(instanced_board(tmp_path)))
+    layer = usdbake.bake(stage, ["displacement_fields"], {"displacement_fields": FIELD_PARAMS})
+    messages = last_report(layer)[0]["messages"]
+    assert "/World/Row/Prototypes/Pawn: shares the field of /Assets/Pawn (same shape)" in messages
+    files = set()
+    for path in [f"/World/Pawns/Pawn_{k}" for k in range(4)] + ["/World/Row/Prototypes/Pawn"]:
+        prim = stage.GetPrimAtPath(path)
+        assert prim.HasAPI("DisplacementFieldAPI") if hasattr(prim, "HasAPI") else True
+        files.add(prim.GetAttribute("bake:field:file").Get().resolvedPath)
+    assert len(files) == 1 and all(Path(f).is_file() for f in files)  # one texture for the 8 pawns
+
+
+def test_instance_ao_reads_native_instances_through_their_field(tmp_path):
+    stage = Usd.Stage.Open(str(instanced_board(tmp_path)))
+    exact, _ = bake(instanced_board(tmp_path, name="exact.usda"))
+    usdbake.bake(stage, ["instance_ao"], {"displacement_fields": FIELD_PARAMS,
+                                          "instance_ao": {"samples": SAMPLES, "instances": True}})
+    for k in range(4):
+        root = f"/World/Pawns/Pawn_{k}"
+        value = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath(root)).GetPrimvar("bake:ao")
+        assert value.GetInterpolation() == "constant"
+        reference = ao(exact, root)[0]
+        assert abs(float(value.Get()[0]) - reference) < INSTANCE_MEAN_AO
+    np.testing.assert_allclose(ao(stage, "/World/Row"), ao(exact, "/World/Row"), atol=INSTANCE_MEAN_AO)

@@ -269,8 +269,19 @@ def test_instanceable_references_are_read_only_proxies():
         assert not scene.prim_writable[prim_index(scene, path)]
         np.testing.assert_allclose(scene_world_points(scene, path), world_points(stage, path), atol=FLOAT32_ACCUMULATED)
     assert scene.prim_writable[prim_index(scene, "/World/Floor")]
-    np.testing.assert_array_equal(scene.tri_instance, -1)  # proxies are not point-instancer instances
-    assert len(scene.instances) == 0
+    # each native instance is an instance of the one prototype (what it references), its root its 'instancer'
+    instances = scene.instances
+    assert instances.instancer_paths == ("/World/A", "/World/B") and instances.instancer_native.tolist() == [True] * 2
+    assert instances.prototype_paths == ("/Classes/Chair",)
+    assert instances.targets(0) == ("/World/A", "/World/B")
+    for path, instance in (("/World/A/Seat", 0), ("/World/B/Seat", 1)):
+        assert set(scene.tri_instance[scene.tri_prim == prim_index(scene, path)]) == {instance}
+        assert scene.prim_instance_roots[prim_index(scene, path)] == (path.rsplit("/", 1)[0],)
+        expected = np.array(UsdGeom.Xformable(stage.GetPrimAtPath(path.rsplit("/", 1)[0]))
+                            .ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+        expected[3, :3] -= scene.origin
+        np.testing.assert_allclose(instances.instance_transforms[instance], expected)
+    assert set(scene.tri_instance[scene.tri_prim == prim_index(scene, "/World/Floor")]) == {-1}
 
 
 # --- visibility, purpose, active --------------------------------------------------------------
