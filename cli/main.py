@@ -34,6 +34,7 @@ from ..core import registry
 from ..core.errors import UsageError
 from ..core.params import TABLE_COLUMNS
 from ..core.pipeline import DEFAULT_PROCESSORS, Pipeline, ProcessorFailed
+from ..core.records import Prim
 from ..stages.inputs import open_source
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -63,6 +64,9 @@ def make_parser() -> argparse.ArgumentParser:
         sub.add_argument("--json", action="store_true", help="machine-readable output on stdout")
         sub.add_argument("--allow-missing", action="store_true",
                          help="bake without missing sublayers, references and payloads (a warning each)")
+        sub.add_argument("--deinstance", action="store_true",
+                         help="bake natively instanced meshes as ordinary ones, per vertex (the bake layer sets "
+                              "instanceable = false on their instances)")
 
     bake = commands.add_parser("bake", help="bake lighting into a new layer over the input")
     stage_options(bake)
@@ -278,7 +282,7 @@ def cmd_plan(args, console: Console) -> int:
     check_run_options(args, pipeline, console)
     with quiet_composition_warnings():  # extract_scene reports each missing asset in one line
         _, stage = open_source(args.input)
-    scene = extract_scene(stage, time=args.time, allow_missing=args.allow_missing)
+    scene = extract_scene(stage, time=args.time, allow_missing=args.allow_missing, deinstance=args.deinstance)
     for warning in scene.warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(warning)}", highlight=False)
     for conflict in pipeline.conflicts():  # bake refuses these before any compute
@@ -313,7 +317,7 @@ def cmd_bake(args, console: Console) -> int:
     with Progress(TextColumn("{task.description:<22}"), BarColumn(), TextColumn("{task.percentage:>5.1f}%"),
                   TimeElapsedColumn(), console=console, transient=False, disable=args.json) as progress:
         reading = progress.add_task("reading stage", total=1.0)
-        scene = extract_scene(stage, time=args.time, allow_missing=args.allow_missing)
+        scene = extract_scene(stage, time=args.time, allow_missing=args.allow_missing, deinstance=args.deinstance)
         progress.update(reading, completed=1.0)
         tasks: dict = {}
 
@@ -341,6 +345,10 @@ def cmd_bake(args, console: Console) -> int:
         for step in pipeline.steps:
             for message in (step.result.messages if step.result else []):
                 console.print(f"{step.name}: {message}", highlight=False)
+        roots = [r for r in outputs if isinstance(r, Prim) and r.instanceable is False]
+        if roots:
+            console.print(f"de-instanced {len(roots)} native instances (instanceable = false in the bake layer) "
+                          f"to hold per-vertex results", highlight=False)
         console.print(f"wrote {output} in {total:.2f} s", highlight=False)
     return EXIT_OK
 

@@ -8,7 +8,8 @@ read-only, and a PointInstancer's prototype is one mesh for all its instances. W
   per-instance primvar): ``per_instance_means`` computes those, an area-weighted mean of a
   per-vertex result over each instance's triangles;
 - per-vertex data on the meshes of a native instance that the bake layer de-instances
-  (``instanceable = false`` on its roots): ``deinstanced_receivers`` lists them.
+  (``instanceable = false`` on its roots): extraction with ``deinstance`` makes them ordinary
+  receivers of every processor, and ``stages.refined_mesh.complete_outputs`` de-instances them.
 """
 
 from __future__ import annotations
@@ -24,11 +25,6 @@ def instanced_receivers(scene: Scene) -> np.ndarray:
     """Prims that are instances (native proxies or PointInstancer prototypes), not bake:skip, with triangles."""
     has_triangles = np.bincount(scene.tri_prim, minlength=len(scene.prim_paths)) > 0
     return np.flatnonzero(~scene.prim_writable & ~scene.prim_skip & has_triangles)
-
-
-def native_instanced(scene: Scene, prims: np.ndarray) -> np.ndarray:
-    """The prims of ``prims`` that are native instance proxies (they have instance roots)."""
-    return np.array([p for p in prims if scene.prim_instance_roots[p]], np.int64)
 
 
 @dataclass(frozen=True)

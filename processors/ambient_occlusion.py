@@ -29,9 +29,9 @@ Instanced receivers (``instances``; ``geometry/instances.py``): USD holds no per
 instance, so with ``mean`` (the default) each instance gets the area-weighted mean AO of its
 surface: ``primvars:bake:ao`` (constant) on a native instance's root prim, which its meshes
 inherit, and ``primvars:bake:ao`` (vertex: one value per instance, 1 for masked rows) on a
-PointInstancer. ``deinstance`` sets ``instanceable = false`` on the native instances in the bake
-layer and writes per-vertex AO on their meshes (PointInstancers still get means); ``skip`` leaves
-instances out. The bake's messages say which was done.
+PointInstancer; ``skip`` leaves instances out. The bake's messages say which was done. For
+per-vertex AO on native instances, bake with ``--deinstance`` (``usdbake.bake(deinstance=True)``):
+their meshes are then ordinary receivers of every processor, de-instanced in the bake layer.
 
 Parameters: ``usdbake list ambient_occlusion`` or docs/ambient_occlusion.md, both generated from ``Params`` below.
 """
@@ -47,7 +47,7 @@ import warp as wp
 from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
 from ..core.products import AmbientOcclusionProduct
 from ..core.scene import Scene
-from ..geometry.instances import instanced_receivers, native_instanced, per_instance_means
+from ..geometry.instances import instanced_receivers, per_instance_means
 from ..geometry.mesh import NO_RECEIVERS, face_means, receiver_prims, vertex_inward, vertex_normals
 from ..kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
 from ..kernels.sampling import strata_for, tangent_frame, triangle_point
@@ -166,8 +166,8 @@ class AmbientOcclusion(Processor):
         connect_occlusion: bool = param(False, "wire bake:ao into each bound UsdPreviewSurface inputs:occlusion")
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
         instances: str = param("mean", "instanced receivers: mean (per-instance mean AO on the instance root "
-                               "or PointInstancer), deinstance (per-vertex AO on de-instanced native "
-                               "instances) or skip", choices=("mean", "deinstance", "skip"))
+                               "or PointInstancer) or skip; --deinstance bakes native ones per vertex",
+                               choices=("mean", "skip"))
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
         scene = ctx.scene
@@ -212,18 +212,7 @@ class AmbientOcclusion(Processor):
 
     @staticmethod
     def _instances(scene: Scene, p, instanced: np.ndarray, ao_points: np.ndarray, result: Result) -> None:
-        """Per-instance means, or per-vertex AO on de-instanced native instances (module docstring)."""
-        if p.instances == "deinstance":
-            native = native_instanced(scene, instanced)
-            roots = sorted({root for prim in native for root in scene.prim_instance_roots[prim]})
-            result.outputs += [Prim(root, instanceable=False) for root in roots]
-            for prim in native:
-                result.outputs.append(Primvar(scene.prim_paths[prim], "bake:ao",
-                                              ao_points[scene.prim_points(prim)], "float", "vertex"))
-            if len(native):
-                result.messages.append(f"de-instanced {len(roots)} native instances (instanceable = false in the "
-                                       f"bake layer) to write per-vertex AO on their {len(native)} meshes")
-            instanced = np.setdiff1d(instanced, native)
+        """Per-instance means (module docstring)."""
         means = per_instance_means(scene, ao_points, instanced, fill=1.0)
         for root, value in means.native.items():
             result.outputs.append(Primvar(root, "bake:ao", np.array([value], np.float32), "float", "constant"))
@@ -231,7 +220,7 @@ class AmbientOcclusion(Processor):
             result.outputs.append(Primvar(instancer, "bake:ao", values, "float", "vertex"))
         if means.native:
             result.messages.append(f"{len(means.native)} native instances: per-instance mean AO as constant "
-                                   f"primvars:bake:ao on their roots (instances=deinstance for per-vertex AO)")
+                                   f"primvars:bake:ao on their roots (--deinstance for per-vertex AO)")
         for instancer, values in means.instancers.items():
             result.messages.append(f"{instancer}: per-instance mean AO of its {len(values)} instances as "
                                    f"primvars:bake:ao (one value per instance)")

@@ -61,8 +61,13 @@ class _Builder:
         self.instance_roots.append(roots)
 
 
-def extract_scene(stage: Usd.Stage, *, time: float | None = None, allow_missing: bool = False) -> Scene:
+def extract_scene(stage: Usd.Stage, *, time: float | None = None, allow_missing: bool = False,
+                  deinstance: bool = False) -> Scene:
     """Flatten ``stage`` at ``time`` (None: the default time) into a Scene.
+
+    Natively instanced meshes are read-only instances (kept in ``Scene.instances``), unless
+    ``deinstance``: then they are ordinary, writable receivers, which the bake layer de-instances
+    (``stages.refined_mesh.complete_outputs`` sets ``instanceable = false`` on their roots).
 
     Raises StageError naming prim, attribute and value for data that cannot be baked
     (NaN/inf points, out-of-range indices, mismatched counts), and naming the asset and
@@ -96,8 +101,8 @@ def extract_scene(stage: Usd.Stage, *, time: float | None = None, allow_missing:
         elif prim.IsA(UsdGeom.Mesh):
             world = np.array(xforms.GetLocalToWorldTransform(prim), np.float64)
             roots = _instance_roots(prim) if prim.IsInstanceProxy() else ()
-            instance = instances.native(stage.GetPrimAtPath(roots[0]), xforms) if roots else -1
-            builder.add(local_mesh(prim), world, writable=not roots, instance=instance, roots=roots)
+            instance = instances.native(stage.GetPrimAtPath(roots[0]), xforms) if roots and not deinstance else -1
+            builder.add(local_mesh(prim), world, writable=not roots or deinstance, instance=instance, roots=roots)
         elif any(prim.IsA(light_type) for light_type, _ in LIGHT_TYPES):
             light_prims.append(prim)
 

@@ -36,7 +36,8 @@ from .refined_mesh import complete_outputs, refinement_guard
 
 def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | None = None,
          time: float | None = None, device: str = "cpu", cache_dir: str | None = None, force: bool = False,
-         texture_dir: str | None = None, on_progress=None, allow_missing: bool = False) -> Sdf.Layer:
+         texture_dir: str | None = None, on_progress=None, allow_missing: bool = False,
+         deinstance: bool = False) -> Sdf.Layer:
     """Run processors on ``stage`` and author their results into a bake layer.
 
     Parameters
@@ -49,6 +50,8 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     texture_dir : folder for texture outputs (default: beside the stage's root layer, else a temp folder)
     allow_missing : bake without missing or unreadable sublayers, references and payloads (each one a
         warning) instead of raising StageError naming the first
+    deinstance : bake natively instanced meshes as ordinary ones (per vertex); the layer sets
+        ``instanceable = false`` on the instances whose meshes receive data
 
     Warnings (missing assets allowed, textures that could not be read and the fallback used, faces
     left out) are issued as Python warnings and kept in the layer's report: ``last_warnings(layer)``.
@@ -62,7 +65,7 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     target = layer if layer is not None else _session_bake_layer(stage)
     muted = _mute_for_extraction(stage, target)
     try:  # the stage is read without an earlier bake's opinions, also where refined meshes are completed
-        scene = extract_scene(stage, time=time, allow_missing=allow_missing)
+        scene = extract_scene(stage, time=time, allow_missing=allow_missing, deinstance=deinstance)
         pipeline.run(scene, on_progress=on_progress, before_compute=refinement_guard(stage, scene))
         outputs = complete_outputs(stage, pipeline.outputs())
     finally:

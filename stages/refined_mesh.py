@@ -36,7 +36,7 @@ from pxr import Usd, UsdGeom
 
 from ..core.errors import StageError
 from ..core.products import RefinedScene
-from ..core.records import Attribute, Block, Primvar, RefinedMesh
+from ..core.records import Attribute, Block, Prim, Primvar, RefinedMesh
 from ..core.scene import Scene
 
 INTERPOLABLE = re.compile(r"^(float|double|half|(color|normal|point|vector|texCoord)\d[fdh]|(float|double|half)\d|"
@@ -83,8 +83,10 @@ def check_refinable(stage: Usd.Stage, scene: Scene) -> None:
 
 
 def complete_outputs(stage: Usd.Stage, outputs: list) -> list:
-    """The records to author: RefinedMesh records expanded with ``stage``'s authored data, and the
-    ``:indices`` of an indexed primvar a processor replaces blocked (its values are not indexed)."""
+    """The records to author: RefinedMesh records expanded with ``stage``'s authored data, the
+    ``:indices`` of an indexed primvar a processor replaces blocked (its values are not indexed), and
+    ``instanceable = false`` on the native instances whose meshes receive data (``--deinstance``)."""
+    outputs = deinstanced(stage, outputs) + list(outputs)
     taken = {(record.prim, _property(record)) for record in outputs if isinstance(record, (Primvar, Attribute))}
     completed = []
     for record in outputs:
@@ -100,6 +102,21 @@ def complete_outputs(stage: Usd.Stage, outputs: list) -> list:
                 completed.append(Attribute(record.prim, key[1], Block(), "int[]"))
                 taken.add(key)
     return completed
+
+
+def deinstanced(stage: Usd.Stage, outputs: list) -> list[Prim]:
+    """Prim records de-instancing every native instance (nested ones too) a record writes under."""
+    roots: set[str] = set()
+    for path in {record.prim for record in outputs if isinstance(record, (Primvar, Attribute, RefinedMesh))}:
+        prim = stage.GetPrimAtPath(path)
+        if not prim or not prim.IsInstanceProxy():
+            continue
+        parent = prim.GetParent()
+        while parent:
+            if parent.IsInstance():
+                roots.add(str(parent.GetPath()))
+            parent = parent.GetParent()
+    return [Prim(root, instanceable=False) for root in sorted(roots)]
 
 
 def _property(record) -> str:

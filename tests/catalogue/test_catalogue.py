@@ -156,8 +156,7 @@ def test_instances_get_per_instance_ao_and_the_bake_says_so(bake, tmp_path):
 def test_instances_can_be_deinstanced_for_per_vertex_ao(bake, tmp_path):
     source = instanced_board(tmp_path)
     out = tmp_path / "out.usda"
-    code, err = bake("bake", source, "-o", out, *FAST, "--set", "ambient_occlusion.instances=deinstance",
-                     inputs=[source])
+    code, err = bake("bake", source, "-o", out, *FAST, "--deinstance", inputs=[source])
     assert code == 0, err
     stage = Usd.Stage.Open(str(out))
     assert not stage.GetPrimAtPath("/World/Pawns/Pawn_0").IsInstance()
@@ -172,6 +171,23 @@ def test_a_scene_of_instances_only_is_baked(bake, tmp_path):
     assert code == 0, err
     baked = Usd.Stage.Open(str(out))
     assert primvar(baked, "/World/Pawns/Pawn_3", "bake:ao").HasValue()
+
+
+def test_deinstanced_instances_are_refined_and_baked_by_every_processor(bake, tmp_path):
+    source = instanced_board(tmp_path, floor=False, name="only.usda")
+    out = tmp_path / "out.usda"
+    code, err = bake("bake", source, "-o", out, "--deinstance", "-p", "sky_visibility", "-p", "ambient_occlusion",
+                     *REFINE, *FAST, inputs=[source])
+    assert code == 0, err
+    stage = Usd.Stage.Open(str(out))
+    assert topology_mismatches(stage) == []
+    base = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Pawns/Pawn_2/Base"))
+    assert not stage.GetPrimAtPath("/World/Pawns/Pawn_2").IsInstance()
+    assert len(primvar(stage, "/World/Pawns/Pawn_2/Base", "bake:ao").Get()) == len(base.GetPointsAttr().Get())
+    assert len(primvar(stage, "/World/Pawns/Pawn_2/Base", "bake:skyExposure").Get()) == \
+        len(base.GetFaceVertexCountsAttr().Get())
+    assert "de-instanced 4 native instances" in err
+    assert len(primvar(stage, "/World/Row", "bake:ao").Get()) == 4  # the PointInstancer keeps per-instance means
 
 
 def test_identical_prototypes_share_one_displacement_field(bake, tmp_path):
