@@ -9,9 +9,9 @@ import pytest
 from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_STORAGE, FLOAT64_AMPLIFIED, LUMINANCE_WEIGHTS, MC_SIGMAS,
                         PEREZ_PATCH_AVERAGING, SKY_PATCH_INTEGRATION, SUN_PENUMBRA_SHARE)
 from usdbake.core import ParamError
+from usdbake.kernels.sun_visibility import compute_sun_visibility
 from usdbake.processors.daylight import (
     Daylight,
-    compute_sun_visibility,
     relight,
     tone_map,
 )
