@@ -1,0 +1,173 @@
+"""Typical-year weather files: EnergyPlus EPW and NREL TMY3 CSV, read with pvlib.
+
+pvlib (``pvlib.iotools.read_epw`` / ``read_tmy3``) parses the files; before it
+does, the layout is checked here line by line (row count, column count, numeric
+irradiance), because a broken file should fail with one line naming the file
+and the line, not with a pandas traceback. Times are local standard time at the
+middle of each hour (both formats give the hour *ending* at the stamp).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import UsageError
+
+HOURS = 8760
+"""Rows of a typical year (a leap-year file has 8784; its 29 February is dropped, as EnergyPlus does)."""
+
+EPW_HEADER_LINES = 8
+EPW_COLUMNS = 35
+EPW_DNI, EPW_DHI = 14, 15
+"""0-based EPW fields: direct normal and diffuse horizontal irradiance, W/m^2."""
+
+TMY3_HEADER_LINES = 2
+TMY3_COLUMNS = 71
+TMY3_DNI, TMY3_DHI = 7, 10
+
+
+@dataclass(frozen=True)
+class Weather:
+    """Hourly irradiance of a typical year and the site it was measured at."""
+
+    source: str
+    """The file, for messages and the report."""
+    times: np.ndarray
+    """(H,) datetime64[m] local standard time at the middle of each hour."""
+    direct_normal: np.ndarray
+    """(H,) float64 direct normal irradiance, W/m^2."""
+    diffuse_horizontal: np.ndarray
+    """(H,) float64 diffuse horizontal irradiance, W/m^2."""
+    latitude: float
+    """Degrees north."""
+    longitude: float
+    """Degrees east."""
+    timezone: float
+    """Hours east of UTC of the local standard time."""
+    elevation: float
+    """Metres."""
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+
+def read_weather(path: str | Path) -> Weather:
+    """An EPW (``.epw``) or TMY3 CSV (``.csv``) file; UsageError naming the file and line when it is broken."""
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"{path}: no such weather file")
+    suffix = path.suffix.lower()
+    if suffix == ".epw":
+        return _read_epw(path)
+    if suffix == ".csv":
+        return _read_tmy3(path)
+    raise UsageError(f"{path}: unknown weather format {suffix or '(no extension)'!r}; expected .epw (EnergyPlus) "
+                     f"or .csv (NREL TMY3)")
+
+
+def _check_rows(path: Path, header: int, columns: int, numeric: tuple[int, ...]) -> list[list[str]]:
+    """The data rows, each with ``columns`` fields and numbers in the ``numeric`` fields."""
+    with open(path, newline="", encoding="latin-1") as handle:
+        rows = list(csv.reader(handle))
+    data = rows[header:]
+    while data and not any(field.strip() for field in data[-1]):
+        data.pop()  # trailing blank lines
+    if len(data) not in (HOURS, HOURS + 24):
+        raise UsageError(f"{path}: {len(data)} hourly rows after the {header}-line header; a typical year has "
+                         f"{HOURS} (or {HOURS + 24} in a leap year): missing or extra hours")
+    for index, row in enumerate(data):
+        line = header + index + 1
+        if len(row) != columns:
+            raise UsageError(f"{path}, line {line}: {len(row)} fields, expected {columns}")
+        for field in numeric:
+            try:
+                value = float(row[field])
+            except ValueError:
+                raise UsageError(f"{path}, line {line}: field {field + 1} is {row[field]!r}, not a number") from None
+            if not np.isfinite(value) or value < 0 or value > 2000:
+                raise UsageError(f"{path}, line {line}: irradiance {value} W/m^2 in field {field + 1} is outside "
+                                 f"0..2000")
+    return rows[:header] + data
+
+
+def _site(path: Path, latitude: float, longitude: float, timezone: float) -> None:
+    if not -90.0 <= latitude <= 90.0:
+        raise UsageError(f"{path}, line 1: latitude {latitude} is outside -90..90")
+    if not -180.0 <= longitude <= 180.0:
+        raise UsageError(f"{path}, line 1: longitude {longitude} is outside -180..180")
+    if not -12.0 <= timezone <= 14.0:
+        raise UsageError(f"{path}, line 1: time zone {timezone} h is not one (-12..14)")
+
+
+_DAYS_BEFORE_MONTH = np.cumsum([0, 31, 28, 31, 30, 31, 30, 31, 31, 30, 31, 30])
+
+
+def _fields(path: Path, header: int, rows: list[list[str]], read) -> list[tuple]:
+    """``read(row)`` for every data row; a row it cannot read is named by its line."""
+    values = []
+    for index, row in enumerate(rows):
+        try:
+            values.append(read(row))
+        except (ValueError, IndexError):
+            raise UsageError(f"{path}, line {header + index + 1}: the date and time cannot be read") from None
+    return values
+
+
+def _year(path: Path, header: int, months: list[int], days: list[int], hours: list[float],
+          frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(mid-hour local times, DNI, DHI): times from each row's month, day and hour ending (1..24), in
+    one non-leap year (typical years mix source years, some leap: 29 February is dropped), irradiance
+    from pvlib's frame, row for row."""
+    months, days, hours = np.asarray(months), np.asarray(days), np.asarray(hours, np.float64)
+    bad = np.flatnonzero((months < 1) | (months > 12) | (days < 1) | (days > 31) | (hours <= 0) | (hours > 24))
+    if len(bad):
+        raise UsageError(f"{path}, line {header + bad[0] + 1}: month {months[bad[0]]}, day {days[bad[0]]}, hour "
+                         f"{hours[bad[0]]:g} is not a time of the year")
+    keep = ~((months == 2) & (days == 29))
+    day = _DAYS_BEFORE_MONTH[months[keep] - 1] + days[keep] - 1
+    minutes = np.rint((day * 24 + hours[keep] - 0.5) * 60).astype(np.int64)
+    times = np.datetime64("2025-01-01T00:00", "m") + minutes.astype("timedelta64[m]")
+    return times, frame["dni"].to_numpy(np.float64)[keep], frame["dhi"].to_numpy(np.float64)[keep]
+
+
+def _read_epw(path: Path) -> Weather:
+    from pvlib.iotools import read_epw
+
+    rows = _check_rows(path, EPW_HEADER_LINES, EPW_COLUMNS, (EPW_DNI, EPW_DHI))
+    location = rows[0]
+    if len(location) < 10 or location[0].strip().upper() != "LOCATION":
+        raise UsageError(f"{path}, line 1: expected 'LOCATION,city,state,country,source,WMO,latitude,longitude,"
+                         f"timezone,elevation'")
+    try:
+        latitude, longitude, timezone, elevation = (float(v) for v in location[6:10])
+    except ValueError:
+        raise UsageError(f"{path}, line 1: latitude, longitude, time zone and elevation must be numbers") from None
+    _site(path, latitude, longitude, timezone)
+    when = _fields(path, EPW_HEADER_LINES, rows[EPW_HEADER_LINES:],
+                   lambda row: (int(row[1]), int(row[2]), float(row[3])))
+    frame, _ = read_epw(str(path))
+    times, dni, dhi = _year(path, EPW_HEADER_LINES, *zip(*when), frame)
+    return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation)
+
+
+def _read_tmy3(path: Path) -> Weather:
+    from pvlib.iotools import read_tmy3
+
+    rows = _check_rows(path, TMY3_HEADER_LINES, TMY3_COLUMNS, (TMY3_DNI, TMY3_DHI))
+    site = rows[0]
+    try:
+        timezone, latitude, longitude, elevation = (float(v) for v in site[3:7])
+    except (ValueError, IndexError):
+        raise UsageError(f"{path}, line 1: expected 'USAF,name,state,timezone,latitude,longitude,elevation'") \
+            from None
+    _site(path, latitude, longitude, timezone)
+    when = _fields(path, TMY3_HEADER_LINES, rows[TMY3_HEADER_LINES:],
+                   lambda row: (int(row[0].split("/")[0]), int(row[0].split("/")[1]),
+                                int(row[1].split(":")[0]) + int(row[1].split(":")[1]) / 60.0))
+    frame, _ = read_tmy3(str(path), map_variables=True)
+    times, dni, dhi = _year(path, TMY3_HEADER_LINES, *zip(*when), frame)
+    return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation)

@@ -1,0 +1,101 @@
+"""Typical-year weather files: the TMY3 file pvlib ships (Greensboro NC, NREL, public domain), an EPW
+written from it, and broken copies of both, each refused with one line naming the file and line."""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from usdbake.core.errors import UsageError
+from usdbake.formats.weather import EPW_COLUMNS, HOURS, read_weather
+
+pvlib = pytest.importorskip("pvlib")
+TMY3 = Path(pvlib.__file__).parent / "data" / "723170TYA.CSV"
+
+
+def tmy3_rows() -> list[list[str]]:
+    with open(TMY3, newline="") as handle:
+        return list(csv.reader(handle))
+
+
+def write_epw(path: Path, *, latitude="36.10", timezone="-5.0", drop_row=None, short_row=None) -> Path:
+    """An EPW with the TMY3 file's irradiance (fields 15 and 16), other fields zero."""
+    rows = tmy3_rows()[2:]
+    lines = [f"LOCATION,Greensboro,NC,USA,TMY3,723170,{latitude},-79.95,{timezone},273.0"]
+    lines += [f"HEADER{k}" for k in range(7)]
+    for index, row in enumerate(rows):
+        if index == drop_row:
+            continue
+        month, day, year = row[0].split("/")
+        hour = int(row[1].split(":")[0])
+        fields = [year, str(int(month)), str(int(day)), str(hour), "60", "A7"] + ["0"] * (EPW_COLUMNS - 6)
+        fields[14], fields[15] = row[7], row[10]
+        if index == short_row:
+            fields = fields[:-1]
+        lines.append(",".join(fields))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_shipped_tmy3_file_is_a_year_at_its_site():
+    weather = read_weather(TMY3)
+    rows = tmy3_rows()
+    assert len(weather) == HOURS
+    assert (weather.latitude, weather.longitude, weather.timezone, weather.elevation) == (36.1, -79.95, -5.0, 273.0)
+    assert str(weather.times[0]) == "2025-01-01T00:30" and str(weather.times[-1]) == "2025-12-31T23:30"
+    noon = 12 + 24 * 171  # 21 June, the hour ending 13:00
+    assert weather.direct_normal[noon] == float(rows[2 + noon][7])
+    assert weather.diffuse_horizontal[noon] == float(rows[2 + noon][10])
+
+
+def test_an_epw_reads_the_same_year(tmp_path):
+    epw = read_weather(write_epw(tmp_path / "greensboro.epw"))
+    tmy3 = read_weather(TMY3)
+    np.testing.assert_array_equal(epw.times, tmy3.times)
+    np.testing.assert_array_equal(epw.direct_normal, tmy3.direct_normal)
+    np.testing.assert_array_equal(epw.diffuse_horizontal, tmy3.diffuse_horizontal)
+    assert (epw.latitude, epw.longitude, epw.timezone) == (36.1, -79.95, -5.0)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"drop_row": 100}, "8759 hourly rows after the 8-line header; a typical year has 8760 (or 8784 in a leap "
+                        "year): missing or extra hours"),
+    ({"short_row": 41}, ", line 50: 34 fields, expected 35"),
+    ({"latitude": "95.0"}, ", line 1: latitude 95.0 is outside -90..90"),
+    ({"timezone": "20"}, ", line 1: time zone 20.0 h is not one (-12..14)"),
+])
+def test_broken_epw_is_refused_naming_file_and_line(tmp_path, kwargs, message):
+    path = write_epw(tmp_path / "broken.epw", **kwargs)
+    with pytest.raises(UsageError) as error:
+        read_weather(path)
+    assert str(error.value) == f"{path}{'' if message.startswith(',') else ': '}{message}"
+
+
+def test_non_numeric_irradiance_names_the_line(tmp_path):
+    rows = tmy3_rows()
+    rows[500][7] = "n/a"
+    path = tmp_path / "broken.csv"
+    with open(path, "w", newline="") as handle:
+        csv.writer(handle).writerows(rows)
+    with pytest.raises(UsageError) as error:
+        read_weather(path)
+    assert str(error.value) == f"{path}, line 501: field 8 is 'n/a', not a number"
+
+
+def test_missing_and_unknown_files(tmp_path):
+    with pytest.raises(UsageError, match="no such weather file"):
+        read_weather(tmp_path / "nowhere.epw")
+    other = tmp_path / "weather.txt"
+    other.write_text("x")
+    with pytest.raises(UsageError, match=r"unknown weather format '.txt'; expected .epw \(EnergyPlus\) or .csv"):
+        read_weather(other)
+
+
+def test_tmy3_file_stays_untouched():
+    before = os.path.getmtime(TMY3), TMY3.read_bytes()
+    read_weather(TMY3)
+    assert (os.path.getmtime(TMY3), TMY3.read_bytes()) == before
