@@ -262,6 +262,8 @@ class Pipeline:
                                    (lambda f, n=step.name: on_progress(n, f)) if on_progress else None)
                 try:
                     result = step.processor.run(ctx)
+                except UsageError:
+                    raise  # the user's input (a file a parameter names), not a processor fault: exit 2
                 except Exception as error:  # report which processor failed, and why
                     raise ProcessorFailed(step.name, error) from error
                 self.cache.store(step.name, step.key, result)

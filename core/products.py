@@ -102,6 +102,26 @@ class RefinedScene:
 
 
 @dataclass(frozen=True)
+class AnnualDaylightProduct:
+    """Annual daylight metrics per face of the sky_visibility mesh (product of ``annual_daylight``)."""
+
+    daylight_factor: np.ndarray
+    """(F,) float32 percent, CIE overcast sky."""
+    autonomy: np.ndarray
+    """(F,) float32 share of occupied hours at or above the threshold."""
+    useful: np.ndarray
+    """(F, 3) float32 UDI shares of occupied hours: below, within, above the band."""
+    sun_hours: np.ndarray
+    """(F,) float32 occupied hours of direct sunlight at or above the ASE level."""
+    mean_illuminance: np.ndarray
+    """(F,) float32 lux, mean over occupied hours."""
+    sensors: np.ndarray
+    """(F,) bool faces the spatial metrics are taken over."""
+    sda: float
+    ase: float
+
+
+@dataclass(frozen=True)
 class DaylightProduct:
     """Product ``daylight``: radiance per refined face and time."""
 

@@ -21,6 +21,7 @@ BUILTIN = (
     "usdbake.processors.ambient_occlusion:AmbientOcclusion",
     "usdbake.processors.sky_visibility:SkyVisibility",
     "usdbake.processors.daylight:Daylight",
+    "usdbake.processors.annual_daylight:AnnualDaylight",
     "usdbake.processors.displacement_fields:DisplacementFields",
     "usdbake.processors.instance_ao:InstanceAO",
     "usdbake.processors.form_factors:FormFactors",

@@ -134,8 +134,18 @@ def _year(path: Path, header: int, months: list[int], days: list[int], hours: li
     return times, frame["dni"].to_numpy(np.float64)[keep], frame["dhi"].to_numpy(np.float64)[keep]
 
 
+def _pvlib_reader(name: str):
+    """``pvlib.iotools.<name>``, or a UsageError saying how to install it."""
+    try:
+        from pvlib import iotools
+    except ImportError:
+        raise UsageError("weather files are read with pvlib, which is not installed: "
+                         "pip install 'usdbake[daylight]'") from None
+    return getattr(iotools, name)
+
+
 def _read_epw(path: Path) -> Weather:
-    from pvlib.iotools import read_epw
+    read_epw = _pvlib_reader("read_epw")
 
     rows = _check_rows(path, EPW_HEADER_LINES, EPW_COLUMNS, (EPW_DNI, EPW_DHI))
     location = rows[0]
@@ -155,7 +165,7 @@ def _read_epw(path: Path) -> Weather:
 
 
 def _read_tmy3(path: Path) -> Weather:
-    from pvlib.iotools import read_tmy3
+    read_tmy3 = _pvlib_reader("read_tmy3")
 
     rows = _check_rows(path, TMY3_HEADER_LINES, TMY3_COLUMNS, (TMY3_DNI, TMY3_DHI))
     site = rows[0]

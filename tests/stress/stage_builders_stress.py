@@ -7,6 +7,8 @@ A plain module, imported as ``from stress.stage_builders_stress import ...``
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
+from pathlib import Path
 
 import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux, Vt
@@ -126,6 +128,8 @@ FAST_SKY = {"patch_count": 16, "samples": 4, "min_area": 0.0, "max_level": 2, "m
 """4 samples (2 x 2): with 1 a pair is never partly visible, so nothing would be refined; min_area 0: the
 huge triangle makes the scene diagonal 3e4, and the default relative floor would forbid every split."""
 FAST_FIELDS = {"positional_samples": 16, "direction_map_size": 4, "force": "Crate"}
+TMY3 = str(Path(importlib.util.find_spec("pvlib").origin).parent / "data" / "723170TYA.CSV")
+"""The typical year pvlib ships (Greensboro NC, NREL TMY3, public domain): the weather of annual_daylight."""
 
 FAST_PARAMS: dict[str, dict[str, dict]] = {
     "ambient_occlusion": {"ambient_occlusion": {"samples": 16, "per_face": True}},
@@ -139,6 +143,8 @@ FAST_PARAMS: dict[str, dict[str, dict]] = {
     "light_probes": {"light_probes": {"probes": 64, "iterations": 1, "rays": 16, "placement_rays": 8}},
     "irradiance_grid": {"irradiance_grid": {"vertices": 64, "rays": 16}},
     "progressive_mesh": {},
+    "annual_daylight": {"sky_visibility": FAST_SKY,
+                        "annual_daylight": {"weather": TMY3, "sun_bins": 1, "sun_samples": 1}},
 }
 """Per processor: the params argument of usdbake.bake / Pipeline.build (dependencies' params included)."""
 
