@@ -350,6 +350,11 @@ def emissive_lights(scene: Scene, mode: str = "auto") -> bool:
     return mode == "on" or (mode == "auto" and len(scene.lights) == 0)
 
 
+NO_LIGHTS = ("no lights (no UsdLux light with radiance and no emissive triangle): add a UsdLux DomeLight for "
+             "sky light, a DistantLight for the sun, or an emissive material")
+"""Why a processor that needs light does not apply, and how to give the scene some."""
+
+
 def has_light(scene: Scene) -> bool:
     """The scene holds a UsdLux light or an emissive triangle with positive radiance."""
     emissive = bool((scene.tri_emission.max(axis=1, initial=0.0) > 0).any()) if scene.num_triangles else False

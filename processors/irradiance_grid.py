@@ -115,6 +115,7 @@ from ..core.scene import Scene
 from ..formats import streaming
 from ..geometry.mesh import receiver_prims, vertex_normals
 from ..kernels.lights import (
+    NO_LIGHTS,
     Lights,
     SceneLighting,
     Surfaces,
@@ -490,7 +491,7 @@ class IrradianceGrid(Processor):
         if scene.num_triangles == 0:
             return False, "no geometry"
         if not has_light(scene):
-            return False, "no lights (no UsdLux light with radiance and no emissive triangle)"
+            return False, NO_LIGHTS
         return True, ""
 
     def run(self, ctx: Context) -> Result:

@@ -115,7 +115,7 @@ from ..core import Attribute, Context, Params, Prim, Processor, Result, param
 from ..core.products import ProbeCloud
 from ..core.scene import Scene
 from ..geometry import tetrahedra
-from ..kernels.lights import SceneLighting, has_light, scene_lighting
+from ..kernels.lights import NO_LIGHTS, SceneLighting, has_light, scene_lighting
 from ..kernels.probe_capture import PROBE_DIRECTIONS, classify_points, compute_probe_sh
 from ..kernels.sh import sh_basis_np
 
@@ -499,7 +499,7 @@ class LightProbes(Processor):
         if scene.num_triangles == 0 or scene.diagonal <= 0:
             return False, "no empty space (the stage has no geometry to place probes around)"
         if not has_light(scene):
-            return False, "no lights (no UsdLux light with radiance and no emissive triangle)"
+            return False, NO_LIGHTS
         return True, ""
 
     def run(self, ctx: Context) -> Result:

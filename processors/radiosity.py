@@ -54,7 +54,7 @@ from ..core import Context, Params, Primvar, Processor, Result, param
 from ..core.products import FormFactorProduct, RadiosityProduct
 from ..core.scene import Scene
 from ..geometry.mesh import missing_receivers, receiver_prims, vertex_normals
-from ..kernels.lights import Lights, direct_irradiance, has_light, light_bundle, shadow_rays_per_point
+from ..kernels.lights import NO_LIGHTS, Lights, direct_irradiance, has_light, light_bundle, shadow_rays_per_point
 from ..kernels.operator_relight import relight
 from ..kernels.patches import fragment_of_hit
 from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
@@ -379,7 +379,7 @@ class Radiosity(Processor):
     def applies(self, ctx: Context) -> tuple[bool, str]:
         scene = ctx.scene
         if not has_light(scene):
-            return False, "no lights or emissive surfaces"
+            return False, NO_LIGHTS
         reason = missing_receivers(scene)
         return not reason, reason
 

@@ -82,7 +82,9 @@ def test_no_sky_visible_faces():
 
 def test_no_lights():
     action, reason = plan(quad_stage(light=False), ["radiosity"])["radiosity"]
-    assert action == "skip" and reason == "not applicable: no lights or emissive surfaces"
+    assert action == "skip" and reason == ("not applicable: no lights (no UsdLux light with radiance and no emissive "
+                                           "triangle): add a UsdLux DomeLight for sky light, a DistantLight for the "
+                                           "sun, or an emissive material")
     assert plan(quad_stage(light=True), ["radiosity"])["radiosity"][0] == "run"
 
 
