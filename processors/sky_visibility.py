@@ -79,6 +79,9 @@ wp.set_module_options({"enable_backward": False})
 QUANT_LEVELS = 255
 """V is stored as round(V * 255) in uint8: error <= 0.5 / 255 per factor."""
 
+PRESPLIT_PASSES = 12
+"""Most four-way splits of a face larger than max_face_area before tracing (4^12 children at most)."""
+
 PAIRS_PER_BATCH = 4_000_000
 """(triangle, patch) pairs per launch: bounds the temporary V/partial arrays to ~32 MB."""
 
@@ -221,6 +224,7 @@ def _areas_normals(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarra
 
 def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples: int = 4,
                            tolerance: float = 0.1, min_area: float = 1e-5, max_level: int = 5,
+                           max_face_area: float = 0.0,
                            max_triangles: int = 500_000, seed: int = 0, adaptive: bool = True,
                            prims: np.ndarray | None = None, criterion: str = "share", uniform: bool = False,
                            progress=lambda f: None) -> tuple[SkyVisibilityProduct, dict]:
@@ -262,18 +266,34 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     next_id = 0
     ids = np.zeros(len(tris), np.int64)
     iterations = 0
+
+    def split(marked: np.ndarray):
+        """Refine the marked faces, carrying source, level and corner weights to the children."""
+        nonlocal points, weld, triangles, source, level, weights
+        result = refine(points, triangles, marked, weld=weld)
+        points, weld, triangles = result.points, result.weld, result.triangles
+        source, level = source[result.parent], level[result.parent] + result.halvings
+        weights = np.einsum("tij,tjk->tik", result.corner_weights, weights[result.parent])
+        return result
+
+    area_cap = float(max_face_area) * scene.diagonal ** 2
+    if area_cap > 0:  # large faces first: each (face, patch) pair is judged from `samples` points only
+        for _ in range(PRESPLIT_PASSES):
+            big = _areas_normals(points, triangles)[0] > area_cap
+            if not big.any() or len(triangles) >= max_triangles:
+                break
+            split(big)
+        level = np.zeros(len(triangles), np.int64)  # max_level counts splits below the split input face
     if uniform:  # split every face max_level times, then trace once
         for _ in range(max_level):
-            result = refine(points, triangles, np.ones(len(triangles), bool), weld=weld)
-            points, weld, triangles = result.points, result.weld, result.triangles
-            source, level = source[result.parent], level[result.parent] + result.halvings
-            weights = np.einsum("tij,tjk->tik", result.corner_weights, weights[result.parent])
+            split(np.ones(len(triangles), bool))
+    if area_cap > 0 or uniform:
         quantized = np.zeros((len(triangles), n_patch), np.uint8)
         exposure = np.zeros(len(triangles), np.float64)
         score = np.zeros(len(triangles), np.float64)
         pending = np.ones(len(triangles), bool)
         ids = np.zeros(len(triangles), np.int64)
-        adaptive = False
+    adaptive = adaptive and not uniform
     while True:
         todo = np.flatnonzero(pending)
         ids[todo] = next_id + np.arange(len(todo))
@@ -298,12 +318,9 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
         marked = (score > tolerance) & (areas > area_floor) & (level < 2 * max_level)
         if not marked.any() or len(triangles) >= max_triangles:
             break
-        result = refine(points, triangles, marked, weld=weld)
-        points, weld, triangles = result.points, result.weld, result.triangles
-        weights = np.einsum("tij,tjk->tik", result.corner_weights, weights[result.parent])
+        result = split(marked)
         quantized, exposure, score = quantized[result.parent], exposure[result.parent], score[result.parent]
-        source, ids = source[result.parent], ids[result.parent]
-        level = level[result.parent] + result.halvings
+        ids = ids[result.parent]
         pending = result.changed.copy()
 
     # Faces grouped by prim, then by source triangle (so by authored face), in refinement order within one.
@@ -375,6 +392,9 @@ class SkyVisibility(Processor):
         min_area: float = param(1e-5, "smallest face area refined, times the scene diagonal squared",
                                 low=0.0, high=1.0)
         max_level: int = param(5, "most four-way splits below an input face", low=0, high=16)
+        max_face_area: float = param(1e-3, "faces larger than this, times the scene diagonal squared, are split "
+                                     "before tracing, so no large face is judged from a handful of points "
+                                     "(0: off)", low=0.0, high=1.0)
         max_triangles: int = param(500_000, "stop refining at this many faces (V takes faces x patches bytes)",
                                    low=1)
         criterion: str = param("share", "refinement test: share (cosine-weighted share of the face's sky that is "
@@ -398,7 +418,8 @@ class SkyVisibility(Processor):
         patches = patch_layout(p.patch_layout, count=p.patch_count, subdivision=p.subdivision)
         product, stats = compute_sky_visibility(
             ctx.tracer, scene, patches=patches, samples=p.samples, tolerance=p.tolerance,
-            min_area=p.min_area, max_level=p.max_level, max_triangles=p.max_triangles, seed=p.seed,
+            min_area=p.min_area, max_level=p.max_level, max_face_area=p.max_face_area,
+            max_triangles=p.max_triangles, seed=p.seed,
             criterion=p.criterion, progress=ctx.progress)
         refined, meshes = refine_scene(scene, product.face_points, product.point_source, product.face_vertices,
                                        product.face_source, product.face_corner_weights)

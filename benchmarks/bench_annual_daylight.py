@@ -1,0 +1,108 @@
+"""Annual daylight (8760 hours) after sky visibility: wall time and memory on a ~100k-face daylit room."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+from pxr import Usd, UsdGeom
+
+from . import harness
+from usdbake.formats.weather import read_weather
+from usdbake.kernels.sky import tregenza_patches
+from usdbake.kernels.tracer import Tracer
+from usdbake.processors.annual_daylight import compute_annual_daylight
+from usdbake.processors.sky_visibility import compute_sky_visibility
+from usdbake.stages.extract import extract_scene
+
+NAME = "annual_daylight"
+DESCRIPTION = (
+    "`annual_daylight` on a generated room lit only through four windows (Z-up, metres, 8 x 6 x 3 m, floor and "
+    "ceiling finely tessellated, a few furniture blocks), Greensboro NC typical year (the NREL TMY3 file pvlib "
+    "ships), 8760 hours, defaults (sun bins Reinhart MF:4, 2 shadow rays per face and bin). Visibility "
+    "(`sky_visibility`, Tregenza patches, 4 rays per face and patch, no refinement) is computed first and not "
+    "timed. Seconds: wall time of compute_annual_daylight (sky matrix, sun rays, the hourly products and the "
+    "metrics); peak_mb: growth of the process's peak resident memory during it. The issue's figure: <= 60 s on "
+    "2 cores for 100k faces.")
+ROOM = (8.0, 6.0, 3.0)
+WINDOWS = ((0.25, 0.75), (0.3, 0.8))
+"""Window openings as (u range, v range) shares of each wall."""
+
+
+def grid(origin, u, v, nu: int, nv: int, keep=None) -> list[np.ndarray]:
+    """Quads of a nu x nv grid over the parallelogram origin + [0,1] u + [0,1] v (normal u x v); ``keep(a, b)``
+    on cell-centre shares drops cells (window openings)."""
+    quads = []
+    origin, u, v = (np.asarray(x, np.float64) for x in (origin, u, v))
+    for i in range(nu):
+        for j in range(nv):
+            a, b = (i + 0.5) / nu, (j + 0.5) / nv
+            if keep is not None and not keep(a, b):
+                continue
+            p = origin + (i / nu) * u + (j / nv) * v
+            du, dv = u / nu, v / nv
+            quads.append(np.array([p, p + du, p + du + dv, p + dv]))
+    return quads
+
+
+def room_stage(faces: int) -> Usd.Stage:
+    """The room with about ``faces`` triangles: inward walls with four windows, floor, ceiling, furniture."""
+    x, y, z = ROOM
+    n = max(4, int(np.ceil(np.sqrt(faces / 4.0))))  # floor and ceiling: 4 n^2 triangles, nearly all of them
+    wall = lambda a, b: not (WINDOWS[0][0] < a < WINDOWS[0][1] and WINDOWS[1][0] < b < WINDOWS[1][1])  # noqa: E731
+    m = max(4, n // 3)
+    quads = grid((0, 0, 0), (x, 0, 0), (0, y, 0), n, n)  # floor, facing up (u x v = +z)
+    quads += grid((0, 0, z), (0, y, 0), (x, 0, 0), n, n)  # ceiling, facing down
+    quads += grid((x, 0, 0), (-x, 0, 0), (0, 0, z), m, m // 2, wall)  # south wall (y = 0), facing +y
+    quads += grid((0, y, 0), (x, 0, 0), (0, 0, z), m, m // 2, wall)  # north wall, facing -y
+    quads += grid((0, 0, 0), (0, y, 0), (0, 0, z), m, m // 2, wall)  # west wall, facing +x
+    quads += grid((x, y, 0), (0, -y, 0), (0, 0, z), m, m // 2, wall)  # east wall, facing -x
+    for cx, cy in ((2.0, 2.0), (5.5, 4.0), (6.5, 1.5)):  # tables: a top and four sides
+        lo, hi = np.array([cx - 0.6, cy - 0.4, 0.0]), np.array([cx + 0.6, cy + 0.4, 0.75])
+        quads += grid((lo[0], lo[1], hi[2]), (hi[0] - lo[0], 0, 0), (0, hi[1] - lo[1], 0), 8, 8)
+        quads += grid((lo[0], lo[1], 0), (hi[0] - lo[0], 0, 0), (0, 0, hi[2]), 8, 4)
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, "Z")
+    points = np.concatenate(quads)
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Room")
+    mesh.CreatePointsAttr(points.astype(np.float32))
+    mesh.CreateFaceVertexCountsAttr([4] * len(quads))
+    mesh.CreateFaceVertexIndicesAttr(np.arange(len(points), dtype=np.int32))
+    return stage
+
+
+def tmy3() -> Path:
+    import pvlib
+
+    return Path(pvlib.__file__).parent / "data" / "723170TYA.CSV"
+
+
+def run(quick: bool = False) -> dict:
+    weather = read_weather(tmy3())
+    target = 10_000 if quick else 100_000
+    scene = extract_scene(room_stage(target))
+    tracer = Tracer.from_scene(scene)
+    started = time.perf_counter()
+    product, _ = compute_sky_visibility(tracer, scene, patches=tregenza_patches(), samples=4, adaptive=False)
+    visibility_seconds = time.perf_counter() - started
+    compute_annual_daylight(tracer, scene, product, weather, sun_subdivision=1)  # compile and warm up
+    with harness.measure() as m:
+        metrics, stats = compute_annual_daylight(tracer, scene, product, weather)
+    floor = product.face_normals[:, 2] > 0.9
+    floor &= product.face_points[product.face_vertices][:, :, 2].max(axis=1) < 0.01
+    figures = {
+        "faces": int(product.num_faces), "hours": int(stats["hours"]), "sun_bins": int(stats["sun_bins"]),
+        "annual_seconds": round(m.seconds, 2), "annual_peak_mb": round(m.peak_mb, 1),
+        "sky_matrix_seconds": round(stats["sky_matrix_s"], 2), "sun_rays_seconds": round(stats["sun_rays_s"], 2),
+        "metrics_seconds": round(stats["metrics_s"], 2), "sun_rays": int(stats["rays"]),
+        "visibility_seconds": round(visibility_seconds, 2),
+        "floor_mean_daylight_factor": round(float(metrics.daylight_factor[floor].mean()), 3),
+        "floor_mean_autonomy": round(float(metrics.autonomy[floor].mean()), 3),
+    }
+    table = harness.markdown_table([figures], ["faces", "hours", "sun_bins", "annual_seconds", "annual_peak_mb",
+                                               "sky_matrix_seconds", "sun_rays_seconds", "metrics_seconds"])
+    return harness.result(NAME, description=DESCRIPTION, settings={"faces": target, "quick": quick},
+                          points=[{"label": "defaults", "seconds": figures["annual_seconds"], "error": 0.0,
+                                   "default": True, "peak_mb": figures["annual_peak_mb"]}],
+                          figures=figures, table=table, knob="defaults", error_label="-")
