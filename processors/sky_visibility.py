@@ -27,8 +27,12 @@ where Vvis and Vocc are the cosine-weighted visible and occluded parts of
 V_ij: the share of the face's open-sky irradiance that changes across the
 face (0 when every patch is wholly visible or wholly hidden, 1 when half of
 the face is in shadow from the whole sky). A triangle is refined when
-``partial_i > tolerance``, so faces that see no sky are never refined. The
-refinement is conforming (``geometry/refine.py``: longest-edge closure, no
+``partial_i > tolerance``, so faces that see no sky are never refined.
+``criterion = paper`` is the paper's own test instead: a triangle is split
+when some patch j sees it partly (0 < V_ij < 1) with a mean projected area
+A_i max(0, n_i . c_j) above ``min_area`` (their A_min, here relative to the
+scene diagonal squared rather than in pixels; the cosine term keeps grazing
+patches from splitting), below the level cap. The refinement is conforming (``geometry/refine.py``: longest-edge closure, no
 T-junctions; watertight input stays watertight).
 
 USD written (bake layer), on each writable mesh prim (not ``bake:skip``, not instanced):
@@ -262,6 +266,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     pending = np.ones(len(tris), bool)
     area_floor = float(min_area) * scene.diagonal ** 2
     solid = patches.patch_solid_angles.astype(np.float64)
+    centers = patches.patch_directions @ to_world.T  # patch centres in the scene frame
     rays_before = tracer.rays_cast
     next_id = 0
     ids = np.zeros(len(tris), np.int64)
@@ -303,19 +308,27 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
             part_todo = todo[lo:lo + batch]
             v, part = compute_patch_visibility(
                 tracer, points[triangles[part_todo]], scene.tri_normals[source[part_todo]], patches, to_world,
-                samples=samples, seed=seed, tri_ids=ids[part_todo] % (2 ** 31 - 1), criterion=criterion)
+                samples=samples, seed=seed, tri_ids=ids[part_todo] % (2 ** 31 - 1),
+                criterion="any" if criterion == "paper" else criterion)
             q = np.clip(np.rint(v * QUANT_LEVELS), 0, QUANT_LEVELS).astype(np.uint8)
             quantized[part_todo] = q
             exposure[part_todo] = v.astype(np.float64) @ solid / np.pi
             quant_error = max(quant_error, float(np.abs((q / QUANT_LEVELS - v) @ solid / np.pi).max(initial=0.0)))
-            score[part_todo] = (2.0 if criterion == "share" else 1.0) / np.pi * (part.astype(np.float64) @ solid)
+            if criterion == "paper":  # the largest projected-area factor over the partly visible patches
+                cosines = scene.tri_normals[source[part_todo]].astype(np.float64) @ centers.T
+                score[part_todo] = np.where(part > 0, np.maximum(cosines, 0.0), 0.0).max(axis=1, initial=0.0)
+            else:
+                score[part_todo] = (2.0 if criterion == "share" else 1.0) / np.pi * (part.astype(np.float64) @ solid)
         pending[:] = False
         iterations += 1
         progress(min(0.95, 0.1 * iterations))
         if not adaptive:
             break
         areas, _ = _areas_normals(points, triangles)
-        marked = (score > tolerance) & (areas > area_floor) & (level < 2 * max_level)
+        if criterion == "paper":  # Sec. 4.2: some patch with 0 < V_ij < 1 sees a projected area above A_min
+            marked = (score > 0) & (score * areas > area_floor) & (level < 2 * max_level)
+        else:
+            marked = (score > tolerance) & (areas > area_floor) & (level < 2 * max_level)
         if not marked.any() or len(triangles) >= max_triangles:
             break
         result = split(marked)
@@ -398,8 +411,10 @@ class SkyVisibility(Processor):
         max_triangles: int = param(500_000, "stop refining at this many faces (V takes faces x patches bytes)",
                                    low=1)
         criterion: str = param("share", "refinement test: share (cosine-weighted share of the face's sky that is "
-                               "partly hidden) or any (solid angle of patches with any partial visibility, "
-                               "as the paper)", choices=("share", "any"))
+                               "partly hidden), any (solid angle of patches with any partial visibility) or "
+                               "paper (Bosch et al. Sec. 4.2: some patch partly visible whose projected area "
+                               "A cos(theta) exceeds min_area; tolerance unused)",
+                               choices=("share", "any", "paper"))
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
