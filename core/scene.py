@@ -41,6 +41,11 @@ class Lights:
     """(L, 3) float32 unit emission direction (the light's -Z axis in world space)."""
     light_size: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     """(L, 2) float32 radius (sphere, disk), width/height (rect) or angle in degrees (distant)."""
+    dome_texture: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3), np.float32))
+    """(H, W, 3) float32 linear RGB lat-long map of the (first) textured DomeLight, empty if none: it
+    modulates the domes' radiance by direction (OpenEXR lat-long layout, +Y the pole of the dome)."""
+    dome_to_local: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float64))
+    """(3, 3) float64 rotation taking a world direction into the textured dome's frame (row vectors)."""
 
     def __len__(self) -> int:
         return len(self.light_paths)
@@ -214,7 +219,8 @@ FACETS: dict[str, tuple[str, ...]] = {
     "materials": ("tri_albedo", "tri_emission", "prim_surface"),
     "lights": (
         "lights.light_paths", "lights.light_kind", "lights.light_radiance",
-        "lights.light_position", "lights.light_direction", "lights.light_size",
+        "lights.light_position", "lights.light_direction", "lights.light_size", "lights.dome_texture",
+        "lights.dome_to_local",
     ),
     "instancers": (
         "instances.instancer_paths", "instances.prototype_paths", "instances.instance_instancer",

@@ -8,9 +8,11 @@ W/(m^2 sr), irradiance in W/m^2):
 - distant: ``light_radiance`` is the radiance over the cone of full apex
   angle ``angle``, ``E = L Omega <cos V>``; for angle 0 it is the irradiance
   on a surface facing the light (a delta light, ``E = L cos V``);
-- dome: uniform radiance L over the sphere, ``E = pi L <V>`` with
-  cosine-weighted directions (texture files are ignored); rays that escape
-  the scene see ``dome_radiance``, the sum of the dome lights;
+- dome: radiance L times the dome texture's texel in that direction
+  (``sky_texel``: the first DomeLight with a lat-long ``texture:file``, OpenEXR
+  layout in the dome's frame, nearest texel; 1 without a texture), ``E = pi
+  <L T V>`` with cosine-weighted directions; rays that escape the scene see
+  ``sky_radiance``, the sum of the dome lights times the texel;
 - sphere: directions uniform in the subtended cone, ``E = L Omega <cos V>``
   (a point inside the sphere gets ``E = pi L``);
 - rect / disk: uniform points q on the emitter, whose plane is normal to the
@@ -74,7 +76,11 @@ class Lights:
     light_size: wp.array(dtype=wp.vec2)
     """(L,) radius (sphere, disk), width/height (rect) or apex angle in degrees (distant)."""
     dome_radiance: wp.vec3
-    """Sum of the dome lights' radiance: what a ray that escapes the scene sees."""
+    """Sum of the dome lights' radiance; a ray that escapes the scene sees it times ``sky_texel``."""
+    sky_map: wp.array2d(dtype=wp.vec3)
+    """(H, W) lat-long texture of the textured dome, or one texel of 1 (no texture)."""
+    sky_to_local: wp.mat33
+    """World direction -> the dome's frame (column-vector convention: local = sky_to_local * d)."""
     emitter_vertices: wp.array(dtype=wp.vec3)
     """(3E,) corners of the emissive triangles that act as lights."""
     emitter_normal: wp.array(dtype=wp.vec3)
@@ -129,6 +135,27 @@ def distant_solid_angle(angle_degrees: float) -> float:
     if half <= 0.0:
         return 1.0
     return 2.0 * wp.pi * (1.0 - wp.cos(half))
+
+
+@wp.func
+def sky_texel(lights: Lights, d: wp.vec3) -> wp.vec3:
+    """The dome texture's value along unit world direction d, nearest texel. OpenEXR lat-long layout in
+    the dome's frame (UsdLux DomeLight: +Y the pole): latitude asin(y), longitude atan2(x, z) (0 towards
+    +z, pi/2 towards +x); column (pi - longitude) / 2 pi, row (pi/2 - latitude) / pi of the image."""
+    height = lights.sky_map.shape[0]
+    width = lights.sky_map.shape[1]
+    local = lights.sky_to_local * d
+    latitude = wp.asin(wp.clamp(local[1], -1.0, 1.0))
+    longitude = wp.atan2(local[0], local[2])
+    column = wp.clamp(int((wp.pi - longitude) / (2.0 * wp.pi) * float(width)), 0, width - 1)
+    row = wp.clamp(int((0.5 * wp.pi - latitude) / wp.pi * float(height)), 0, height - 1)
+    return lights.sky_map[row, column]
+
+
+@wp.func
+def sky_radiance(lights: Lights, d: wp.vec3) -> wp.vec3:
+    """Radiance (W/(m^2 sr)) a ray leaving the scene along unit d sees: the domes' times the texel."""
+    return wp.cw_mul(lights.dome_radiance, sky_texel(lights, d))
 
 
 @wp.func
@@ -283,10 +310,12 @@ def direct_irradiance(mesh: wp.uint64, lights: Lights, p: wp.vec3, n: wp.vec3, s
         if lights.light_kind[l] == 1:  # dome
             frame = tangent_frame(n)
             sky = sky_strata * sky_strata
+            textured = wp.vec3(0.0, 0.0, 0.0)
             for k in range(sky):
                 u = stratified_pair(k, sky_strata, state)
                 w = frame * cosine_hemisphere(u[0], u[1])
-                acc += shadow_visible(mesh, origin, w, FAR, epsilon) * (wp.pi / float(sky))
+                textured += sky_texel(lights, w) * (shadow_visible(mesh, origin, w, FAR, epsilon) * (wp.pi / float(sky)))
+            e += wp.cw_mul(lights.light_radiance[l], textured)
         elif lights.light_kind[l] == 2 and wp.length(lights.light_position[l] - p) <= lights.light_size[l][0]:
             acc = wp.pi  # inside a sphere light: radiance from every direction of the hemisphere
         else:
@@ -385,6 +414,11 @@ def light_bundle(scene: Scene, device, *, emissive: str = "auto") -> Lights:
     bundle.light_size = _array(lights.light_size, wp.vec2, device)
     bundle.dome_radiance = wp.vec3(*np.asarray(lights.light_radiance, np.float64)[dome].sum(axis=0).tolist()) \
         if dome.any() else wp.vec3(0.0, 0.0, 0.0)
+    texture = np.asarray(lights.dome_texture, np.float32)
+    if texture.size == 0:
+        texture = np.ones((1, 1, 3), np.float32)
+    bundle.sky_map = wp.array(np.ascontiguousarray(texture), dtype=wp.vec3, device=device)
+    bundle.sky_to_local = wp.mat33(*np.asarray(lights.dome_to_local, np.float64).T.ravel().tolist())
     bundle.emitter_vertices = _array(scene.points[scene.tri_vertices[tris]].reshape(-1, 3), wp.vec3, device)
     bundle.emitter_normal = _array(scene.tri_normals[tris], wp.vec3, device)
     bundle.emitter_radiance = _array(scene.tri_emission[tris], wp.vec3, device)

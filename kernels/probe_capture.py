@@ -23,6 +23,7 @@ from .lights import (
     hit_radiance,
     light_sample_count,
     scene_lighting,
+    sky_radiance,
     visible_light_sample,
 )
 from .sampling import strata_for, stratified_pair
@@ -73,7 +74,7 @@ def capture_kernel(
     directions[i] = d
     origin = probe_positions[probe]
     q = wp.mesh_query_ray(mesh, origin, d, FAR)
-    value = lights.dome_radiance
+    value = sky_radiance(lights, d)
     if q.result:
         value = hit_radiance(mesh, surfaces, lights, origin, d, q.face, q.t, 1, epsilon, wp.rand_init(wp.int32(state), samples))
     radiance[i] = value

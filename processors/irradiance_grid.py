@@ -124,6 +124,7 @@ from ..kernels.lights import (
     hit_radiance,
     light_sample_count,
     scene_lighting,
+    sky_radiance,
     visible_light_sample,
 )
 from ..kernels.octahedral import AXES, decode_hemisphere, encode_hemisphere
@@ -198,7 +199,7 @@ def irradiance_vectors_kernel(
         q = wp.mesh_query_ray(mesh, p, d, FAR)
         if not q.result:
             if include_direct != 0:
-                value = lights.dome_radiance
+                value = sky_radiance(lights, d)
         else:
             if wp.dot(surfaces.tri_normals[q.face], d) >= 0.0 and surfaces.tri_double_sided[q.face] == 0:
                 back += 1

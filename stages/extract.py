@@ -19,7 +19,7 @@ from pxr import Gf, Usd, UsdGeom, UsdLux
 from ..core.errors import StageError
 from ..core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Instances, Lights, Scene
 from .composition import check_composition
-from .materials import MaterialReader
+from .materials import MaterialReader, read_rgb
 from .triangulate import triangulate_corners
 
 RENDERABLE_PURPOSES = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
@@ -443,7 +443,9 @@ def _read_lights(prims: list, xforms, timecode, origin: np.ndarray) -> Lights:
         norm = np.linalg.norm(direction)
         rows.append((str(prim.GetPath()), kind, radiance, world[3, :3] - origin,
                      direction / norm if norm > 0 else np.array([0.0, 0.0, -1.0]), size))
+    texture, to_local = _dome_texture([p for p in prims if p.IsA(UsdLux.DomeLight)], xforms, timecode)
     return Lights(
+        dome_texture=texture, dome_to_local=to_local,
         light_paths=tuple(r[0] for r in rows),
         light_kind=np.array([r[1] for r in rows], np.int32),
         light_radiance=np.array([r[2] for r in rows], np.float32).reshape(-1, 3),
@@ -451,6 +453,38 @@ def _read_lights(prims: list, xforms, timecode, origin: np.ndarray) -> Lights:
         light_direction=np.array([r[4] for r in rows], np.float32).reshape(-1, 3),
         light_size=np.array([r[5] for r in rows], np.float32).reshape(-1, 2),
     )
+
+
+DOME_MAP_MAX_WIDTH = 1024
+"""Dome textures wider than this are box-filtered down (the lookups are per ray, not per texel)."""
+
+
+def _dome_texture(domes: list, xforms, timecode) -> tuple[np.ndarray, np.ndarray]:
+    """((H, W, 3) float32 lat-long map, world-to-dome rotation) of the first DomeLight with a texture file;
+    StageError naming the light and the file when it cannot be read or is not a lat-long map."""
+    for prim in domes:
+        dome = UsdLux.DomeLight(prim)
+        asset = dome.GetTextureFileAttr().Get(timecode)
+        if not asset or not asset.path:
+            continue
+        path = str(prim.GetPath())
+        layout = dome.GetTextureFormatAttr().Get(timecode) or UsdLux.Tokens.automatic
+        if layout not in (UsdLux.Tokens.automatic, UsdLux.Tokens.latlong):
+            raise StageError(path, "inputs:texture:format", f"{layout!r}: only lat-long dome textures are read "
+                                                            f"(automatic or latlong)")
+        if not asset.resolvedPath:
+            raise StageError(path, "inputs:texture:file", f"{asset.path}: not found")
+        rgb, error = read_rgb(asset.resolvedPath, srgb=True)
+        if rgb is None:
+            raise StageError(path, "inputs:texture:file", f"{asset.path}: cannot be read ({error})")
+        while rgb.shape[1] > DOME_MAP_MAX_WIDTH and rgb.shape[0] % 2 == 0 and rgb.shape[1] % 2 == 0:
+            rgb = rgb.reshape(rgb.shape[0] // 2, 2, rgb.shape[1] // 2, 2, 3).mean(axis=(1, 3))
+        if not np.isfinite(rgb).all():
+            raise StageError(path, "inputs:texture:file", f"{asset.path}: holds non-finite texels")
+        rotation = np.array(xforms.GetLocalToWorldTransform(prim), np.float64)[:3, :3]
+        rotation /= np.maximum(np.linalg.norm(rotation, axis=1, keepdims=True), 1e-300)  # drop scale
+        return rgb.astype(np.float32), np.linalg.inv(rotation)
+    return np.zeros((0, 0, 3), np.float32), np.eye(3)
 
 
 def _light_size(prim, kind: int, world: np.ndarray, timecode) -> tuple[tuple[float, float], float]:

@@ -160,13 +160,21 @@ def image_mean(path: str, *, srgb: bool) -> np.ndarray | None:
 
 def _read_image_mean(path: str, *, srgb: bool) -> tuple[np.ndarray | None, str]:
     """(mean RGB, '') or (None, OpenImageIO's error)."""
+    rgb, error = read_rgb(path, srgb=srgb)
+    return (None, error) if rgb is None else (rgb.reshape(-1, 3).mean(axis=0), "")
+
+
+def read_rgb(path: str, *, srgb: bool) -> tuple[np.ndarray | None, str]:
+    """((H, W, 3) float64 RGB, '') or (None, OpenImageIO's error); grey images are repeated into RGB, and
+    8-bit data is linearized from sRGB when ``srgb``."""
     import OpenImageIO as oiio
 
     image = oiio.ImageBuf(path)
     if image.has_error:
         return None, " ".join(image.geterror().split()) or "OpenImageIO cannot read it"
-    pixels = np.asarray(image.get_pixels(oiio.FLOAT), np.float64).reshape(-1, image.nchannels)
-    rgb = pixels[:, :3] if image.nchannels >= 3 else np.repeat(pixels[:, :1], 3, axis=1)
-    if srgb and image.spec().format == oiio.UINT8:
+    spec = image.spec()
+    pixels = np.asarray(image.get_pixels(oiio.FLOAT), np.float64).reshape(spec.height, spec.width, image.nchannels)
+    rgb = pixels[..., :3] if image.nchannels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
+    if srgb and spec.format == oiio.UINT8:
         rgb = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
-    return rgb.mean(axis=0), ""
+    return rgb, ""
