@@ -10,7 +10,7 @@ from pxr import Usd, UsdGeom
 
 from . import harness
 from usdbake.formats.weather import read_weather
-from usdbake.kernels.sky import tregenza_patches
+from usdbake.kernels.sky import overcast_radiance, tregenza_patches
 from usdbake.kernels.tracer import Tracer
 from usdbake.processors.annual_daylight import compute_annual_daylight
 from usdbake.processors.sky_visibility import compute_sky_visibility
@@ -28,6 +28,10 @@ DESCRIPTION = (
 ROOM = (8.0, 6.0, 3.0)
 WINDOWS = ((0.25, 0.75), (0.3, 0.8))
 """Window openings as (u range, v range) shares of each wall."""
+SMALL_WINDOWS = ((0.45, 0.55), (0.4, 0.7))
+"""The Radiance comparison's room: narrow windows, so part of the floor stays below the DA threshold."""
+SENSORS = 192
+"""Floor faces compared with Radiance (their centroids, 1 mm above the floor)."""
 
 
 def grid(origin, u, v, nu: int, nv: int, keep=None) -> list[np.ndarray]:
@@ -46,11 +50,11 @@ def grid(origin, u, v, nu: int, nv: int, keep=None) -> list[np.ndarray]:
     return quads
 
 
-def room_stage(faces: int) -> Usd.Stage:
+def room_stage(faces: int, windows=WINDOWS) -> Usd.Stage:
     """The room with about ``faces`` triangles: inward walls with four windows, floor, ceiling, furniture."""
     x, y, z = ROOM
     n = max(4, int(np.ceil(np.sqrt(faces / 4.0))))  # floor and ceiling: 4 n^2 triangles, nearly all of them
-    wall = lambda a, b: not (WINDOWS[0][0] < a < WINDOWS[0][1] and WINDOWS[1][0] < b < WINDOWS[1][1])  # noqa: E731
+    wall = lambda a, b: not (windows[0][0] < a < windows[0][1] and windows[1][0] < b < windows[1][1])  # noqa: E731
     m = max(4, n // 3)
     quads = grid((0, 0, 0), (x, 0, 0), (0, y, 0), n, n)  # floor, facing up (u x v = +z)
     quads += grid((0, 0, z), (0, y, 0), (x, 0, 0), n, n)  # ceiling, facing down
@@ -78,6 +82,53 @@ def tmy3() -> Path:
     return Path(pvlib.__file__).parent / "data" / "723170TYA.CSV"
 
 
+def radiance_comparison(weather) -> dict:
+    """Mean occupied-hour illuminance, DA, sDA and DF at floor faces against Radiance (rcontrib daylight
+    coefficients x gendaymtx, ``radiance_reference``), black interior (both count the sky seen directly)."""
+    from . import radiance_reference as radiance
+
+    if not radiance.radiance_available():
+        return {"radiance": "not installed (pip install pyradiance: the bench extra)"}
+    scene = extract_scene(room_stage(10_000, SMALL_WINDOWS))
+    tracer = Tracer.from_scene(scene)
+    product, _ = compute_sky_visibility(tracer, scene, patches=tregenza_patches(), samples=16, adaptive=False,
+                                        max_face_area=0.0)
+    metrics, _ = compute_annual_daylight(tracer, scene, product, weather, sun_samples=16)
+    corners = product.face_points[product.face_vertices]
+    floor = np.flatnonzero((product.face_normals[:, 2] > 0.9) & (corners[:, :, 2].max(axis=1) < 0.01))
+    picks = np.random.default_rng(1).choice(floor, SENSORS, replace=False)
+    points = corners[picks].mean(axis=1) + scene.origin
+    triangles = corners + scene.origin
+    started = time.perf_counter()
+    hourly = radiance.annual_illuminance(triangles, np.zeros(len(triangles)), points, product.face_normals[picks],
+                                         str(tmy3()), up="Z", mf=1, output="solar", ground_reflectance=0.0,
+                                         offset=1e-3)
+    radiance_seconds = time.perf_counter() - started
+    hour = (weather.times - weather.times.astype("datetime64[D]")).astype(np.float64) / 60.0
+    occupied = hourly[(hour >= 8) & (hour < 18)]
+    ours_mean, theirs_mean = metrics.mean_illuminance[picks], occupied.mean(axis=0)
+    ours_da, theirs_da = metrics.autonomy[picks], (occupied >= 300).mean(axis=0)
+    # Daylight factor: the same daylight coefficients under the CIE overcast sky, over an open horizontal sensor.
+    dc = radiance.daylight_coefficients(triangles, np.zeros(len(triangles)), points, product.face_normals[picks],
+                                        up="Z", mf=1, offset=1e-3)[:, :, 1]
+    open_dc = radiance.daylight_coefficients(None, None, np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]),
+                                             up="Z", mf=1)[:, :, 1]
+    overcast = np.r_[0.0, overcast_radiance(tregenza_patches().patch_directions, np.array([0, 0, 1.0]))[:, 0]]
+    theirs_df = 100.0 * (dc @ overcast) / float((open_dc @ overcast)[0])
+    ours_df = metrics.daylight_factor[picks]
+    return {
+        "radiance_sensors": SENSORS, "radiance_seconds": round(radiance_seconds, 1),
+        "mean_illuminance_usdbake_lux": round(float(ours_mean.mean()), 1),
+        "mean_illuminance_radiance_lux": round(float(theirs_mean.mean()), 1),
+        "mean_illuminance_relative_difference": round(float(ours_mean.mean() / theirs_mean.mean() - 1), 4),
+        "mean_illuminance_per_sensor_median_abs_relative": round(float(np.median(np.abs(ours_mean / theirs_mean - 1))), 4),
+        "sda_usdbake": round(float((ours_da >= 0.5).mean()), 4), "sda_radiance": round(float((theirs_da >= 0.5).mean()), 4),
+        "mean_da_usdbake": round(float(ours_da.mean()), 4), "mean_da_radiance": round(float(theirs_da.mean()), 4),
+        "df_usdbake_percent": round(float(ours_df.mean()), 3), "df_radiance_percent": round(float(theirs_df.mean()), 3),
+        "df_relative_difference": round(float(ours_df.mean() / theirs_df.mean() - 1), 4),
+    }
+
+
 def run(quick: bool = False) -> dict:
     weather = read_weather(tmy3())
     target = 10_000 if quick else 100_000
@@ -100,8 +151,14 @@ def run(quick: bool = False) -> dict:
         "floor_mean_daylight_factor": round(float(metrics.daylight_factor[floor].mean()), 3),
         "floor_mean_autonomy": round(float(metrics.autonomy[floor].mean()), 3),
     }
+    if not quick:
+        figures.update(radiance_comparison(weather))
     table = harness.markdown_table([figures], ["faces", "hours", "sun_bins", "annual_seconds", "annual_peak_mb",
                                                "sky_matrix_seconds", "sun_rays_seconds", "metrics_seconds"])
+    if "df_radiance_percent" in figures:
+        table += "\n\n" + harness.markdown_table([figures], [
+            "mean_illuminance_usdbake_lux", "mean_illuminance_radiance_lux", "mean_illuminance_relative_difference",
+            "sda_usdbake", "sda_radiance", "df_usdbake_percent", "df_radiance_percent", "df_relative_difference"])
     return harness.result(NAME, description=DESCRIPTION, settings={"faces": target, "quick": quick},
                           points=[{"label": "defaults", "seconds": figures["annual_seconds"], "error": 0.0,
                                    "default": True, "peak_mb": figures["annual_peak_mb"]}],

@@ -173,7 +173,7 @@ def read_weather_rows(weather_path: str | os.PathLike) -> WeatherRows:
         month = frame["month"].to_numpy(int)
         day = frame["day"].to_numpy(int)
         hour_end = frame["hour"].to_numpy(float)  # hour ending, 1..24 (minute field ignored)
-        place = f"{meta.get('city', 'site')}_{meta.get('country', '')}"
+        place = f"{str(meta.get('city', 'site')).strip()}_{str(meta.get('country', '')).strip()}"
     else:
         frame, meta = iotools.read_tmy3(str(path), map_variables=True)
         mdy = frame["Date (MM/DD/YYYY)"].str.split("/")
@@ -181,9 +181,9 @@ def read_weather_rows(weather_path: str | os.PathLike) -> WeatherRows:
         day = mdy.str[1].astype(int).to_numpy()
         hm = frame["Time (HH:MM)"].str.split(":")
         hour_end = hm.str[0].astype(int).to_numpy() + hm.str[1].astype(int).to_numpy() / 60.0
-        place = f"{meta.get('Name', 'site')}_{meta.get('State', '')}"
+        place = f"{str(meta.get('Name', 'site')).strip().strip(chr(34))}_{str(meta.get('State', '')).strip()}"
     keep = ~((month == 2) & (day == 29))
-    place = "".join(c if (c.isalnum() or c in "-_") else "-" for c in str(place).strip().strip('"'))
+    place = "".join(c if (c.isalnum() or c in "-_") else "-" for c in place)
     if "_" not in place:
         place += "_site"
     return WeatherRows(
@@ -316,7 +316,7 @@ skyglow source skydome
 """
 
 
-def rcontrib_command(octree: str, *, mf: int = 1, ambient_bounces: int = 0, ambient_divisions: int = 4096,
+def rcontrib_command(octree: str, *, mf: int = 1, ambient_bounces: int = 0, ambient_divisions: int = 16384,
                      limit_weight: float | None = None, processes: int = 1) -> list[str]:
     """The rcontrib command line ``daylight_coefficients`` runs (sensors on stdin)."""
     lw = limit_weight if limit_weight is not None else 0.2 / ambient_divisions
@@ -338,7 +338,7 @@ def _run(cmd: list[str], **kwargs) -> bytes:
 
 def daylight_coefficients(triangles: np.ndarray | None, albedo: np.ndarray | None, sensors: np.ndarray,
                           normals: np.ndarray, *, up: str = "Z", mf: int = 1, ambient_bounces: int = 0,
-                          ambient_divisions: int = 4096, limit_weight: float | None = None,
+                          ambient_divisions: int = 16384, limit_weight: float | None = None,
                           offset: float = 0.0, processes: int | None = None,
                           workdir: str | os.PathLike | None = None) -> np.ndarray:
     """(S, P, 3) float64 daylight coefficients: irradiance (W/m^2) at each sensor per unit radiance
@@ -386,7 +386,7 @@ def illuminance_from(dc: np.ndarray, sky: np.ndarray) -> np.ndarray:
 
 def annual_illuminance(triangles: np.ndarray | None, albedo: np.ndarray | None, sensors: np.ndarray,
                        normals: np.ndarray, weather_path: str | os.PathLike, *, up: str = "Z", mf: int = 1,
-                       north: float = 0.0, ambient_bounces: int = 0, ambient_divisions: int = 4096,
+                       north: float = 0.0, ambient_bounces: int = 0, ambient_divisions: int = 16384,
                        limit_weight: float | None = None, output: str = "visible",
                        ground_reflectance: float = 0.2, sky_only: bool = False, offset: float = 0.0,
                        processes: int | None = None, return_times: bool = False):
@@ -425,7 +425,7 @@ def global_horizontal_reference(weather_path: str | os.PathLike) -> tuple[np.nda
 
 
 def horizontal_check_details(weather_path: str | os.PathLike, *, output: str = "solar", mf: int = 1,
-                             ambient_divisions: int = 4096, min_lux: float = 1790.0) -> dict:
+                             ambient_divisions: int = 16384, min_lux: float = 1790.0) -> dict:
     """Unobstructed upward sensor (no geometry) against 179 (DHI + DNI cos z); see the return keys."""
     t0 = time.perf_counter()
     times, e = annual_illuminance(None, None, np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), weather_path,
