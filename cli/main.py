@@ -83,6 +83,21 @@ def make_parser() -> argparse.ArgumentParser:
     inspect = commands.add_parser("inspect", help="show the baked data a layer holds")
     inspect.add_argument("output")
     inspect.add_argument("--json", action="store_true")
+    sky = commands.add_parser("sky", help="write a layer over the input with a sky model as a DomeLight and a sun "
+                              "DistantLight, so radiosity, probes and grids are daylit")
+    sky.add_argument("input")
+    sky.add_argument("-o", "--output", required=True, help="the sky layer (.usd, .usda or .usdc); a lat-long "
+                     ".exr is written beside it")
+    sky.add_argument("--model", default="preetham", choices=("preetham", "perez", "overcast"))
+    sky.add_argument("--time", default="2026-06-21T12:00", help="ISO 8601 local standard time")
+    sky.add_argument("--latitude", type=float, default=41.98, help="degrees north")
+    sky.add_argument("--longitude", type=float, default=2.82, help="degrees east")
+    sky.add_argument("--timezone", type=float, default=1.0, help="hours east of UTC")
+    sky.add_argument("--north", type=float, default=0.0, help="degrees from the stage's default north")
+    sky.add_argument("--turbidity", type=float, default=3.0, help="Preetham turbidity")
+    sky.add_argument("--dni", type=float, default=600.0, help="Perez: direct normal irradiance, W/m^2")
+    sky.add_argument("--dhi", type=float, default=150.0, help="Perez: diffuse horizontal irradiance, W/m^2")
+    sky.add_argument("--ground-albedo", type=float, default=0.2, help="the grey ground below the horizon")
     preview = commands.add_parser("preview", help="render a (baked) stage to an image: AO, daylight, irradiance")
     preview.add_argument("input", help="stage to render, e.g. a usdbake output")
     preview.add_argument("-o", "--output", required=True, help="image to write (.png, or .exr for float data)")
@@ -453,8 +468,27 @@ def cmd_bench(args, console: Console) -> int:
     return bench_main(argv)
 
 
+def cmd_sky(args, console: Console) -> int:
+    from ..stages.inputs import open_source
+    from ..stages.sky_dome import make_sky
+
+    if not -90.0 <= args.latitude <= 90.0:
+        raise UsageError(f"--latitude {args.latitude}: outside -90..90")
+    if not -12.0 <= args.timezone <= 14.0:
+        raise UsageError(f"--timezone {args.timezone}: not a time zone (-12..14 hours)")
+    source, _ = open_source(args.input)
+    written, sky = make_sky(source, args.output, args.model, args.time, latitude=args.latitude,
+                            longitude=args.longitude, timezone=args.timezone, north=args.north,
+                            turbidity=args.turbidity, direct_normal=args.dni, diffuse_horizontal=args.dhi,
+                            ground_albedo=args.ground_albedo)
+    sun = float(sky.sun_irradiance[1]) if sky.sun_world is not None else 0.0
+    print(f"wrote {written[0]} and {written[1]}: diffuse horizontal {sky.diffuse_horizontal:.1f} W/m^2, "
+          f"sun {sun:.1f} W/m^2 normal")
+    return EXIT_OK
+
+
 COMMANDS = {"bench": cmd_bench, "bake": cmd_bake, "plan": cmd_plan, "list": cmd_list, "inspect": cmd_inspect,
-            "preview": cmd_preview}
+            "preview": cmd_preview, "sky": cmd_sky}
 
 if __name__ == "__main__":
     sys.exit(main())

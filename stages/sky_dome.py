@@ -1,0 +1,163 @@
+"""A sky model as UsdLux lights, so every processor that reads lights is daylit.
+
+``daylight`` and ``annual_daylight`` evaluate the sky models of ``kernels/sky.py`` (Preetham, Perez
+all-weather from DNI and DHI, CIE overcast) on their own patches; radiosity, light_probes and
+irradiance_grid read UsdLux lights. ``write_sky_layer`` bridges the two: for one place and time it
+writes a layer over the input holding a DomeLight whose lat-long texture (OpenEXR layout, +Y pole,
+read back through the one light model's ``sky_texel``) is the model's sky radiance above the
+horizon and a grey ground below it (albedo x global horizontal irradiance / pi), and a
+DistantLight of the sun's 0.53 degree disk carrying the model's direct normal irradiance.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+
+from ..core.errors import UsageError
+from ..core.records import Texture
+from .bake_layer import write_texture
+
+SKY_PRIM = "/SkyLights"
+MODELS = ("preetham", "perez", "overcast")
+SUN_ANGULAR_DIAMETER = 0.53
+"""Degrees (kernels.sky.SUN_ANGULAR_DIAMETER: the disk the daylight processors trace)."""
+
+
+@dataclass(frozen=True)
+class SkyLights:
+    """A sky for one time and place: the dome's texture, its rotation, the sun."""
+
+    texture: np.ndarray
+    """(H, W, 3) float32 radiance W/(m^2 sr) in the OpenEXR lat-long layout of the dome's frame."""
+    dome_rotate_x: float
+    """Degrees about X that turn the dome's +Y pole onto the stage's up axis (0 for Y-up, 90 for Z-up)."""
+    sun_world: np.ndarray | None
+    """(3,) unit direction towards the sun in the stage frame, None below the horizon or without a sun."""
+    sun_irradiance: np.ndarray
+    """(3,) W/m^2 direct normal irradiance of the sun."""
+    diffuse_horizontal: float
+    """W/m^2 (green channel) the dome gives an open horizontal face."""
+
+
+def texel_directions(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """((H, W, 3) unit directions of the texel centres in the dome's frame, (H, W) solid angles):
+    latitude (pi/2 - (row + 1/2) pi / H), longitude (pi - (column + 1/2) 2 pi / W), +Y the pole."""
+    latitude = 0.5 * np.pi - (np.arange(height) + 0.5) * np.pi / height
+    longitude = np.pi - (np.arange(width) + 0.5) * 2.0 * np.pi / width
+    lat, lon = np.meshgrid(latitude, longitude, indexing="ij")
+    directions = np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], axis=-1)
+    edges = 0.5 * np.pi - np.arange(height + 1) * np.pi / height
+    solid = (np.sin(edges[:-1]) - np.sin(edges[1:]))[:, None] * np.full(width, 2.0 * np.pi / width)
+    return directions, solid
+
+
+def sky_lights(model: str, time: str, *, latitude: float, longitude: float, timezone: float, up_axis: str,
+               north: float = 0.0, turbidity: float = 3.0, direct_normal: float = 600.0,
+               diffuse_horizontal: float = 150.0, ground_albedo: float = 0.2, width: int = 256) -> SkyLights:
+    """The dome texture and sun of ``model`` at local standard ``time`` (ISO 8601) and the place.
+
+    The sky models are the kernels' (numpy), imported here when a sky is made: the one place stages/
+    reads kernels/ (tests/test_import_rules.py lists it)."""
+    from ..kernels.sky import enu_to_world, overcast_radiance, perez_radiance, preetham_radiance, \
+        sun_normal_irradiance
+    from ..kernels.solar import parse_times, sun_position
+
+    if model not in MODELS:
+        raise UsageError(f"sky model {model!r} is not one of {', '.join(MODELS)}")
+    times = parse_times(time)
+    if len(times) != 1:
+        raise UsageError(f"--time {time!r}: a sky dome is for one time, not {len(times)}")
+    position = sun_position(times, latitude, longitude, timezone)
+    sun_enu = position.enu()[0]
+    day = int((times[0].astype("datetime64[D]") - times[0].astype("datetime64[Y]")).astype(int)) + 1
+    to_world = enu_to_world(up_axis, north)  # world = to_world @ enu
+    rotate_x = 90.0 if up_axis == "Z" else 0.0
+    c, s = math.cos(math.radians(rotate_x)), math.sin(math.radians(rotate_x))
+    local_to_world = np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])  # xformOp:rotateX, row vectors
+    directions, solid = texel_directions(width // 2, width)
+    enu = (directions.reshape(-1, 3) @ local_to_world) @ to_world  # row vectors: local -> world -> ENU
+    above = enu[:, 2] > 0.0
+    radiance = np.zeros((len(enu), 3))
+    if model == "preetham":
+        radiance[above] = preetham_radiance(enu[above], sun_enu, turbidity)
+    elif model == "perez":
+        radiance[above] = perez_radiance(enu[above], sun_enu, direct_normal, diffuse_horizontal, day)
+    else:
+        radiance[above] = overcast_radiance(enu[above], sun_enu)
+    diffuse = (radiance * (np.maximum(enu[:, 2], 0.0) * solid.ravel())[:, None]).sum(axis=0)
+    sun_up = sun_enu[2] > 0.0 and model != "overcast"
+    if model == "preetham":
+        sun = sun_normal_irradiance(sun_enu, turbidity, day) if sun_up else np.zeros(3)
+    else:
+        sun = np.full(3, float(direct_normal)) if sun_up else np.zeros(3)
+    ground = ground_albedo * (diffuse + sun * max(float(sun_enu[2]), 0.0)) / np.pi
+    radiance[~above] = ground
+    return SkyLights(radiance.reshape(width // 2, width, 3).astype(np.float32), rotate_x,
+                     (to_world @ sun_enu) if sun_up else None, sun, float(diffuse[1]))
+
+
+SKY_LAYER_KEY = "usdbakeSky"
+"""customLayerData marking a sky layer (so it may be replaced by the next ``usdbake sky``; it is not a bake
+layer: a bake over it reads it, lights included)."""
+
+
+def check_sky_output(output: str, source: str) -> None:
+    """Refuse an output that is not a layer file, is the input, or is someone's layer."""
+    path = Path(output)
+    if path.suffix.lower() not in (".usd", ".usda", ".usdc"):
+        raise UsageError(f"{output}: the sky layer must be a .usd, .usda or .usdc file")
+    if path.resolve() == Path(source).resolve():
+        raise UsageError(f"{output}: refusing to overwrite the input layer; choose another -o")
+    if path.exists():
+        layer = Sdf.Layer.OpenAsAnonymous(str(path), metadataOnly=True)
+        if layer is None or SKY_LAYER_KEY not in dict(layer.customLayerData):
+            raise UsageError(f"{output}: exists and was not written by usdbake sky; refusing to replace it")
+
+
+def make_sky(source: str, output: str, model: str, time: str, **options) -> tuple[list[str], SkyLights]:
+    """Check the output, make the sky for the input stage's up axis and write the layer: (files, sky)."""
+    check_sky_output(output, source)
+    stage = Usd.Stage.Open(source)
+    sky = sky_lights(model, time, up_axis=str(UsdGeom.GetStageUpAxis(stage)), **options)
+    return write_sky_layer(source, output, sky), sky
+
+
+def write_sky_layer(source: str, output: str, sky: SkyLights) -> list[str]:
+    """A layer at ``output`` over ``source`` holding the sky's DomeLight (texture beside it) and sun;
+    returns the files written. The input is never touched."""
+    out = Path(output).resolve()
+    texture = write_texture(Texture(f"{out.stem}_sky.exr", sky.texture), str(out.parent))
+    layer = Sdf.Layer.CreateNew(str(out))
+    if layer is None:
+        raise UsageError(f"{output}: cannot create a layer there")
+    layer.customLayerData = {SKY_LAYER_KEY: True}
+    layer.subLayerPaths.append(Path(os.path.relpath(Path(source).resolve(), out.parent)).as_posix())
+    stage = Usd.Stage.Open(layer)
+    source_stage = Usd.Stage.Open(source)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.GetStageUpAxis(source_stage))
+    UsdGeom.SetStageMetersPerUnit(stage, UsdGeom.GetStageMetersPerUnit(source_stage))
+    UsdGeom.Scope.Define(stage, SKY_PRIM)
+    dome = UsdLux.DomeLight.Define(stage, f"{SKY_PRIM}/Sky")
+    dome.CreateTextureFileAttr(Sdf.AssetPath(f"./{Path(texture).name}"))
+    dome.CreateTextureFormatAttr(UsdLux.Tokens.latlong)
+    dome.CreateIntensityAttr(1.0)
+    if sky.dome_rotate_x:
+        UsdGeom.Xformable(dome).AddRotateXOp().Set(sky.dome_rotate_x)
+    if sky.sun_world is not None and sky.sun_irradiance.max() > 0:
+        half = math.radians(SUN_ANGULAR_DIAMETER / 2)
+        solid = 2.0 * math.pi * (1.0 - math.cos(half))  # the disk's solid angle: E = L Omega
+        peak = float(sky.sun_irradiance.max())
+        sun = UsdLux.DistantLight.Define(stage, f"{SKY_PRIM}/Sun")
+        sun.CreateAngleAttr(SUN_ANGULAR_DIAMETER)
+        sun.CreateIntensityAttr(peak / solid)
+        sun.CreateColorAttr(Gf.Vec3f(*(sky.sun_irradiance / peak).tolist()))
+        rotation = Gf.Rotation(Gf.Vec3d(0, 0, 1), Gf.Vec3d(*sky.sun_world.tolist()))  # its +Z to the sun: emits along -Z
+        UsdGeom.Xformable(sun).AddOrientOp().Set(Gf.Quatf(rotation.GetQuat()))
+    layer.Save()
+    return [str(out), texture]
