@@ -8,8 +8,10 @@ names the step but not its rule, so the rule below is usdbake's:
   congruent sub-triangles (fragments), ``m = ceil(longest edge / voxel)``
   (at most MAX_SUBDIVISION), numbered as kernels/patches.fragment_of_hit
   reads them back from ray hits;
-- fragments are clustered by the voxel of their centroid and by the dominant
-  signed axis of their normal (6 bins), so a voxel holding a floor and a wall
+- fragments are clustered by the voxel of their centroid, by the dominant
+  signed axis of their normal (6 bins) and, when given, by their prim (a
+  floor inside a wall and the ground outside it otherwise share a voxel and a
+  normal: one patch would carry daylight into the room), so a voxel holding a floor and a wall
   gives two patches;
 - a patch keeps its area (stage units^2), area-weighted centroid, unit mean
   normal, area-weighted mean albedo and emission, and the area CDF of its
@@ -73,17 +75,22 @@ def _fragments(points, tri_vertices, subdivision):
     return vertices, fragment_tri, start
 
 
-def _cluster_keys(centres: np.ndarray, normals: np.ndarray, lo: np.ndarray, voxel: float) -> np.ndarray:
+def _cluster_keys(centres: np.ndarray, normals: np.ndarray, lo: np.ndarray, voxel: float,
+                  groups: np.ndarray | None = None) -> np.ndarray:
+    """One key per fragment: (voxel, signed normal axis) packed in an int64, and the fragment's group
+    (its prim) as a second column when ``groups`` is given, so a patch never spans two prims."""
     cell = np.floor((centres - lo) / voxel).astype(np.int64)
     cell = np.clip(cell, 0, (1 << 20) - 1)
     axis = np.abs(normals).argmax(axis=1)
     sign = np.take_along_axis(normals, axis[:, None], 1)[:, 0] < 0
     direction = axis * 2 + sign
-    return ((cell[:, 0] << 43) | (cell[:, 1] << 23) | (cell[:, 2] << 3) | direction)
+    packed = ((cell[:, 0] << 43) | (cell[:, 1] << 23) | (cell[:, 2] << 3) | direction)
+    return packed if groups is None else np.column_stack([packed, np.asarray(groups, np.int64)])
 
 
 def build_patches(points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.ndarray, tri_areas: np.ndarray,
-                  tri_albedo: np.ndarray, tri_emission: np.ndarray, *, voxel_size: float) -> Patches:
+                  tri_albedo: np.ndarray, tri_emission: np.ndarray, *, voxel_size: float,
+                  tri_group: np.ndarray | None = None) -> Patches:
     """Cluster triangle fragments into patches per voxel and per dominant normal axis.
 
     The voxelization of Shcherbakov (MSU 2017), section 5, precompute step 1,
@@ -95,6 +102,9 @@ def build_patches(points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.
     points : (P, 3) float32; tri_vertices : (T, 3) int32; tri_normals : (T, 3) float32;
     tri_areas : (T,) float32; tri_albedo, tri_emission : (T, 3) float32
     voxel_size : voxel edge (stage units), > 0
+    tri_group : (T,) int, optional; fragments of different groups (prims) never share a patch: a floor
+        inside a wall and the ground outside it fall in one voxel with one normal, and a patch holding
+        both would average the dark and the daylit side
     """
     if not voxel_size > 0:
         raise ValueError(f"voxel_size={voxel_size} must be > 0")
@@ -110,8 +120,10 @@ def build_patches(points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.
     normals = tri_normals[fragment_tri].astype(np.float64)
     areas = (tri_areas[fragment_tri] / (subdivision[fragment_tri].astype(np.float64) ** 2))
     lo = points.min(axis=0).astype(np.float64) if len(points) else np.zeros(3)
-    keys = _cluster_keys(centres[valid], normals[valid], lo, voxel_size)
-    _, inverse = np.unique(keys, return_inverse=True)
+    groups = None if tri_group is None else np.asarray(tri_group)[fragment_tri][valid]
+    keys = _cluster_keys(centres[valid], normals[valid], lo, voxel_size, groups)
+    _, inverse = np.unique(keys, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
     if len(inverse) and int(inverse.max()) + 1 > MAX_PATCHES:
         raise ValueError(f"voxel_size={voxel_size:g} gives {int(inverse.max()) + 1} patches (limit {MAX_PATCHES}: "
                          f"the operator is dense, n^2 x 12 bytes); use a larger voxel_size")
@@ -169,7 +181,7 @@ def _centre_fragment(m: int) -> int:
     return j * m - j * (j - 1) // 2 + i
 
 
-def count_patches(points, tri_vertices, tri_normals, tri_areas, voxel: float) -> int:
+def count_patches(points, tri_vertices, tri_normals, tri_areas, voxel: float, tri_group=None) -> int:
     """Number of patches build_patches would make (cheaper: no per-patch means)."""
     subdivision = _subdivision(points, tri_vertices, voxel)
     if int((subdivision.astype(np.int64) ** 2).sum()) > MAX_FRAGMENTS:
@@ -177,12 +189,13 @@ def count_patches(points, tri_vertices, tri_normals, tri_areas, voxel: float) ->
     vertices, fragment_tri, _ = _fragments(points, tri_vertices, subdivision)
     valid = ((tri_areas > 0) & (np.linalg.norm(tri_normals, axis=1) > 0.5))[fragment_tri]
     lo = points.min(axis=0).astype(np.float64)
+    groups = None if tri_group is None else np.asarray(tri_group)[fragment_tri][valid]
     keys = _cluster_keys(vertices.mean(axis=1)[valid].astype(np.float64),
-                         tri_normals[fragment_tri][valid].astype(np.float64), lo, voxel)
-    return len(np.unique(keys))
+                         tri_normals[fragment_tri][valid].astype(np.float64), lo, voxel, groups)
+    return len(np.unique(keys, axis=0))
 
 
-def choose_voxel_size(points, tri_vertices, tri_normals, tri_areas, target: int) -> float:
+def choose_voxel_size(points, tri_vertices, tri_normals, tri_areas, target: int, tri_group=None) -> float:
     """Voxel edge (stage units) giving about ``target`` patches (patch count ~ area / voxel^2; a few refinements)."""
     total = float(tri_areas[np.isfinite(tri_areas)].sum())
     if total <= 0:
@@ -190,7 +203,7 @@ def choose_voxel_size(points, tri_vertices, tri_normals, tri_areas, target: int)
     voxel = math.sqrt(total / target)
     best, best_err = voxel, math.inf
     for _ in range(6):
-        count = count_patches(points, tri_vertices, tri_normals, tri_areas, voxel)
+        count = count_patches(points, tri_vertices, tri_normals, tri_areas, voxel, tri_group)
         err = abs(math.log(max(count, 1) / target))
         if err < best_err:
             best, best_err = voxel, err

@@ -301,9 +301,9 @@ def multibounce_operator(form: np.ndarray, albedo: np.ndarray, *, bounces: int =
 def precompute(tracer, scene: Scene, p, progress=lambda f: None) -> tuple[FormFactorProduct, dict]:
     """Patches -> form factors -> multi-bounce operator -> compression (pure; used by run and benchmarks)."""
     voxel = p.voxel_size or choose_voxel_size(scene.points, scene.tri_vertices, scene.tri_normals,
-                                              scene.tri_areas, p.target_patches)
+                                              scene.tri_areas, p.target_patches, scene.tri_prim)
     patches = build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
-                            scene.tri_albedo, scene.tri_emission, voxel_size=voxel)
+                            scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=scene.tri_prim)
     progress(0.05)
     form = compute_form_factors(tracer, patches, scene.tri_normals, rays=p.rays, seed=p.seed,
                                 progress=lambda f: progress(0.05 + 0.6 * f))
@@ -319,7 +319,7 @@ def precompute(tracer, scene: Scene, p, progress=lambda f: None) -> tuple[FormFa
 
 class FormFactors(Processor):
     name = "form_factors"
-    version = "2"
+    version = "3"
     summary = "Radiosity precompute: voxel patches, ray-cast form factors, compressed multi-bounce matrix (BC1)."
     facets = ("geometry", "materials")
     provides = (FormFactorProduct,)
