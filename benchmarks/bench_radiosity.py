@@ -195,6 +195,42 @@ def atrium_figures(quick: bool) -> dict:
     }
 
 
+def sky_lit_window_room(paths: int) -> dict:
+    """Indirect irradiance at window_room's vertices lit only by the sky through its windows, against the
+    path tracer (3 bounces, the sky as emitter): a uniform DomeLight, and a Perez sky with its sun written
+    by ``usdbake sky`` (textured DomeLight + DistantLight)."""
+    import tempfile
+
+    from pxr import Usd, UsdLux
+
+    from usdbake.stages.extract import extract_scene
+    from usdbake.stages.sky_dome import make_sky
+
+    figures = {}
+    with tempfile.TemporaryDirectory() as folder:
+        make_sky(str(harness.SAMPLES / "window_room.usda"), f"{folder}/sky.usda", "perez", "2026-03-21T10:00",
+                 latitude=41.98, longitude=2.82, timezone=1.0, direct_normal=600.0, diffuse_horizontal=150.0)
+        uniform = Usd.Stage.Open(str(harness.SAMPLES / "window_room.usda"))
+        uniform.SetEditTarget(uniform.GetSessionLayer())  # the sample's layer is shared, and stays untouched
+        for prim in uniform.Traverse():
+            if prim.HasAPI(UsdLux.LightAPI):
+                prim.SetActive(False)
+        UsdLux.DomeLight.Define(uniform, "/World/UniformSky").CreateIntensityAttr(10.0)
+        for name, stage in (("perez_sun", Usd.Stage.Open(f"{folder}/sky.usda")), ("uniform_dome", uniform)):
+            scene = extract_scene(stage)
+            tracer = Tracer.from_scene(scene)
+            ids = harness.receiver_points(scene)
+            normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
+            positions = rad.vertex_sample_positions(scene.points, scene.tri_vertices, scene.tri_areas)
+            reference = path_traced_indirect(tracer, scene, positions[ids], normals[ids], paths=paths)
+            product, _ = ff.precompute(tracer, scene, ff.FormFactors.Params())
+            solved = rad.solve(tracer, scene, product, rad.Radiosity.Params(), ids)
+            estimate = solved["vertex_indirect"]
+            figures[f"sky_lit_{name}_error"] = round(harness.relative_rms(estimate, reference), 4)
+            figures[f"sky_lit_{name}_mean_ratio"] = round(float(estimate.mean() / max(reference.mean(), 1e-30)), 4)
+    return figures
+
+
 def run(quick: bool = False) -> dict:
     fig = atrium_figures(quick)  # first: its peak-memory figure is the growth of the process's peak RSS
     points, extra, vertices, paths = cornell_sweep(quick)
@@ -209,6 +245,7 @@ def run(quick: bool = False) -> dict:
         "compressed_vs_uncompressed_without_row_correction": extra.get("no_correction"),
         "cornell_error_default_interpolation_only": extra.get("interpolation_only_error"),
         **fig,
+        **({} if quick else sky_lit_window_room(16384)),
     }
     r = fig["reorder"]
     table = "\n".join([
@@ -230,6 +267,11 @@ def run(quick: bool = False) -> dict:
         f"| same at vertices | {default['compressed_vs_dense_vertices']:.4f} | <= 0.02 |",
         f"| indirect vs path tracer, cornell vertices ({vertices} vertices, {paths} paths), default "
         f"{default['patches']} patches | {default['error']:.4f} | <= 0.10 |",
+        *([f"| indirect vs path tracer, window_room lit by the sky only (uniform dome / Perez sky + sun by "
+           f"`usdbake sky`; 16384 paths) | {figures['sky_lit_uniform_dome_error']:.3f} / "
+           f"{figures['sky_lit_perez_sun_error']:.3f} (mean ratio {figures['sky_lit_uniform_dome_mean_ratio']:.3f}"
+           f" / {figures['sky_lit_perez_sun_mean_ratio']:.3f}) | <= 0.10 |"] if "sky_lit_uniform_dome_error" in figures
+          else []),
         f"| precompute atrium ({fig['atrium_triangles']} triangles) | {fig['atrium_precompute_s']:.1f} s, "
         f"peak +{fig['atrium_precompute_peak_mb']:.0f} MB | report |",
         "", "| patches | vs path tracer | dense operator vs path tracer | compressed vs dense |", "|---|---|---|---|",
