@@ -9,6 +9,7 @@ import numpy as np
 from pxr import Usd, UsdGeom
 
 from . import harness
+from .bench_plan import grid_quads
 from usdbake.formats.weather import read_weather
 from usdbake.kernels.sky import overcast_radiance, tregenza_patches
 from usdbake.kernels.tracer import Tracer
@@ -35,19 +36,13 @@ SENSORS = 192
 
 
 def grid(origin, u, v, nu: int, nv: int, keep=None) -> list[np.ndarray]:
-    """Quads of a nu x nv grid over the parallelogram origin + [0,1] u + [0,1] v (normal u x v); ``keep(a, b)``
-    on cell-centre shares drops cells (window openings)."""
-    quads = []
-    origin, u, v = (np.asarray(x, np.float64) for x in (origin, u, v))
-    for i in range(nu):
-        for j in range(nv):
-            a, b = (i + 0.5) / nu, (j + 0.5) / nv
-            if keep is not None and not keep(a, b):
-                continue
-            p = origin + (i / nu) * u + (j / nv) * v
-            du, dv = u / nu, v / nv
-            quads.append(np.array([p, p + du, p + du + dv, p + dv]))
-    return quads
+    """``bench_plan.grid_quads`` as a list, without the cells whose centre shares (a along u, b along v) fail
+    ``keep(a, b)`` (window openings)."""
+    quads = grid_quads(origin, u, v, nu, nv)
+    if keep is not None:
+        a, b = np.meshgrid((np.arange(nu) + 0.5) / nu, (np.arange(nv) + 0.5) / nv, indexing="ij")
+        quads = quads[np.vectorize(keep)(a, b).ravel()]
+    return list(quads)
 
 
 def room_stage(faces: int, windows=WINDOWS) -> Usd.Stage:

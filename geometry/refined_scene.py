@@ -56,12 +56,13 @@ def refine_scene(scene: Scene, points: np.ndarray, point_source: np.ndarray, tri
         authored = scene.points[span]
         if prim in refined_bounds:
             faces = refined_order[refined_first[prim]:refined_bounds[prim]]
+            mirrored = bool(np.linalg.det(scene.prim_to_world[prim][:3, :3]) < 0)  # scene winding was flipped
             record, new_points, local = _refined_prim(scene, prim, points, point_source, triangles[faces],
-                                                      source[faces], weights[faces])
+                                                      source[faces], weights[faces], mirrored)
             records.append(record)
             prim_points = np.concatenate([authored, new_points.astype(np.float32)])
             tri_source = source[faces]
-            order = _REVERSED if np.linalg.det(scene.prim_to_world[prim][:3, :3]) < 0 else _FORWARD
+            order = _REVERSED if mirrored else _FORWARD  # the record's corner order, in scene winding
             corner = 3 * np.arange(len(faces))[:, None] + order[None, :]
             face = np.arange(len(faces))
         else:
@@ -97,9 +98,9 @@ def refine_scene(scene: Scene, points: np.ndarray, point_source: np.ndarray, tri
 
 
 def _refined_prim(scene: Scene, prim: int, points: np.ndarray, point_source: np.ndarray, triangles: np.ndarray,
-                  source: np.ndarray, weights: np.ndarray) -> tuple[RefinedMesh, np.ndarray, np.ndarray]:
+                  source: np.ndarray, weights: np.ndarray, mirrored: bool) -> tuple[RefinedMesh, np.ndarray, np.ndarray]:
     """(record, the prim's new points in the scene frame, its triangles in refined-prim point indices,
-    scene winding)."""
+    scene winding). A ``mirrored`` prim's record is wound back for rightHanded in its own space."""
     span = scene.prim_points(prim)
     authored_count = span.stop - span.start
     origin = point_source[triangles]
@@ -109,7 +110,7 @@ def _refined_prim(scene: Scene, prim: int, points: np.ndarray, point_source: np.
     local = np.where(is_new, 0, origin - span.start)
     local[is_new] = authored_count + first_use_rank[np.searchsorted(new_ids, triangles[is_new])]
     new_ids = new_ids[np.argsort(first_use)]  # in order of first use
-    if np.linalg.det(scene.prim_to_world[prim][:3, :3]) < 0:  # scene winding was flipped for a mirror
+    if mirrored:
         written, written_weights = local[:, ::-1], weights[:, ::-1, :]
     else:
         written, written_weights = local, weights

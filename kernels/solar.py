@@ -50,6 +50,12 @@ class SunPosition:
         return np.stack([np.sin(az) * np.cos(alt), np.cos(az) * np.cos(alt), np.sin(alt)], axis=-1)
 
 
+def day_of_year(times) -> np.ndarray:
+    """(N,) int64 day of the year (1 = 1 January) of datetime64 times."""
+    times = np.atleast_1d(np.asarray(times, "datetime64[m]"))
+    return (times.astype("datetime64[D]") - times.astype("datetime64[Y]")).astype(np.int64) + 1
+
+
 def julian_day(utc: np.ndarray) -> np.ndarray:
     """(N,) float64 Julian day of datetime64 UTC instants."""
     utc = np.asarray(utc, "datetime64[us]")

@@ -59,7 +59,7 @@ from ..core.scene import Scene
 from ..formats.weather import Weather, read_weather
 from ..kernels.sky import LUMINOUS_EFFICACY, enu_to_world, overcast_radiance, patch_samples, reinhart_patches
 from ..kernels.sky_matrix import perez_sky_matrix
-from ..kernels.solar import sun_position
+from ..kernels.solar import day_of_year, sun_position
 from ..kernels.sun_visibility import compute_sun_visibility
 
 REPORT_PRIM = "/usdbake/AnnualDaylight"
@@ -80,10 +80,6 @@ class AnnualMetrics:
     """(F, 3) shares of occupied hours below, within and above the UDI band."""
     sun_hours: np.ndarray
     mean_illuminance: np.ndarray
-
-
-def day_of_year(times: np.ndarray) -> np.ndarray:
-    return (times.astype("datetime64[D]") - times.astype("datetime64[Y]")).astype(np.int64) + 1
 
 
 def sun_bins(suns: np.ndarray, up: np.ndarray, subdivision: int) -> tuple[np.ndarray, np.ndarray]:

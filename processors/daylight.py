@@ -61,7 +61,7 @@ from ..core import (
 from ..core.products import DaylightProduct, SkyVisibilityProduct
 from ..core.scene import Scene
 from ..kernels.sky import enu_to_world, patch_radiance, sun_normal_irradiance
-from ..kernels.solar import parse_times, sun_position
+from ..kernels.solar import day_of_year, parse_times, sun_position
 from ..kernels.sun_visibility import compute_sun_visibility
 
 wp.set_module_options({"enable_backward": False})
@@ -141,7 +141,7 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
     sun_rays = 0
     for k, sun_site in enumerate(position.enu()):
         sun_layout = turn @ sun_site
-        day = int((times[k].astype("datetime64[D]") - times[k].astype("datetime64[Y]")).astype(int)) + 1
+        day = int(day_of_year(times[k])[0])
         weights = sky_weights(product, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
                               direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day)
         direct = None

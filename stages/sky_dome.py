@@ -25,8 +25,6 @@ from .bake_layer import write_texture
 
 SKY_PRIM = "/SkyLights"
 MODELS = ("preetham", "perez", "overcast")
-SUN_ANGULAR_DIAMETER = 0.53
-"""Degrees (kernels.sky.SUN_ANGULAR_DIAMETER: the disk the daylight processors trace)."""
 
 
 @dataclass(frozen=True)
@@ -66,7 +64,7 @@ def sky_lights(model: str, time: str, *, latitude: float, longitude: float, time
     reads kernels/ (tests/test_import_rules.py lists it)."""
     from ..kernels.sky import enu_to_world, overcast_radiance, perez_radiance, preetham_radiance, \
         sun_normal_irradiance
-    from ..kernels.solar import parse_times, sun_position
+    from ..kernels.solar import day_of_year, parse_times, sun_position
 
     if model not in MODELS:
         raise UsageError(f"sky model {model!r} is not one of {', '.join(MODELS)}")
@@ -75,7 +73,7 @@ def sky_lights(model: str, time: str, *, latitude: float, longitude: float, time
         raise UsageError(f"--time {time!r}: a sky dome is for one time, not {len(times)}")
     position = sun_position(times, latitude, longitude, timezone)
     sun_enu = position.enu()[0]
-    day = int((times[0].astype("datetime64[D]") - times[0].astype("datetime64[Y]")).astype(int)) + 1
+    day = int(day_of_year(times)[0])
     to_world = enu_to_world(up_axis, north)  # world = to_world @ enu
     rotate_x = 90.0 if up_axis == "Z" else 0.0
     c, s = math.cos(math.radians(rotate_x)), math.sin(math.radians(rotate_x))
@@ -150,6 +148,8 @@ def write_sky_layer(source: str, output: str, sky: SkyLights) -> list[str]:
     if sky.dome_rotate_x:
         UsdGeom.Xformable(dome).AddRotateXOp().Set(sky.dome_rotate_x)
     if sky.sun_world is not None and sky.sun_irradiance.max() > 0:
+        from ..kernels.sky import SUN_ANGULAR_DIAMETER  # the disk the daylight processors trace
+
         half = math.radians(SUN_ANGULAR_DIAMETER / 2)
         solid = 2.0 * math.pi * (1.0 - math.cos(half))  # the disk's solid angle: E = L Omega
         peak = float(sky.sun_irradiance.max())

@@ -323,21 +323,34 @@ SLOW_BAKE = textwrap.dedent("""
 """)
 
 
+def start_scripted_bake(tmp_path, script_text: str, stage_in, out, cache) -> tuple[subprocess.Popen, Path]:
+    """Run ``script_text`` (a patched ``usdbake bake``) as its own process: (process, its state-marker file)."""
+    script, marker = tmp_path / "scripted_bake.py", tmp_path / "state.txt"
+    script.write_text(script_text)
+    process = subprocess.Popen([sys.executable, str(script), str(marker), "bake", str(stage_in), "-o", str(out),
+                                "--cache", cache, "--force", "--json", *FAST],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return process, marker
+
+
+def wait_for_state(process: subprocess.Popen, marker: Path, state: str) -> None:
+    """Until the scripted bake writes ``state`` to its marker (AssertionError after 120 s or if it ends)."""
+    deadline = time.monotonic() + 120
+    while process.poll() is None and time.monotonic() < deadline:
+        if marker.exists() and marker.read_text() == state:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"never reached {state!r}: {process.communicate(timeout=10)}")
+
+
 def test_sigint_during_a_bake_exits_130_with_nothing_half_written(capsys, tmp_path, stage_in, cache):
     """A real Ctrl-C (SIGINT) to a running `usdbake bake` process."""
     out = tmp_path / "out.usda"
     assert run_cli(capsys, "bake", stage_in, "-o", out, "--cache", cache, *FAST)[0] == 0
     before = {p.name: digest(p) for p in tmp_path.iterdir() if p.is_file()}
-    script, marker = tmp_path / "slow_bake.py", tmp_path / "running.txt"
-    script.write_text(SLOW_BAKE)
-    process = subprocess.Popen([sys.executable, str(script), str(marker), "bake", str(stage_in), "-o", str(out),
-                                "--cache", cache, "--force", "--json", *FAST],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process, marker = start_scripted_bake(tmp_path, SLOW_BAKE, stage_in, out, cache)
     try:
-        deadline = time.monotonic() + 120
-        while not marker.exists() and process.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert marker.exists(), process.communicate(timeout=10)
+        wait_for_state(process, marker, "running")
         process.send_signal(signal.SIGINT)
         stdout, stderr = process.communicate(timeout=60)
     finally:
@@ -347,7 +360,7 @@ def test_sigint_during_a_bake_exits_130_with_nothing_half_written(capsys, tmp_pa
     assert stdout == "" and "Traceback" not in stderr
     assert stderr.strip().splitlines()[-1] == "usdbake: interrupted; no output was written"
     marker.unlink()
-    script.unlink()
+    (tmp_path / "scripted_bake.py").unlink()
     assert {p.name: digest(p) for p in tmp_path.iterdir() if p.is_file()} == before
 
 
@@ -376,24 +389,11 @@ def test_second_sigint_stops_at_once_with_nothing_half_written(capsys, tmp_path,
     out = tmp_path / "out.usda"
     assert run_cli(capsys, "bake", stage_in, "-o", out, "--cache", cache, *FAST)[0] == 0
     before = {p.name: digest(p) for p in tmp_path.iterdir() if p.is_file()}
-    script, marker = tmp_path / "draining_bake.py", tmp_path / "state.txt"
-    script.write_text(DRAINING_BAKE)
-    process = subprocess.Popen([sys.executable, str(script), str(marker), "bake", str(stage_in), "-o", str(out),
-                                "--cache", cache, "--force", "--json", *FAST],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-    def wait_for(state: str) -> None:
-        deadline = time.monotonic() + 120
-        while process.poll() is None and time.monotonic() < deadline:
-            if marker.exists() and marker.read_text() == state:
-                return
-            time.sleep(0.05)
-        raise AssertionError(f"never reached {state!r}: {process.communicate(timeout=10)}")
-
+    process, marker = start_scripted_bake(tmp_path, DRAINING_BAKE, stage_in, out, cache)
     try:
-        wait_for("running")
+        wait_for_state(process, marker, "running")
         process.send_signal(signal.SIGINT)
-        wait_for("draining")
+        wait_for_state(process, marker, "draining")
         started = time.monotonic()
         process.send_signal(signal.SIGINT)
         stdout, stderr = process.communicate(timeout=60)
@@ -407,5 +407,5 @@ def test_second_sigint_stops_at_once_with_nothing_half_written(capsys, tmp_path,
         "usdbake: interrupting once the work under way returns (Ctrl-C again to stop now)",
         "usdbake: interrupted; no output was written"]
     marker.unlink()
-    script.unlink()
+    (tmp_path / "scripted_bake.py").unlink()
     assert {p.name: digest(p) for p in tmp_path.iterdir() if p.is_file()} == before

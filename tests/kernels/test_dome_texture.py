@@ -16,7 +16,8 @@ from pxr import UsdGeom, UsdLux
 from stage_builders import add_mesh, new_stage
 from tolerances import FLOAT32_UNIT_ROUNDOFF
 from usdbake.core.errors import StageError
-from usdbake.kernels.lights import Lights, direct_irradiance, light_bundle, sky_radiance
+from open_irradiance import direct_irradiance_at
+from usdbake.kernels.lights import Lights, light_bundle, sky_radiance
 from usdbake.kernels.tracer import Tracer
 from usdbake.stages.bake_layer import write_texture
 from usdbake.core.records import Texture
@@ -25,13 +26,6 @@ from usdbake.stages.extract import extract_scene
 RADIANCE = 2.0
 SKY_SUM = 64 * 8 * FLOAT32_UNIT_ROUNDOFF
 """direct_irradiance sums 64 cosine-weighted sky samples in float32, each a product of ~8 operations."""
-
-
-@wp.kernel
-def irradiance_kernel(mesh: wp.uint64, lights: Lights, points: wp.array(dtype=wp.vec3),
-                      normals: wp.array(dtype=wp.vec3), epsilon: float, out: wp.array(dtype=wp.vec3)):
-    i = wp.tid()
-    out[i] = direct_irradiance(mesh, lights, points[i], normals[i], 1, 64, epsilon, wp.rand_init(7, i))
 
 
 @wp.kernel
@@ -65,14 +59,9 @@ def dome_stage(texture: str | None, *, up: str = "Y", rotate_x: float = 0.0):
 
 
 def irradiance(scene, normals) -> np.ndarray:
-    tracer = Tracer.from_scene(scene)
-    normals = np.asarray(normals, np.float32)
-    points = np.tile(-scene.origin, (len(normals), 1)).astype(np.float32)  # the world origin, 100 from the speck
-    out = wp.zeros(len(normals), dtype=wp.vec3, device=tracer.device)
-    wp.launch(irradiance_kernel, dim=len(normals), device=tracer.device,
-              inputs=[tracer.mesh.id, light_bundle(scene, tracer.device), tracer.array(points, wp.vec3),
-                      tracer.array(normals, wp.vec3), tracer.epsilon, out])
-    return out.numpy()[:, 0]
+    """Red-channel direct irradiance at the world origin (100 units from the speck) for each normal."""
+    points = np.tile(-scene.origin, (len(normals), 1))
+    return direct_irradiance_at(scene, points, normals)[:, 0]
 
 
 def test_untextured_dome_is_uniform(tmp_path):

@@ -17,9 +17,9 @@ from usdbake.cli.main import main
 from usdbake.formats.weather import read_weather
 from usdbake.kernels.sky import LUMINOUS_EFFICACY, patch_radiance, patch_samples, tregenza_patches
 from usdbake.kernels.sky_matrix import perez_sky_matrix
-from usdbake.kernels.solar import sun_position
+from usdbake.kernels.solar import day_of_year, sun_position
 from usdbake.kernels.tracer import Tracer
-from usdbake.processors.annual_daylight import compute_annual_daylight, day_of_year, overcast_factors
+from usdbake.processors.annual_daylight import compute_annual_daylight, overcast_factors
 from usdbake.processors.sky_visibility import compute_sky_visibility
 from usdbake.stages.extract import extract_scene
 

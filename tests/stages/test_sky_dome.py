@@ -7,26 +7,17 @@ from __future__ import annotations
 import math
 
 import pytest
-import warp as wp
 from pxr import Usd
 
+from open_irradiance import direct_irradiance_at
 from stage_builders import add_mesh, new_stage
 from usdbake.cli.main import main
-from usdbake.kernels.lights import Lights, direct_irradiance, light_bundle
 from usdbake.kernels.solar import parse_times, sun_position
-from usdbake.kernels.tracer import Tracer
 from usdbake.stages.extract import extract_scene
 
 PLACE = ["--latitude", "41.98", "--longitude", "2.82", "--timezone", "1", "--time", "2026-06-21T12:00"]
 TEXEL_INTEGRATION = 0.02
 """A 256 x 128 lat-long map integrated by 64 x 64 cosine-weighted rays, nearest texel: ~1% measured."""
-
-
-@wp.kernel
-def irradiance_kernel(mesh: wp.uint64, lights: Lights, points: wp.array(dtype=wp.vec3),
-                      normals: wp.array(dtype=wp.vec3), epsilon: float, out: wp.array(dtype=wp.vec3)):
-    i = wp.tid()
-    out[i] = direct_irradiance(mesh, lights, points[i], normals[i], 4, 64, epsilon, wp.rand_init(3, i))
 
 
 def write_input(folder, up):
@@ -48,14 +39,8 @@ def test_open_horizontal_face_gets_diffuse_plus_direct(tmp_path, capsys, up, mod
     assert source.read_bytes() == before
     scene = extract_scene(Usd.Stage.Open(str(out)))
     assert scene.lights.dome_texture.shape == (128, 256, 3) and len(scene.lights) == 2
-    tracer = Tracer.from_scene(scene)
-    up_vector = scene.up_vector
-    out_e = wp.zeros(1, dtype=wp.vec3, device=tracer.device)
-    wp.launch(irradiance_kernel, dim=1, device=tracer.device,
-              inputs=[tracer.mesh.id, light_bundle(scene, tracer.device),
-                      tracer.array(-scene.origin[None, :], wp.vec3), tracer.array(up_vector[None, :], wp.vec3),
-                      tracer.epsilon, out_e])
-    measured = float(out_e.numpy()[0, 1])
+    measured = float(direct_irradiance_at(scene, -scene.origin[None, :], scene.up_vector[None, :], strata=4,
+                                          seed=3)[0, 1])
     altitude = math.radians(90.0 - float(sun_position(parse_times("2026-06-21T12:00"), 41.98, 2.82, 1.0).zenith[0]))
     report = capsys.readouterr().out
     diffuse = float(report.split("diffuse horizontal ")[1].split(" W/m^2")[0])
