@@ -88,15 +88,21 @@ def make_parser() -> argparse.ArgumentParser:
     sky.add_argument("input")
     sky.add_argument("-o", "--output", required=True, help="the sky layer (.usd, .usda or .usdc); a lat-long "
                      ".exr is written beside it")
-    sky.add_argument("--model", default="preetham", choices=("preetham", "perez", "overcast"))
+    sky.add_argument("--weather", help="typical-year weather file (.epw, TMY3 .csv): the place, and the Perez "
+                     "sky of the hour holding --time (its year ignored)")
+    sky.add_argument("--model", choices=("preetham", "perez", "overcast"),
+                     help="sky model (default: perez with --weather, else preetham)")
     sky.add_argument("--time", default="2026-06-21T12:00", help="ISO 8601 local standard time")
-    sky.add_argument("--latitude", type=float, default=41.98, help="degrees north")
-    sky.add_argument("--longitude", type=float, default=2.82, help="degrees east")
-    sky.add_argument("--timezone", type=float, default=1.0, help="hours east of UTC")
+    sky.add_argument("--latitude", type=float, help=f"degrees north (default {SKY_SITE[0]}, or the weather file's)")
+    sky.add_argument("--longitude", type=float, help=f"degrees east (default {SKY_SITE[1]}, or the weather file's)")
+    sky.add_argument("--timezone", type=float, help=f"hours east of UTC (default {SKY_SITE[2]:g}, or the weather "
+                     "file's)")
     sky.add_argument("--north", type=float, default=0.0, help="degrees from the stage's default north")
     sky.add_argument("--turbidity", type=float, default=3.0, help="Preetham turbidity")
-    sky.add_argument("--dni", type=float, default=600.0, help="Perez: direct normal irradiance, W/m^2")
-    sky.add_argument("--dhi", type=float, default=150.0, help="Perez: diffuse horizontal irradiance, W/m^2")
+    sky.add_argument("--dni", type=float, help="Perez: direct normal irradiance, W/m^2 (default 600, or the "
+                     "weather file's)")
+    sky.add_argument("--dhi", type=float, help="Perez: diffuse horizontal irradiance, W/m^2 (default 150, or the "
+                     "weather file's)")
     sky.add_argument("--ground-albedo", type=float, default=0.2, help="the grey ground below the horizon")
     preview = commands.add_parser("preview", help="render a (baked) stage to an image: AO, daylight, irradiance")
     preview.add_argument("input", help="stage to render, e.g. a usdbake output")
@@ -468,21 +474,44 @@ def cmd_bench(args, console: Console) -> int:
     return bench_main(argv)
 
 
+SKY_SITE = (41.98, 2.82, 1.0)
+"""``usdbake sky``'s place without --weather or --latitude/--longitude/--timezone (Girona)."""
+
+
 def cmd_sky(args, console: Console) -> int:
     from ..stages.inputs import open_source
-    from ..stages.sky_dome import make_sky
+    from ..stages.sky_dome import make_sky, weather_hour
 
-    if not -90.0 <= args.latitude <= 90.0:
-        raise UsageError(f"--latitude {args.latitude}: outside -90..90")
-    if not -12.0 <= args.timezone <= 14.0:
-        raise UsageError(f"--timezone {args.timezone}: not a time zone (-12..14 hours)")
+    site = dict(zip(("latitude", "longitude", "timezone"), SKY_SITE))
+    irradiance = {"direct_normal": 600.0, "diffuse_horizontal": 150.0}
+    model = args.model or ("perez" if args.weather else "preetham")
+    hour = ""
+    if args.weather:
+        site, irradiance, hour = weather_hour(args.weather, args.time)
+        if model != "perez":
+            raise UsageError(f"--model {model} --weather {args.weather}: a weather file gives a Perez sky "
+                             f"(its direct and diffuse irradiance); drop --model or use --model perez")
+    for key in site:
+        given = getattr(args, key)
+        if given is not None:
+            if args.weather and abs(given - site[key]) > 1e-6:
+                raise UsageError(f"--{key} {given:g} disagrees with {args.weather}'s {site[key]:g}: the weather "
+                                 f"file gives the place; drop --{key}")
+            site[key] = given
+    for key, option in (("direct_normal", "dni"), ("diffuse_horizontal", "dhi")):
+        if getattr(args, option) is not None:
+            if args.weather:
+                raise UsageError(f"--{option} with --weather: the weather file gives the irradiance; drop --{option}")
+            irradiance[key] = getattr(args, option)
+    if not -90.0 <= site["latitude"] <= 90.0:
+        raise UsageError(f"--latitude {site['latitude']}: outside -90..90")
+    if not -12.0 <= site["timezone"] <= 14.0:
+        raise UsageError(f"--timezone {site['timezone']}: not a time zone (-12..14 hours)")
     source, _ = open_source(args.input)
-    written, sky = make_sky(source, args.output, args.model, args.time, latitude=args.latitude,
-                            longitude=args.longitude, timezone=args.timezone, north=args.north,
-                            turbidity=args.turbidity, direct_normal=args.dni, diffuse_horizontal=args.dhi,
-                            ground_albedo=args.ground_albedo)
+    written, sky = make_sky(source, args.output, model, args.time, **site, north=args.north,
+                            turbidity=args.turbidity, **irradiance, ground_albedo=args.ground_albedo)
     sun = float(sky.sun_irradiance[1]) if sky.sun_world is not None else 0.0
-    print(f"wrote {written[0]} and {written[1]}: diffuse horizontal {sky.diffuse_horizontal:.1f} W/m^2, "
+    print(f"wrote {written[0]} and {written[1]}: {hour}diffuse horizontal {sky.diffuse_horizontal:.1f} W/m^2, "
           f"sun {sun:.1f} W/m^2 normal")
     return EXIT_OK
 

@@ -145,6 +145,9 @@ class Scene:
     relative to ``origin``: ``points[prim_points(m)] ~ [local, 1] @ prim_to_world[m]``."""
     up_axis: str = "Y"
     meters_per_unit: float = 1.0
+    site: dict = field(default_factory=dict)
+    """The stage's place, when its layer stack says (a ``usdbake sky`` layer): latitude, longitude (degrees),
+    timezone (hours east of UTC) and the layer's identifier; empty when unknown."""
     time_code: float | None = None
     """USD time code the stage was read at; None for the default time."""
     source: str = ""

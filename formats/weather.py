@@ -50,9 +50,43 @@ class Weather:
     """Hours east of UTC of the local standard time."""
     elevation: float
     """Metres."""
+    lines: np.ndarray
+    """(H,) int64 1-based line of each hour's row in the file, for messages."""
 
     def __len__(self) -> int:
         return len(self.times)
+
+    def hour_at(self, when: np.datetime64) -> int:
+        """Index of the row whose hour holds the local standard time ``when``; its year is ignored (a
+        typical year is made of months from several years)."""
+        moment = np.datetime64(when, "m").astype(object)
+        if (moment.month, moment.day) == (2, 29):
+            raise UsageError(f"{self.source}: 29 February is not in a typical year; choose another day")
+        t = np.datetime64(f"{self.times[0].astype(object).year:04d}-{moment.month:02d}-{moment.day:02d}T"
+                          f"{moment.hour:02d}:{moment.minute:02d}", "m")
+        index = int(np.searchsorted(self.times - np.timedelta64(30, "m"), t, side="right")) - 1
+        if index < 0 or abs(self.times[index] - t) > np.timedelta64(30, "m"):
+            raise UsageError(f"{self.source}: no hour of the file holds {str(np.datetime64(when, 'm'))}")
+        return index
+
+
+SITE_TOLERANCE_DEGREES = 1.0
+"""A weather station within about 100 km of the stage's site counts as the same place."""
+
+
+def check_site(weather: Weather, site: dict) -> None:
+    """Refuse a weather file measured elsewhere than the stage's site (``Scene.site``: latitude, longitude,
+    timezone and the layer that says so); no site, no check."""
+    if not site:
+        return
+    lon_gap = abs((weather.longitude - site["longitude"] + 180.0) % 360.0 - 180.0)
+    if (abs(weather.latitude - site["latitude"]) > SITE_TOLERANCE_DEGREES or lon_gap > SITE_TOLERANCE_DEGREES
+            or abs(weather.timezone - site["timezone"]) > 1e-6):
+        raise UsageError(
+            f"{weather.source}, line 1: the weather's site (latitude {weather.latitude:g}, longitude "
+            f"{weather.longitude:g}, UTC{weather.timezone:+g}) disagrees with the stage's (latitude "
+            f"{site['latitude']:g}, longitude {site['longitude']:g}, UTC{site['timezone']:+g}, written by "
+            f"usdbake sky in {site['layer']}); use a weather file for that place or remake the sky")
 
 
 def read_weather(path: str | Path) -> Weather:
@@ -119,7 +153,7 @@ def _fields(path: Path, header: int, rows: list[list[str]], read) -> list[tuple]
 
 def _year(path: Path, header: int, months: list[int], days: list[int], hours: list[float],
           frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(mid-hour local times, DNI, DHI): times from each row's month, day and hour ending (1..24), in
+    """(mid-hour local times, DNI, DHI, file lines): times from each row's month, day and hour ending (1..24), in
     one non-leap year (typical years mix source years, some leap: 29 February is dropped), irradiance
     from pvlib's frame, row for row."""
     months, days, hours = np.asarray(months), np.asarray(days), np.asarray(hours, np.float64)
@@ -131,7 +165,8 @@ def _year(path: Path, header: int, months: list[int], days: list[int], hours: li
     day = _DAYS_BEFORE_MONTH[months[keep] - 1] + days[keep] - 1
     minutes = np.rint((day * 24 + hours[keep] - 0.5) * 60).astype(np.int64)
     times = np.datetime64("2025-01-01T00:00", "m") + minutes.astype("timedelta64[m]")
-    return times, frame["dni"].to_numpy(np.float64)[keep], frame["dhi"].to_numpy(np.float64)[keep]
+    lines = header + 1 + np.flatnonzero(keep)
+    return times, frame["dni"].to_numpy(np.float64)[keep], frame["dhi"].to_numpy(np.float64)[keep], lines
 
 
 def _pvlib_reader(name: str):
@@ -160,8 +195,8 @@ def _read_epw(path: Path) -> Weather:
     when = _fields(path, EPW_HEADER_LINES, rows[EPW_HEADER_LINES:],
                    lambda row: (int(row[1]), int(row[2]), float(row[3])))
     frame, _ = read_epw(str(path))
-    times, dni, dhi = _year(path, EPW_HEADER_LINES, *zip(*when), frame)
-    return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation)
+    times, dni, dhi, lines = _year(path, EPW_HEADER_LINES, *zip(*when), frame)
+    return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation, lines)
 
 
 def _read_tmy3(path: Path) -> Weather:
@@ -179,5 +214,5 @@ def _read_tmy3(path: Path) -> Weather:
                    lambda row: (int(row[0].split("/")[0]), int(row[0].split("/")[1]),
                                 int(row[1].split(":")[0]) + int(row[1].split(":")[1]) / 60.0))
     frame, _ = read_tmy3(str(path), map_variables=True)
-    times, dni, dhi = _year(path, TMY3_HEADER_LINES, *zip(*when), frame)
-    return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation)
+    times, dni, dhi, lines = _year(path, TMY3_HEADER_LINES, *zip(*when), frame)
+    return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation, lines)

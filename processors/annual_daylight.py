@@ -56,7 +56,7 @@ import numpy as np
 from ..core import Attribute, Context, File, ParamError, Params, Prim, Primvar, Processor, Result, param
 from ..core.products import AnnualDaylightProduct, SkyVisibilityProduct
 from ..core.scene import Scene
-from ..formats.weather import Weather, read_weather
+from ..formats.weather import Weather, check_site, read_weather
 from ..kernels.sky import LUMINOUS_EFFICACY, enu_to_world, overcast_radiance, patch_samples, reinhart_patches
 from ..kernels.sky_matrix import perez_sky_matrix
 from ..kernels.solar import day_of_year, sun_position
@@ -240,10 +240,12 @@ class AnnualDaylight(Processor):
                 raise ParamError(f"udi_low={self.udi_low} must be below udi_high={self.udi_high}")
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
-        """Reads the weather file, so a broken one is refused before any compute."""
+        """Reads the weather file, so a broken one, or one from another place than the stage's (a
+        ``usdbake sky`` layer records it), is refused before any compute."""
         if not self.params.weather:
             return False, "no weather file: set annual_daylight.weather=FILE.epw (or an NREL TMY3 .csv)"
         self.weather = read_weather(self.params.weather)
+        check_site(self.weather, ctx.scene.site)
         return True, ""
 
     def run(self, ctx: Context) -> Result:

@@ -18,13 +18,22 @@ The apply half of Shcherbakov (MSU 2017), section 5: for the current lights,
    256-entry code table, never materializing the float matrix), adds the exact
    sparse part, and works in the stored (permuted) order.
 
-3. **Transfer to the mesh**: each vertex takes a normal- and distance-weighted
-   mean of the indirect irradiance of its ``neighbors`` nearest patch centroids
-   whose normals agree (cos > ``normal_cos``), ``w = (n_v . n_p)^2 / (d^2 +
-   (voxel/2)^2)`` -- smooth, not blocky per-voxel constants. Direct light at
-   vertices is computed exactly (step 1), not interpolated, at the vertex
-   moved 0.1 % towards the centre of its triangle ring (VERTEX_INSET) so a
-   vertex on a seam between meshes does not start its rays inside the other.
+3. **Transfer to the mesh**: a final gather per vertex (section 3.5 step 5):
+   ``gather_rays`` cosine-weighted rays, each hit adding rho (E0 + E_ind) of
+   the patch it lands on, so a vertex sees the patches' k bounces plus the
+   gather's own reflection (k + 1, what a probe looking at the patches sees).
+   Hits nearer than ``near_hits`` voxel edges (corners, contact edges) take
+   E0 at the hit itself (one shadow ray per light, ``hit_sky_samples`` dome
+   rays) and their first bounce from one more ray, bounces 2..k from the
+   patch (its k-bounce light minus a patch-level gather of its first bounce).
+   With ``gather_rays = 0`` each vertex instead blends the k-bounce indirect
+   irradiance of its ``neighbors`` nearest patch centroids whose normals
+   agree (cos > ``normal_cos``), ``w = (n_v . n_p)^2 / (d^2 + (voxel/2)^2)``:
+   no rays, smooth, blurred in corners.
+   Direct light at vertices is computed exactly (step 1), not interpolated,
+   at the vertex moved 0.1 % towards the centre of its triangle ring
+   (VERTEX_INSET) so a vertex on a seam between meshes does not start its
+   rays inside the other.
 
 USD written (bake layer), on writable prims with triangles and no ``bake:skip``:
 
@@ -32,7 +41,7 @@ USD written (bake layer), on writable prims with triangles and no ``bake:skip``:
 property                          type      interpolation value
 ================================= ========= ============= ==============================
 primvars:bake:irradianceDirect    color3f[] vertex        direct irradiance E0 (W/m^2)
-primvars:bake:irradianceIndirect  color3f[] vertex        indirect irradiance, k bounces
+primvars:bake:irradianceIndirect  color3f[] vertex        indirect irradiance (W/m^2)
 ================================= ========= ============= ==============================
 
 Product ``RadiosityProduct`` (core/products.py, for later processors): patch centroids, normals, areas,
@@ -57,7 +66,7 @@ from ..geometry.mesh import missing_receivers, receiver_prims, vertex_normals
 from ..kernels.lights import NO_LIGHTS, Lights, direct_irradiance, has_light, light_bundle, shadow_rays_per_point
 from ..kernels.operator_relight import relight
 from ..kernels.patches import fragment_of_hit
-from ..kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
+from ..kernels.sampling import cosine_hemisphere, strata_for, tangent_frame
 from ..kernels.tracer import FAR, surface_origin
 
 wp.set_module_options({"enable_backward": False})
@@ -115,49 +124,30 @@ def compute_direct_irradiance(tracer, scene: Scene, positions: np.ndarray, norma
 # Transfer to the mesh
 
 
-@wp.kernel
-def gather_kernel(
-    start: int,
+@wp.func
+def patch_light(
     mesh: wp.uint64,
-    positions: wp.array(dtype=wp.vec3),
-    normals: wp.array(dtype=wp.vec3),
+    origin: wp.vec3,
+    direction: wp.vec3,
     tri_normals: wp.array(dtype=wp.vec3),
+    tri_albedo: wp.array(dtype=wp.vec3),
     tri_subdivision: wp.array(dtype=int),
     tri_fragment_start: wp.array(dtype=int),
     fragment_patch: wp.array(dtype=int),
-    patch_radiosity: wp.array(dtype=wp.vec3),
-    strata: int,
-    epsilon: float,
-    seed: int,
-    irradiance: wp.array(dtype=wp.vec3),
-):
-    """Final gather, Shcherbakov section 3.5 step 5 (the patch solution carried to the original mesh):
-    E(x) = sum_j F_xj B_j, estimated as the mean radiosity B (W/m^2) of the patches that strata^2
-    cosine-weighted rays from x meet (back faces absorb, as in the form factors)."""
-    i = start + wp.tid()
-    n = normals[i]
-    e = wp.vec3(0.0, 0.0, 0.0)
-    if wp.length(n) < 0.5:
-        irradiance[i] = e
-        return
-    state = wp.rand_init(seed, i)
-    frame = tangent_frame(n)
-    origin = surface_origin(mesh, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
-    rays = strata * strata
-    for k in range(rays):
-        u = stratified_pair(k, strata, state)
-        w = frame * cosine_hemisphere(u[0], u[1])
-        q = wp.mesh_query_ray(mesh, origin, w, FAR)
-        if q.result:
-            if wp.dot(w, tri_normals[q.face]) < 0.0:
-                patch = fragment_patch[fragment_of_hit(q.face, q.u, q.v, tri_subdivision, tri_fragment_start)]
-                if patch >= 0:
-                    e += patch_radiosity[patch]
-    irradiance[i] = e / float(rays)
+    patch_direct: wp.array(dtype=wp.vec3),
+) -> wp.vec3:
+    """rho(z) E0(patch of z) at the front face z a ray meets (W/m^2; zero on a miss or a back face)."""
+    q = wp.mesh_query_ray(mesh, origin, direction, FAR)
+    if q.result:
+        if wp.dot(direction, tri_normals[q.face]) < 0.0:
+            patch = fragment_patch[fragment_of_hit(q.face, q.u, q.v, tri_subdivision, tri_fragment_start)]
+            if patch >= 0:
+                return wp.cw_mul(tri_albedo[q.face], patch_direct[patch])
+    return wp.vec3(0.0, 0.0, 0.0)
 
 
 @wp.kernel
-def gather_direct_kernel(
+def final_gather_kernel(
     start: int,
     mesh: wp.uint64,
     lights: Lights,
@@ -165,17 +155,31 @@ def gather_direct_kernel(
     normals: wp.array(dtype=wp.vec3),
     tri_normals: wp.array(dtype=wp.vec3),
     tri_albedo: wp.array(dtype=wp.vec3),
+    tri_subdivision: wp.array(dtype=int),
+    tri_fragment_start: wp.array(dtype=int),
+    fragment_patch: wp.array(dtype=int),
+    patch_direct: wp.array(dtype=wp.vec3),
+    patch_indirect: wp.array(dtype=wp.vec3),
+    patch_higher: wp.array(dtype=wp.vec3),
+    near: float,
     strata: int,
+    sky_strata: int,
     epsilon: float,
     seed: int,
     irradiance: wp.array(dtype=wp.vec3),
+    near_hits: wp.array(dtype=int),
 ):
-    """First-bounce irradiance at x, the h = 1 term of the multi-bounce sum of Shcherbakov section 4.1
-    evaluated at x itself: mean over cosine-weighted rays of rho(y) E0(y) at the hit point y, with E0
-    by one shadow-ray sample per light (W/m^2; no patch averaging)."""
+    """Final gather, Shcherbakov section 3.5 step 5 (the patch solution carried to the mesh):
+    E_ind(x) = sum_j F_xj rho_j (E0_j + E_ind_j), estimated over strata^2 cosine-weighted rays from x as
+    the mean of rho(y) (E0(y) + E_ind(y)) at the hits y (back faces absorb, as in the form factors),
+    with the hit patch's means. Hits nearer than ``near`` (corners, contact edges, where light varies
+    within a patch) evaluate E0(y) at y (one shadow ray per light, sky_strata^2 dome rays) and
+    E_ind(y) as rho(z) E0(z) at the patch z one more cosine ray from y meets plus y's patch bounces
+    2..k (``patch_higher``). Counts the near hits per point (their rays)."""
     i = start + wp.tid()
     n = normals[i]
     e = wp.vec3(0.0, 0.0, 0.0)
+    near_count = int(0)
     if wp.length(n) < 0.5:
         irradiance[i] = e
         return
@@ -194,40 +198,49 @@ def gather_direct_kernel(
         if q.result:
             hn = tri_normals[q.face]
             if wp.dot(w, hn) < 0.0:
-                e0 = direct_irradiance(mesh, lights, origin + w * q.t, hn, 1, 1, epsilon, state)
-                e += wp.cw_mul(tri_albedo[q.face], e0)
+                patch = fragment_patch[fragment_of_hit(q.face, q.u, q.v, tri_subdivision, tri_fragment_start)]
+                indirect = wp.vec3(0.0, 0.0, 0.0)
+                direct = wp.vec3(0.0, 0.0, 0.0)
+                if patch >= 0:
+                    indirect = patch_indirect[patch]
+                    direct = patch_direct[patch]
+                if q.t < near or patch < 0:
+                    y = origin + w * q.t
+                    direct = direct_irradiance(mesh, lights, y, hn, 1, sky_strata, epsilon, state)
+                    # The first bounce at y varies fast near corners and contact edges: one more cosine ray
+                    # from y to the direct light it meets; bounces 2..k from y's patch.
+                    v = tangent_frame(hn) * cosine_hemisphere(wp.randf(state), wp.randf(state))
+                    indirect = patch_light(mesh, surface_origin(mesh, y, hn, wp.vec3(0.0, 0.0, 0.0), epsilon), v,
+                                           tri_normals, tri_albedo, tri_subdivision, tri_fragment_start,
+                                           fragment_patch, patch_direct)
+                    if patch >= 0:
+                        indirect = indirect + patch_higher[patch]
+                    near_count += 1
+                e += wp.cw_mul(tri_albedo[q.face], direct + indirect)
     irradiance[i] = e / float(rays)
+    near_hits[i] = near_count
 
 
-def gather_first_bounce(tracer, scene: Scene, positions: np.ndarray, normals: np.ndarray, *, rays: int,
-                        seed: int = 0, emissive: str = "auto") -> np.ndarray:
-    """(N, 3) float32 first-bounce irradiance at points, direct light evaluated at each gather hit."""
-    strata = strata_for(rays)
+def final_gather(tracer, scene: Scene, patches, patch_direct: np.ndarray, patch_indirect: np.ndarray,
+                 patch_higher: np.ndarray, positions: np.ndarray, normals: np.ndarray, *, rays: int, near: float,
+                 sky_samples: int, seed: int = 0, emissive: str = "auto") -> np.ndarray:
+    """(N, 3) float32 indirect irradiance at points: one gather over the patches' direct + indirect light."""
+    strata, sky_strata = strata_for(rays), strata_for(sky_samples)
     out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
-    tracer.launch(gather_direct_kernel, len(positions), [
+    near_hits = wp.zeros(len(positions), dtype=int, device=tracer.device)
+    tracer.launch(final_gather_kernel, len(positions), [
         tracer.mesh.id, light_bundle(scene, tracer.device, emissive=emissive),
         tracer.array(np.ascontiguousarray(positions, np.float32), wp.vec3),
         tracer.array(np.ascontiguousarray(normals, np.float32), wp.vec3),
         tracer.array(scene.tri_normals, wp.vec3), tracer.array(scene.tri_albedo, wp.vec3),
-        strata, tracer.epsilon, seed, out,
+        tracer.array(patches.tri_subdivision, wp.int32), tracer.array(patches.tri_fragment_start, wp.int32),
+        tracer.array(patches.fragment_patch, wp.int32),
+        tracer.array(np.ascontiguousarray(patch_direct, np.float32), wp.vec3),
+        tracer.array(np.ascontiguousarray(patch_indirect, np.float32), wp.vec3),
+        tracer.array(np.ascontiguousarray(patch_higher, np.float32), wp.vec3), float(near), strata, sky_strata, tracer.epsilon, seed, out, near_hits,
     ])
-    tracer.rays_cast += len(positions) * strata * strata * (1 + shadow_rays_per_point(scene, emissive=emissive))
-    return np.nan_to_num(out.numpy())
-
-
-def gather_irradiance(tracer, scene: Scene, patches, patch_radiosity: np.ndarray, positions: np.ndarray,
-                      normals: np.ndarray, *, rays: int, seed: int = 0) -> np.ndarray:
-    """(N, 3) float32 irradiance at points from the patches' radiosity (one final-gather bounce)."""
-    strata = strata_for(rays)
-    out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
-    tracer.launch(gather_kernel, len(positions), [
-        tracer.mesh.id, tracer.array(np.ascontiguousarray(positions, np.float32), wp.vec3),
-        tracer.array(np.ascontiguousarray(normals, np.float32), wp.vec3),
-        tracer.array(scene.tri_normals, wp.vec3), tracer.array(patches.tri_subdivision, wp.int32),
-        tracer.array(patches.tri_fragment_start, wp.int32), tracer.array(patches.fragment_patch, wp.int32),
-        tracer.array(np.ascontiguousarray(patch_radiosity, np.float32), wp.vec3), strata, tracer.epsilon, seed, out,
-    ])
-    tracer.rays_cast += len(positions) * strata * strata
+    tracer.rays_cast += len(positions) * strata * strata + int(near_hits.numpy().sum()) * (1 + shadow_rays_per_point(
+        scene, strata=1, sky_strata=sky_strata, emissive=emissive))
     return np.nan_to_num(out.numpy())
 
 
@@ -310,11 +323,10 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
           apply_operator=None) -> dict:
     """Direct light, compressed relight and transfer for the points ``point_ids`` (pure; run and benchmarks).
 
-    Vertex indirect light: with ``gather_rays`` > 0 the first bounce is gathered per vertex (cosine
-    rays, direct light and albedo evaluated at each hit: sharp near corners and contact edges), and
-    bounces 2..k come from the patches by interpolation (smooth): the patches' indirect light minus
-    their own first bounce (a gather of the patches' rho E0 from the patch sample points). With 0
-    all of it is interpolated.
+    Vertex indirect light: with ``gather_rays`` > 0 a final gather over the patches' direct + k-bounce
+    indirect light (``final_gather``: the gather adds one reflection, k + 1 in all, as a probe or any
+    point looking at the patches sees), with direct light evaluated at near hits; with 0 the patches'
+    k-bounce indirect light interpolated (``transfer_to_vertices``: no rays, smooth, blurred in corners).
     ``apply_operator(E0) -> E_ind`` replaces the compressed relight (benchmarks: the dense operator).
     """
     patches, op = product.patches, product.operator
@@ -333,20 +345,20 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
     e0_vertex = compute_direct_irradiance(tracer, scene, positions, normals, light_samples=p.light_samples,
                                           sky_samples=p.sky_samples, seed=p.seed + 2, emissive=p.emissive_lights)
     progress(0.6)
-    smooth = e_ind_patch
-    first_vertex = np.zeros_like(e0_vertex)
     if p.gather_rays > 0:
-        first = patches.patch_albedo * e0_patch
-        first_patch = gather_irradiance(tracer, scene, patches, first, points, point_normals,
-                                        rays=max(1, p.gather_rays // p.patch_points), seed=p.seed + 3)
-        first_patch = first_patch.reshape(patches.count, p.patch_points, 3).mean(axis=1)
-        smooth = e_ind_patch - first_patch
-        first_vertex = gather_first_bounce(tracer, scene, positions, normals, rays=p.gather_rays, seed=p.seed + 4,
-                                           emissive=p.emissive_lights)
+        zero = np.zeros_like(e_ind_patch)
+        first_patch = final_gather(tracer, scene, patches, e0_patch, zero, zero, points, point_normals,
+                                   rays=max(1, p.gather_rays // p.patch_points), near=0.0, sky_samples=1,
+                                   seed=p.seed + 3).reshape(patches.count, p.patch_points, 3).mean(axis=1)
+        higher = np.maximum(e_ind_patch - first_patch, 0.0)
+        e_ind_vertex = final_gather(tracer, scene, patches, e0_patch, e_ind_patch, higher, positions, normals,
+                                    rays=p.gather_rays, near=p.near_hits * patches.voxel_size,
+                                    sky_samples=p.hit_sky_samples, seed=p.seed + 4, emissive=p.emissive_lights)
+    else:
+        e_ind_vertex = transfer_to_vertices(positions, normals, patches.patch_centroids, patches.patch_normals,
+                                            e_ind_patch, neighbors=p.neighbors, normal_cos=p.normal_cos,
+                                            smoothing=0.5 * patches.voxel_size)
     progress(0.9)
-    e_ind_vertex = first_vertex + transfer_to_vertices(
-        positions, normals, patches.patch_centroids, patches.patch_normals, smooth, neighbors=p.neighbors,
-        normal_cos=p.normal_cos, smoothing=0.5 * patches.voxel_size)
     return {"patch_direct": e0_patch.astype(np.float32), "patch_indirect": e_ind_patch,
             "vertex_direct": e0_vertex, "vertex_indirect": np.maximum(e_ind_vertex, 0.0).astype(np.float32)}
 
@@ -367,11 +379,15 @@ class Radiosity(Processor):
                                    "(picked by power)", low=1, high=65536)
         sky_samples: int = param(64, "cosine-weighted rays for dome lights", low=1, high=65536)
         patch_points: int = param(16, "stratified points per patch for the patch direct light", low=1, high=4096)
-        gather_rays: int = param(256, "final-gather rays per vertex for the first bounce; 0 = interpolate all",
+        gather_rays: int = param(512, "final-gather rays per vertex over the patches' light (adds one "
+                                 "reflection: k + 1 in all); 0 = interpolate the patches' k-bounce light",
                                  low=0, high=65536)
-        neighbors: int = param(8, "nearest patches blended per vertex", low=1, high=64)
-        normal_cos: float = param(0.5, "a patch contributes to a vertex when n_v . n_p exceeds this",
-                                  low=-1.0, high=1.0)
+        near_hits: float = param(0.5, "gather hits nearer than this many voxel edges evaluate direct light "
+                                 "at the hit, not the patch mean", low=0.0)
+        hit_sky_samples: int = param(4, "dome rays per near gather hit", low=1, high=65536)
+        neighbors: int = param(8, "nearest patches blended per vertex (gather_rays = 0)", low=1, high=64)
+        normal_cos: float = param(0.5, "a patch contributes to a vertex when n_v . n_p exceeds this "
+                                  "(gather_rays = 0)", low=-1.0, high=1.0)
         emissive_lights: str = param("auto", "emissive triangles as area lights: auto (only without UsdLux "
                                      "lights), on, off", choices=("auto", "on", "off"))
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)

@@ -20,6 +20,7 @@ from ..core.errors import StageError
 from ..core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Instances, Lights, Scene
 from .composition import check_composition
 from .materials import MaterialReader, read_rgb
+from .sky_dome import SKY_LAYER_KEY
 from .triangulate import triangulate_corners
 
 RENDERABLE_PURPOSES = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
@@ -334,10 +335,22 @@ def _assemble(stage, builder: _Builder, light_prims, instances: _InstanceTable, 
         prim_to_world=_prim_to_world(builder, origin),
         up_axis=str(UsdGeom.GetStageUpAxis(stage)),
         meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
+        site=stage_site(stage),
         time_code=time,
         source=stage.GetRootLayer().identifier,
         warnings=tuple(builder.warnings),
     )
+
+
+def stage_site(stage: Usd.Stage) -> dict:
+    """Latitude, longitude and time zone from the strongest ``usdbake sky`` layer of the stage's layer stack
+    that records them (plus that layer), or {}."""
+    for layer in stage.GetLayerStack(includeSessionLayers=False):
+        data = dict(layer.customLayerData).get(SKY_LAYER_KEY)
+        if isinstance(data, dict) and {"latitude", "longitude", "timezone"} <= set(data):
+            return {"latitude": float(data["latitude"]), "longitude": float(data["longitude"]),
+                    "timezone": float(data["timezone"]), "layer": layer.identifier}
+    return {}
 
 
 def _prim_to_world(builder: _Builder, origin: np.ndarray) -> np.ndarray:

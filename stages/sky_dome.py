@@ -100,6 +100,29 @@ def sky_lights(model: str, time: str, *, latitude: float, longitude: float, time
                      (to_world @ sun_enu) if sun_up else None, sun, float(diffuse[1]))
 
 
+def weather_hour(path: str, time: str) -> tuple[dict, dict, str]:
+    """(site, Perez irradiance, a note naming the row) of the weather file's hour holding ``time``: a sky
+    dome from a typical year. The reader is formats/weather.py, imported here when asked for
+    (tests/test_import_rules.py lists it)."""
+    from ..formats.weather import read_weather
+    from ..kernels.solar import parse_times
+
+    weather = read_weather(path)
+    try:
+        times = parse_times(time)
+    except ValueError as error:
+        raise UsageError(f"--time {time!r}: {error}") from None
+    if len(times) != 1:
+        raise UsageError(f"--time {time!r}: a sky dome is for one time, not {len(times)}")
+    row = weather.hour_at(times[0])
+    site = {"latitude": weather.latitude, "longitude": weather.longitude, "timezone": weather.timezone}
+    irradiance = {"direct_normal": float(weather.direct_normal[row]),
+                  "diffuse_horizontal": float(weather.diffuse_horizontal[row])}
+    note = (f"{path} line {weather.lines[row]} (DNI {irradiance['direct_normal']:g}, DHI "
+            f"{irradiance['diffuse_horizontal']:g} W/m^2); ")
+    return site, irradiance, note
+
+
 SKY_LAYER_KEY = "usdbakeSky"
 """customLayerData marking a sky layer (so it may be replaced by the next ``usdbake sky``; it is not a bake
 layer: a bake over it reads it, lights included)."""
@@ -123,18 +146,20 @@ def make_sky(source: str, output: str, model: str, time: str, **options) -> tupl
     check_sky_output(output, source)
     stage = Usd.Stage.Open(source)
     sky = sky_lights(model, time, up_axis=str(UsdGeom.GetStageUpAxis(stage)), **options)
-    return write_sky_layer(source, output, sky), sky
+    site = {key: float(options[key]) for key in ("latitude", "longitude", "timezone")}
+    return write_sky_layer(source, output, sky, site), sky
 
 
-def write_sky_layer(source: str, output: str, sky: SkyLights) -> list[str]:
-    """A layer at ``output`` over ``source`` holding the sky's DomeLight (texture beside it) and sun;
-    returns the files written. The input is never touched."""
+def write_sky_layer(source: str, output: str, sky: SkyLights, site: dict) -> list[str]:
+    """A layer at ``output`` over ``source`` holding the sky's DomeLight (texture beside it) and sun, its
+    customLayerData the ``site`` (latitude, longitude, timezone: the stage's place from now on, checked
+    against weather files); returns the files written. The input is never touched."""
     out = Path(output).resolve()
     texture = write_texture(Texture(f"{out.stem}_sky.exr", sky.texture), str(out.parent))
     layer = Sdf.Layer.CreateNew(str(out))
     if layer is None:
         raise UsageError(f"{output}: cannot create a layer there")
-    layer.customLayerData = {SKY_LAYER_KEY: True}
+    layer.customLayerData = {SKY_LAYER_KEY: site}
     layer.subLayerPaths.append(Path(os.path.relpath(Path(source).resolve(), out.parent)).as_posix())
     stage = Usd.Stage.Open(layer)
     source_stage = Usd.Stage.Open(source)

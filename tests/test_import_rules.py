@@ -35,9 +35,10 @@ MAY_IMPORT = {
 """Folder -> the other folders of the package it may import."""
 
 LAZY_EXCEPTIONS = {("core/pipeline.py", "usdbake.kernels.tracer"), ("stages/sky_dome.py", "usdbake.kernels.sky"),
-                   ("stages/sky_dome.py", "usdbake.kernels.solar")}
+                   ("stages/sky_dome.py", "usdbake.kernels.solar"), ("stages/sky_dome.py", "usdbake.formats.weather")}
 """The runner's factory of the shared BVH imports the tracer when a processor first asks for it; ``usdbake
-sky`` evaluates the sky models and the sun position (numpy) when it writes a sky as UsdLux lights."""
+sky`` evaluates the sky models and the sun position (numpy) when it writes a sky as UsdLux lights, and
+reads a weather file's hour when asked for one."""
 
 PXR_ALLOWED = ("schemas", "stages")
 """Folders that may import pxr."""

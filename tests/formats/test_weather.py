@@ -99,3 +99,32 @@ def test_tmy3_file_stays_untouched():
     before = os.path.getmtime(TMY3), TMY3.read_bytes()
     read_weather(TMY3)
     assert (os.path.getmtime(TMY3), TMY3.read_bytes()) == before
+
+
+def test_the_hour_holding_a_time_is_its_row_whatever_the_year():
+    weather = read_weather(TMY3)
+    noon = 12 + 24 * 171  # 21 June, the hour 12:00-13:00 (ending 13:00)
+    for when in ("2026-06-21T12:00", "2031-06-21T12:59", "2025-06-21T12:30"):
+        assert weather.hour_at(np.datetime64(when)) == noon
+    assert weather.hour_at(np.datetime64("2026-06-21T11:59")) == noon - 1
+    assert weather.lines[noon] == 2 + noon + 1  # two header lines, 1-based
+    with pytest.raises(UsageError, match="29 February is not in a typical year"):
+        weather.hour_at(np.datetime64("2028-02-29T12:00"))
+
+
+def test_a_weather_file_from_elsewhere_than_the_stage_is_refused():
+    from usdbake.formats.weather import check_site
+
+    weather = read_weather(TMY3)
+    here = {"latitude": 36.3, "longitude": -80.5, "timezone": -5.0, "layer": "sky.usda"}
+    check_site(weather, here)  # the same place, within a degree
+    check_site(weather, {})  # a stage that does not say
+    girona = {"latitude": 41.98, "longitude": 2.82, "timezone": 1.0, "layer": "sky.usda"}
+    with pytest.raises(UsageError) as error:
+        check_site(weather, girona)
+    assert str(error.value) == (
+        f"{TMY3}, line 1: the weather's site (latitude 36.1, longitude -79.95, UTC-5) disagrees with the stage's "
+        f"(latitude 41.98, longitude 2.82, UTC+1, written by usdbake sky in sky.usda); use a weather file for "
+        f"that place or remake the sky")
+    with pytest.raises(UsageError, match="disagrees"):
+        check_site(weather, {**here, "timezone": -6.0})

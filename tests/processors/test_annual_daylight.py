@@ -155,3 +155,16 @@ def test_a_broken_weather_file_is_one_line(tmp_path, capsys):
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
         f"usdbake: error: {broken}: 0 hourly rows after the 8-line header; a typical year has 8760 (or 8784 in a "
         f"leap year): missing or extra hours")
+
+
+def test_a_weather_file_from_elsewhere_than_the_stage_sky_is_refused(tmp_path, capsys):
+    sky = tmp_path / "sky.usda"
+    assert main(["sky", str(SAMPLES / "window_room.usda"), "-o", str(sky), "--latitude", "41.98", "--longitude",
+                 "2.82", "--timezone", "1"]) == 0
+    capsys.readouterr()
+    code = main(["plan", str(sky), "-p", "annual_daylight", "--set", f"annual_daylight.weather={TMY3}"])
+    assert code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"usdbake: error: {TMY3}, line 1: the weather's site (latitude 36.1, longitude -79.95, UTC-5) disagrees "
+        f"with the stage's (latitude 41.98, longitude 2.82, UTC+1, written by usdbake sky in {sky}); use a "
+        f"weather file for that place or remake the sky")
