@@ -14,6 +14,7 @@ from usdbake.formats.weather import read_weather
 from usdbake.kernels.sky import overcast_radiance, tregenza_patches
 from usdbake.kernels.tracer import Tracer
 from usdbake.processors.annual_daylight import compute_annual_daylight
+from usdbake.processors.daylight import Relighter, compute_daylight, sun_table
 from usdbake.processors.sky_visibility import compute_sky_visibility
 from usdbake.stages.extract import extract_scene
 
@@ -25,7 +26,10 @@ DESCRIPTION = (
     "(`sky_visibility`, Tregenza patches, 4 rays per face and patch, no refinement) is computed first and not "
     "timed. Seconds: wall time of compute_annual_daylight (sky matrix, sun rays, the hourly products and the "
     "metrics); peak_mb: growth of the process's peak resident memory during it. The issue's figure: <= 60 s on "
-    "2 cores for 100k faces.")
+    "2 cores for 100k faces. Interactive relight of the same room (`daylight.Relighter`): the sun table's "
+    "precompute (shadow rays on a 4 x 3.75 degree declination x hour-angle grid, 2 rays per face and node), its "
+    "memory, and one new time (Perez sky + sun from the table, no rays; median and max over 48 times of a year) "
+    "against one time of `compute_daylight` (4 sun rays per face). The issue's figure: <= 30 ms for 100k faces.")
 ROOM = (8.0, 6.0, 3.0)
 WINDOWS = ((0.25, 0.75), (0.3, 0.8))
 """Window openings as (u range, v range) shares of each wall."""
@@ -124,6 +128,34 @@ def radiance_comparison(weather) -> dict:
     }
 
 
+def relight_figures(tracer, scene, product, weather) -> dict:
+    """Sun table precompute and memory, then per-time relights of the room at the weather file's site."""
+    site = {"latitude": weather.latitude, "longitude": weather.longitude, "timezone": weather.timezone}
+    started = time.perf_counter()
+    table = sun_table(tracer, product, latitude=weather.latitude)
+    precompute = time.perf_counter() - started
+    relighter = Relighter(product, table, **site, albedo=scene.tri_albedo[product.face_source])
+    times = np.datetime64("2025-01-04T08:00") + np.arange(48) * np.timedelta64(7 * 24 * 60 + 37, "m")
+    sky = {"sky": "perez", "direct_normal": 700.0, "diffuse_horizontal": 120.0}
+    relighter.at(times[0], **sky)  # first touch of V's float32 copy
+    seconds = []
+    for when in times:
+        started = time.perf_counter()
+        relighter.at(when, **sky)
+        seconds.append(time.perf_counter() - started)
+    noon = np.array([np.datetime64("2025-06-21T12:00")])
+    compute_daylight(tracer, scene, product, noon, **site, **sky)  # compile
+    started = time.perf_counter()
+    compute_daylight(tracer, scene, product, noon, **site, **sky)
+    with_rays = time.perf_counter() - started
+    return {"relight_sun_table_seconds": round(precompute, 1), "relight_sun_table_nodes": int(len(table.hits)),
+            "relight_sun_table_mb": round(table.hits.nbytes / 2 ** 20, 1),
+            "relight_visibility_float32_mb": round(relighter.visibility.nbytes / 2 ** 20, 1),
+            "relight_ms_median": round(1000 * float(np.median(seconds)), 2),
+            "relight_ms_max": round(1000 * float(np.max(seconds)), 2),
+            "relight_with_sun_rays_ms": round(1000 * with_rays, 1)}
+
+
 def run(quick: bool = False) -> dict:
     weather = read_weather(tmy3())
     target = 10_000 if quick else 100_000
@@ -146,10 +178,14 @@ def run(quick: bool = False) -> dict:
         "floor_mean_daylight_factor": round(float(metrics.daylight_factor[floor].mean()), 3),
         "floor_mean_autonomy": round(float(metrics.autonomy[floor].mean()), 3),
     }
+    figures.update(relight_figures(tracer, scene, product, weather))
     if not quick:
         figures.update(radiance_comparison(weather))
     table = harness.markdown_table([figures], ["faces", "hours", "sun_bins", "annual_seconds", "annual_peak_mb",
                                                "sky_matrix_seconds", "sun_rays_seconds", "metrics_seconds"])
+    table += "\n\n" + harness.markdown_table([figures], [
+        "relight_sun_table_seconds", "relight_sun_table_nodes", "relight_sun_table_mb", "relight_visibility_float32_mb",
+        "relight_ms_median", "relight_ms_max", "relight_with_sun_rays_ms"])
     if "df_radiance_percent" in figures:
         table += "\n\n" + harness.markdown_table([figures], [
             "mean_illuminance_usdbake_lux", "mean_illuminance_radiance_lux", "mean_illuminance_relative_difference",

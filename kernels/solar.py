@@ -38,6 +38,8 @@ class SunPosition:
     """(N,) float64 degrees."""
     equation_of_time: np.ndarray
     """(N,) float64 minutes."""
+    hour_angle: np.ndarray
+    """(N,) float64 degrees west of the meridian (true solar time), in [-180, 180)."""
 
     @property
     def altitude(self) -> np.ndarray:
@@ -112,7 +114,18 @@ def sun_position(local_times, latitude: float, longitude: float, timezone: float
     minutes = (local - local.astype("datetime64[D]")).astype(np.float64) / 60e6
     true_solar = np.mod(minutes + eot + 4.0 * longitude - 60.0 * timezone, 1440.0)
     hour_angle = true_solar / 4.0 - 180.0
-    lat, dec, ha = rad(latitude), rad(declination), rad(hour_angle)
+    zenith, azimuth = horizontal_position(latitude, declination, hour_angle, pressure_mbar=pressure_mbar,
+                                          temperature_c=temperature_c, refract=refract)
+    return SunPosition(zenith, azimuth, declination, eot, hour_angle)
+
+
+def horizontal_position(latitude: float, declination, hour_angle, *, pressure_mbar: float = 1010.0,
+                        temperature_c: float = 10.0, refract: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(zenith, azimuth from north towards east) in degrees of the sun at ``declination`` and ``hour_angle``
+    (degrees, arrays of one shape): cos(zenith) = sin(lat) sin(dec) + cos(lat) cos(dec) cos(H), refracted
+    as ``sun_position``."""
+    rad = np.radians
+    lat, dec, ha = rad(latitude), rad(np.asarray(declination, np.float64)), rad(np.asarray(hour_angle, np.float64))
     cos_zenith = np.clip(np.sin(lat) * np.sin(dec) + np.cos(lat) * np.cos(dec) * np.cos(ha), -1.0, 1.0)
     zenith = np.degrees(np.arccos(cos_zenith))
     # Azimuth from south towards west is atan2(sin H, cos H sin(lat) - tan(dec) cos(lat)); +180 -> from north.
@@ -120,7 +133,7 @@ def sun_position(local_times, latitude: float, longitude: float, timezone: float
                      + 180.0, 360.0)
     if refract:
         zenith = zenith - refraction(90.0 - zenith, pressure_mbar, temperature_c)
-    return SunPosition(zenith, azimuth, declination, eot)
+    return zenith, azimuth
 
 
 # ---------------------------------------------------------------------------

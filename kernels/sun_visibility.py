@@ -1,6 +1,7 @@
 """Sun visibility: the share of the solar disk each face sees, by shadow rays (Warp).
 
-Shared by ``daylight`` (one sun position per time) and ``annual_daylight`` (one per sun bin).
+Shared by ``daylight`` (one sun position per time, or a table of sun bins for interactive relighting)
+and ``annual_daylight`` (one per sun bin).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import numpy as np
 import warp as wp
 
 from .sampling import tangent_frame, triangle_point
-from .sky import SUN_ANGULAR_DIAMETER
+from .sky import SUN_ANGULAR_DIAMETER, reinhart_patches
 from .tracer import FAR, triangle_origin
 
 wp.set_module_options({"enable_backward": False})
@@ -83,3 +84,33 @@ def compute_sun_visibility(tracer, corners: np.ndarray, normals: np.ndarray, sun
     tracer.rays_cast += len(facing) * samples
     result[facing] = visible.numpy()
     return result
+
+
+def sun_bins(suns: np.ndarray, up: np.ndarray, subdivision: int) -> tuple[np.ndarray, np.ndarray]:
+    """(bin of each sun position, -1 where ``up`` is false; (B, 3) unit mean direction of each bin).
+
+    Positions are snapped to the nearest patch of Reinhart MF:``subdivision`` (in the frame of ``suns``).
+    """
+    bins = np.full(len(suns), -1, np.int64)
+    if not up.any():
+        return bins, np.zeros((0, 3))
+    layout = reinhart_patches(subdivision).patch_directions
+    nearest = np.argmax(suns[up] @ layout.T, axis=1)
+    used, bins[up] = np.unique(nearest, return_inverse=True)
+    directions = np.zeros((len(used), 3))
+    np.add.at(directions, bins[up], suns[up])
+    return bins, directions / np.linalg.norm(directions, axis=1, keepdims=True)
+
+
+def sun_bin_hits(tracer, corners: np.ndarray, normals: np.ndarray, directions: np.ndarray, *, samples: int,
+                 seed: int = 0, progress=lambda f: None) -> np.ndarray:
+    """(B, F) uint8 shadow rays of ``samples`` (at most 255) that reach the sun from each face, per sun
+    direction (world, (B, 3)): S_i of every bin, as exact counts in a byte each."""
+    if not 1 <= samples <= 255:
+        raise ValueError(f"sun samples {samples}: a count per face is kept in a byte (1..255)")
+    hits = np.zeros((len(directions), len(corners)), np.uint8)
+    for b, direction in enumerate(directions):
+        share = compute_sun_visibility(tracer, corners, normals, direction, samples=samples, seed=seed + b)
+        hits[b] = np.rint(share * samples).astype(np.uint8)
+        progress((b + 1) / max(1, len(directions)))
+    return hits

@@ -57,10 +57,10 @@ from ..core import Attribute, Context, File, ParamError, Params, Prim, Primvar, 
 from ..core.products import AnnualDaylightProduct, SkyVisibilityProduct
 from ..core.scene import Scene
 from ..formats.weather import Weather, check_site, read_weather
-from ..kernels.sky import LUMINOUS_EFFICACY, enu_to_world, overcast_radiance, patch_samples, reinhart_patches
+from ..kernels.sky import LUMINOUS_EFFICACY, enu_to_world, overcast_radiance, patch_samples
 from ..kernels.sky_matrix import perez_sky_matrix
 from ..kernels.solar import day_of_year, sun_position
-from ..kernels.sun_visibility import compute_sun_visibility
+from ..kernels.sun_visibility import sun_bin_hits, sun_bins
 
 REPORT_PRIM = "/usdbake/AnnualDaylight"
 REPORT_FILE = "annual_daylight.json"
@@ -80,22 +80,6 @@ class AnnualMetrics:
     """(F, 3) shares of occupied hours below, within and above the UDI band."""
     sun_hours: np.ndarray
     mean_illuminance: np.ndarray
-
-
-def sun_bins(suns: np.ndarray, up: np.ndarray, subdivision: int) -> tuple[np.ndarray, np.ndarray]:
-    """(bin of each hour, -1 when the sun is down; (B, 3) unit mean sun direction of each bin).
-
-    Hours are snapped to the nearest patch of Reinhart MF:``subdivision`` (ENU layout frame).
-    """
-    bins = np.full(len(suns), -1, np.int64)
-    if not up.any():
-        return bins, np.zeros((0, 3))
-    layout = reinhart_patches(subdivision).patch_directions
-    nearest = np.argmax(suns[up] @ layout.T, axis=1)
-    used, bins[up] = np.unique(nearest, return_inverse=True)
-    directions = np.zeros((len(used), 3))
-    np.add.at(directions, bins[up], suns[up])
-    return bins, directions / np.linalg.norm(directions, axis=1, keepdims=True)
 
 
 def overcast_factors(product: SkyVisibilityProduct) -> np.ndarray:
@@ -127,12 +111,9 @@ def compute_annual_daylight(tracer, scene: Scene, product: SkyVisibilityProduct,
     bins, bin_directions = sun_bins(suns, up, sun_subdivision)
     corners = product.face_points[product.face_vertices].astype(np.float32)
     normals = product.face_normals
-    seen = np.zeros((product.num_faces, len(bin_directions)), np.float16)
     rays_before = tracer.rays_cast
-    for b, direction in enumerate(bin_directions):
-        seen[:, b] = compute_sun_visibility(tracer, corners, normals, product.to_world @ direction,
-                                            samples=sun_samples, seed=seed + b)
-        progress(0.1 + 0.6 * (b + 1) / max(1, len(bin_directions)))
+    hits = sun_bin_hits(tracer, corners, normals, bin_directions @ product.to_world.T, samples=sun_samples,
+                        seed=seed, progress=lambda f: progress(0.1 + 0.6 * f))
     sun_seconds = _time.perf_counter() - started - sky_seconds
 
     hour = (weather.times - weather.times.astype("datetime64[D]")).astype(np.float64) / 60.0
@@ -153,7 +134,8 @@ def compute_annual_daylight(tracer, scene: Scene, product: SkyVisibilityProduct,
         cos_sun = np.maximum(normals[faces] @ sun_world[hours].T, 0.0)
         lit_bins = bins[hours]
         if len(bin_directions):
-            sun_share = np.where(lit_bins >= 0, seen[faces][:, np.maximum(lit_bins, 0)].astype(np.float32), 0.0)
+            seen = hits[:, faces][np.maximum(lit_bins, 0)].T.astype(np.float32) / np.float32(sun_samples)
+            sun_share = np.where(lit_bins >= 0, seen, 0.0)
             sunlight = cos_sun * sun_share * direct[hours][None, :]
             illuminance += sunlight
         else:
@@ -228,7 +210,7 @@ class AnnualDaylight(Processor):
         sensor_prims: str = param("", "only faces of these prims count as sensors (comma-separated paths or "
                                   "names, e.g. Floor); '' for every receiver")
         sun: bool = param(True, "add the direct sun")
-        sun_samples: int = param(2, "shadow rays per face and sun bin", low=1, high=4096)
+        sun_samples: int = param(2, "shadow rays per face and sun bin", low=1, high=255)
         sun_bins: int = param(4, "sun positions snapped to Reinhart MF:n patches (4: 2305, ~3 degrees)",
                               low=1, high=16)
         seed: int = param(0, "random seed of the sun rays", low=0)

@@ -61,8 +61,8 @@ from ..core import (
 from ..core.products import DaylightProduct, SkyVisibilityProduct
 from ..core.scene import Scene
 from ..kernels.sky import enu_to_world, patch_radiance, sun_normal_irradiance
-from ..kernels.solar import day_of_year, parse_times, sun_position
-from ..kernels.sun_visibility import compute_sun_visibility
+from ..kernels.solar import SunPosition, day_of_year, horizontal_position, parse_times, sun_position
+from ..kernels.sun_visibility import compute_sun_visibility, sun_bin_hits
 
 wp.set_module_options({"enable_backward": False})
 
@@ -118,6 +118,17 @@ def sky_weights(product, model: str, sun_layout: np.ndarray, *, turbidity: float
     return (values * product.patches.patch_solid_angles[:, None]).astype(np.float32)
 
 
+def sun_normal(sky: str, sun_site: np.ndarray, *, turbidity: float, direct_normal: float,
+               day_of_year: int) -> np.ndarray | None:
+    """(3,) direct normal irradiance of the sun (W/m^2) for the sky model, or None when the model has no
+    sun (overcast, uniform) or it is below the horizon (``sun_site``: unit ENU direction)."""
+    if sky not in ("preetham", "perez") or sun_site[2] <= 0:
+        return None
+    if sky == "preetham":
+        return sun_normal_irradiance(sun_site, turbidity, day_of_year)
+    return np.full(3, float(direct_normal))
+
+
 def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitude: float, longitude: float,
                      timezone: float, north: float = 0.0, sky: str = "preetham", turbidity: float = 3.0,
                      uniform_radiance: float = 1000.0, direct_normal: float = 600.0,
@@ -145,10 +156,10 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
         weights = sky_weights(product, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
                               direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day)
         direct = None
-        if sun and sky in ("preetham", "perez") and sun_site[2] > 0:
+        e_normal = sun_normal(sky, sun_site, turbidity=turbidity, direct_normal=direct_normal, day_of_year=day) \
+            if sun else None
+        if e_normal is not None:
             sun_world = product.to_world @ sun_layout
-            e_normal = sun_normal_irradiance(sun_site, turbidity, day) if sky == "preetham" else \
-                np.full(3, direct_normal)
             cos_i = np.maximum(product.face_normals @ sun_world.astype(np.float32), 0.0)
             seen = compute_sun_visibility(tracer, corners, product.face_normals, sun_world, samples=sun_samples,
                                           seed=seed + k)
@@ -162,6 +173,104 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
              "relight_ms": 1000.0 * float(np.median(relight_seconds)) if relight_seconds else 0.0,
              "sun_rays": float(sun_rays)}
     return DaylightProduct(times, out, position.zenith, position.azimuth), stats
+
+
+MAX_DECLINATION = 23.45
+"""Degrees: the sun's declination stays within the obliquity of the ecliptic."""
+
+
+@dataclass(frozen=True)
+class SunTable:
+    """The sun's visibility S_i of every face on a grid of the sun's declination and hour angle at one
+    site -- the sun's path over any year -- bilinear in between: relighting any time there is a blend of
+    four table rows instead of shadow rays. Written here because a face's shadows move with the sun
+    along this grid, not along sky patches, so neighbouring nodes blend into the shadow in between."""
+
+    declinations: np.ndarray
+    """(K,) degrees, ascending, -MAX_DECLINATION..MAX_DECLINATION."""
+    hour_angles: np.ndarray
+    """(M,) degrees, -180 + m * 360 / M (periodic)."""
+    node_row: np.ndarray
+    """(K, M) int64 row of ``hits`` per node, -1 where the sun is below the horizon."""
+    hits: np.ndarray
+    """(R, F) uint8 shadow rays of ``samples`` that reach the sun, per node above the horizon and face."""
+    samples: int
+
+    def visibility(self, declination: float, hour_angle: float) -> np.ndarray:
+        """(F,) float32 S_i at the sun's declination and hour angle (degrees), bilinear over the nodes
+        (a node below the horizon counts 0)."""
+        k = float(np.clip(np.interp(declination, self.declinations, np.arange(len(self.declinations))), 0,
+                          len(self.declinations) - 1 - 1e-9))
+        step = 360.0 / len(self.hour_angles)
+        m = ((hour_angle + 180.0) % 360.0) / step
+        k0, m0 = int(k), int(m) % len(self.hour_angles)
+        out = np.zeros(self.hits.shape[1], np.float32)
+        for dk, wk in ((0, 1.0 - (k - k0)), (1, k - k0)):
+            for dm, wm in ((0, 1.0 - (m - int(m))), (1, m - int(m))):
+                row = self.node_row[min(k0 + dk, len(self.declinations) - 1), (m0 + dm) % len(self.hour_angles)]
+                if row >= 0 and wk * wm > 0:
+                    out += np.float32(wk * wm / self.samples) * self.hits[row]
+        return out
+
+
+def sun_table(tracer, product, *, latitude: float, north: float = 0.0,
+              declination_step: float = 4.0, hour_step: float = 3.75, samples: int = 2, seed: int = 0,
+              progress=lambda f: None) -> SunTable:
+    """Shadow rays toward the sun at every node of a declination x hour-angle grid (``declination_step``
+    and ``hour_step`` degrees at most; 3.75 degrees of hour angle = 15 minutes) that is above the horizon at
+    ``latitude``, ``samples`` per face: the precompute of ``Relighter``. The sun's path depends on the
+    latitude alone; the longitude and time zone only turn clock time into hour angle (``Relighter.at``)."""
+    count = int(np.ceil(2 * MAX_DECLINATION / declination_step)) + 1
+    declinations = np.linspace(-MAX_DECLINATION, MAX_DECLINATION, count)
+    hours = int(np.ceil(360.0 / hour_step))
+    hour_angles = -180.0 + np.arange(hours) * (360.0 / hours)
+    dec, ha = np.meshgrid(declinations, hour_angles, indexing="ij")
+    zenith, azimuth = horizontal_position(latitude, dec.ravel(), ha.ravel())
+    suns = SunPosition(zenith, azimuth, dec.ravel(), np.zeros_like(zenith), ha.ravel()).enu()
+    suns = suns @ enu_to_world("Z", north).T  # site ENU -> layout ENU
+    up = suns[:, 2] > 0.0
+    node_row = np.full(len(suns), -1, np.int64)
+    node_row[up] = np.arange(int(up.sum()))
+    corners = product.face_points[product.face_vertices].astype(np.float32)
+    hits = sun_bin_hits(tracer, corners, product.face_normals, suns[up] @ product.to_world.T, samples=samples,
+                        seed=seed, progress=progress)
+    return SunTable(declinations, hour_angles, node_row.reshape(dec.shape), hits, samples)
+
+
+class Relighter:
+    """Interactive relighting (Bosch, Besuievsky & Martin, Sec. 5, Eq. 1) of the refined faces for any time at
+    one site, no rays: the sky by one BLAS product over V (patch-major float32), the sun from a ``SunTable``.
+
+    ``at(time)`` returns (F, 3) float32 radiance (W/(m^2 sr), with ``albedo``) or irradiance (W/m^2)."""
+
+    def __init__(self, product, table: SunTable, *, latitude: float, longitude: float, timezone: float,
+                 north: float = 0.0, albedo: np.ndarray | None = None):
+        """``table`` from ``sun_table`` at the same latitude and north."""
+        self.product, self.table, self.albedo = product, table, albedo
+        self.site = (latitude, longitude, timezone)
+        self.turn = enu_to_world("Z", north)
+        self.visibility = product.visibility_patch_major()
+
+    def at(self, time: np.datetime64, *, sky: str = "preetham", turbidity: float = 3.0,
+           uniform_radiance: float = 1000.0, direct_normal: float = 600.0, diffuse_horizontal: float = 150.0,
+           sun: bool = True) -> np.ndarray:
+        """Eq. 1 at local standard ``time`` with the sky model's parameters (as ``compute_daylight``)."""
+        times = np.atleast_1d(np.datetime64(time))
+        position = sun_position(times, *self.site)
+        sun_site = position.enu()[0]
+        sun_layout = self.turn @ sun_site
+        day = int(day_of_year(times)[0])
+        weights = sky_weights(self.product, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
+                              direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day)
+        direct = None
+        e_normal = sun_normal(sky, sun_site, turbidity=turbidity, direct_normal=direct_normal, day_of_year=day) \
+            if sun else None
+        if e_normal is not None:
+            sun_world = (self.product.to_world @ sun_layout).astype(np.float32)
+            seen = self.table.visibility(float(position.declination[0]), float(position.hour_angle[0]))
+            cos_i = np.maximum(self.product.face_normals @ sun_world, 0.0) * seen
+            direct = cos_i[:, None] * e_normal.astype(np.float32)[None, :]
+        return relight(self.visibility, weights, albedo=self.albedo, sun=direct, patch_major=True)
 
 
 def tone_map(radiance: np.ndarray, exposure: float = 0.0) -> tuple[np.ndarray, float]:

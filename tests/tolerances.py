@@ -346,6 +346,13 @@ DISTANT_CONE = 1e-3
 """Relative error of 1024 stratified samples of a distant light's 10 deg cone: the cosine varies by
 0.4 % across it."""
 
+SUN_TABLE_BLEND = 0.03
+"""Relative difference of the sunlight on a plane beside a 0.5 m wall, the sun's visibility blended
+bilinearly from a 4 x 3.75 degree grid of declination and hour angle, against 256 shadow rays per face
+toward the exact sun. Measured over 200 random daytime hours of a year: above 15 degrees of altitude
+median 0.17 %, 90th percentile 0.7 %, max 2.2 % (the shadow's length is convex in the altitude, and
+blending across the moment its edge reaches the plane's edge); below 15 degrees up to 10 %."""
+
 RADIOSITY_PATH_TRACED = 0.15
 """Relative RMS of radiosity's vertex indirect light (300 patches, 256 form-factor rays) against a
 2048-path tracer; the benchmark reports finer settings."""

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_STORAGE, FLOAT64_AMPLIFIED, LUMINANCE_WEIGHTS, MC_SIGMAS,
-                        PEREZ_PATCH_AVERAGING, SKY_PATCH_INTEGRATION, SUN_PENUMBRA_SHARE)
+                        PEREZ_PATCH_AVERAGING, SKY_PATCH_INTEGRATION, SUN_TABLE_BLEND, SUN_PENUMBRA_SHARE)
 from usdbake.core import ParamError
 from usdbake.kernels.sun_visibility import compute_sun_visibility
 from usdbake.processors.daylight import (
@@ -232,3 +232,40 @@ def test_perez_sky_states_and_shapes():
     assert clear(sun * 0.999 + np.array([0, 0, 0.001])) > 3 * clear(away)
     overcast = lambda v: perez_radiance(np.asarray(v, float), sun, 0.0, 150.0)[..., 0]  # noqa: E731
     assert overcast([0, 0, 1.0]) > 1.3 * overcast([1.0, 0.0, 0.05])
+
+
+@pytest.fixture(scope="module")
+def walled_plane():
+    """The plane split into ~0.01 m^2 faces, a 0.5 m wall along x = 0.5 casting a shadow on it."""
+    wall = (np.array([[0.5, -3, 0], [0.5, 3, 0], [0.5, 3, 0.5], [0.5, -3, 0.5]], np.float32),
+            np.array([[0, 1, 2], [0, 2, 3]]))
+    scene = plane_scene([wall])
+    tracer = Tracer.from_scene(scene)
+    product, _ = compute_sky_visibility(tracer, scene, patches=uniform_patches(128), samples=4, adaptive=False,
+                                        max_face_area=0.01, prims=np.array([0]))
+    return scene, tracer, product
+
+
+def test_relighter_sky_is_compute_daylight_and_its_sun_table_the_rays(walled_plane):
+    from usdbake.processors.daylight import Relighter, compute_daylight, sun_table
+
+    scene, tracer, product = walled_plane
+    site = {"latitude": 41.98, "longitude": 2.82, "timezone": 1.0}
+    table = sun_table(tracer, product, latitude=site["latitude"], samples=64)
+    albedo = scene.tri_albedo[product.face_source]
+    relighter = Relighter(product, table, **site, albedo=albedo)
+    areas = product.face_areas.astype(np.float64)
+    for when in ("2026-03-02T09:20", "2026-06-21T08:35", "2031-11-05T10:10"):  # morning: the shadow is east
+        time = np.datetime64(when)
+        for sky in ("preetham", "perez", "overcast"):
+            rays, _ = compute_daylight(tracer, scene, product, np.array([time]), **site, sky=sky, sun=False)
+            np.testing.assert_allclose(relighter.at(time, sky=sky, sun=False), rays.face_radiance[0],
+                                       rtol=FLOAT32_ACCUMULATED, atol=FLOAT32_STORAGE)
+        with_sun, _ = compute_daylight(tracer, scene, product, np.array([time]), **site, sun_samples=64)
+        sky_only, _ = compute_daylight(tracer, scene, product, np.array([time]), **site, sun=False)
+        sun_rays = (with_sun.face_radiance[0] - sky_only.face_radiance[0])[:, 1]
+        sun_table_term = (relighter.at(time) - relighter.at(time, sun=False))[:, 1]
+        shaded = (sun_rays < 0.5 * sun_rays.max()).mean()
+        assert 0.02 < shaded < 0.9, (when, shaded)  # the wall's shadow falls on the plane
+        total = float(areas @ sun_rays)
+        assert abs(float(areas @ sun_table_term) - total) <= SUN_TABLE_BLEND * total, when
