@@ -10,6 +10,7 @@ import numpy as np
 from . import harness
 from .references import point_irradiance
 from usdbake.kernels.lights import LUMINANCE
+from usdbake.kernels.direction24 import AXES
 from usdbake.processors.irradiance_grid import dequantize_vectors
 
 NAME = "irradiance_grid"
@@ -28,6 +29,39 @@ DEFAULT_RAYS = 256
 def _relative_rms(estimate: np.ndarray, reference: np.ndarray) -> float:
     e, r = estimate @ LUMINANCE, reference @ LUMINANCE
     return float(np.sqrt(np.mean((e - r) ** 2)) / max(float(np.mean(r)), 1e-30))
+
+
+SRGB_TO_XYZ = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])
+"""Linear sRGB (D65) to CIE XYZ."""
+D65_WHITE = SRGB_TO_XYZ.sum(axis=1)
+
+
+def _lab(rgb: np.ndarray) -> np.ndarray:
+    """CIELAB (D65) of linear sRGB colours."""
+    t = (rgb @ SRGB_TO_XYZ.T) / D65_WHITE
+    f = np.where(t > (6 / 29) ** 3, np.cbrt(t), t / (3 * (6 / 29) ** 2) + 4 / 29)
+    return np.stack([116 * f[:, 1] - 16, 500 * (f[:, 0] - f[:, 1]), 200 * (f[:, 1] - f[:, 2])], axis=1)
+
+
+def _shared_direction(vectors: np.ndarray) -> np.ndarray:
+    """The paper's representation in float: per hemisphere one direction d (of I^R + I^G + I^B) and the
+    colour c = I . delta / (d . delta), vectors c d -- what the 42 bytes quantize."""
+    v = np.asarray(vectors, np.float64)
+    axes = AXES[None, :, :].astype(np.float64)
+    total = v.sum(axis=2)
+    d = total / np.maximum(np.linalg.norm(total, axis=2, keepdims=True), 1e-300)
+    d = np.where(np.linalg.norm(total, axis=2, keepdims=True) > 0, d, axes)
+    along = np.einsum("vhci,hi->vhc", v, AXES.astype(np.float64))
+    c = np.maximum(along, 0.0) / np.maximum(np.einsum("vhi,hi->vh", d, AXES.astype(np.float64)), 1e-300)[..., None]
+    return (c[..., None] * d[:, :, None, :]).astype(np.float32)
+
+
+def _mean_delta_e(estimate: np.ndarray, reference: np.ndarray) -> float:
+    """Mean CIE76 Delta E between two sets of irradiance colours, both scaled so the reference's brightest
+    luminance is white (L* 100): Delta E 0.1 is 0.1 % of the lightness range, the paper's measure."""
+    scale = 1.0 / max(float((reference @ SRGB_TO_XYZ[1]).max()), 1e-30)
+    lab_e, lab_r = _lab(np.maximum(estimate, 0) * scale), _lab(np.maximum(reference, 0) * scale)
+    return float(np.linalg.norm(lab_e - lab_r, axis=1).mean())
 
 
 def run(quick: bool = False) -> dict:
@@ -100,14 +134,21 @@ def run(quick: bool = False) -> dict:
     figures["error_total_at_mesh_vertices_default"] = round(_relative_rms(
         ig.reconstruct_irradiance(layout, decoded, scene.points, vertex_n), references["total"]["vertices"]), 4)
 
-    # Quantization: memory and the error it adds (float vectors vs 8-bit direction + RGB9E5).
+    # Quantization: memory and the error it adds (float vectors vs 8:8:8 direction + RGB9E5).
     float_estimate = ig.reconstruct_irradiance(layout, default.vectors, points, normals)
     quant_estimate = ig.reconstruct_irradiance(layout, decoded, points, normals)
-    figures["quantized_bytes_per_vertex"] = 6 * (1 + 4)
+    quantized_bytes = default.directions[0].nbytes + default.colors[0].nbytes
+    figures["quantized_bytes_per_vertex"] = quantized_bytes
     figures["float_bytes_per_vertex"] = 6 * 9 * 4
-    figures["quantized_grid_kib_default"] = round(layout.count * 30 / 1024, 1)
+    figures["quantized_grid_kib_default"] = round(layout.count * quantized_bytes / 1024, 1)
     figures["float_grid_kib_default"] = round(layout.count * 216 / 1024, 1)
     figures["quantization_error_vs_float"] = round(_relative_rms(quant_estimate, float_estimate), 5)
+    at_vertices = {name: ig.reconstruct_irradiance(layout, vectors, scene.points, vertex_n) for name, vectors in
+                   (("quantized", decoded), ("shared", _shared_direction(default.vectors)), ("full", default.vectors))}
+    figures["quantization_mean_delta_e_at_mesh_vertices"] = round(_mean_delta_e(at_vertices["quantized"],
+                                                                                at_vertices["shared"]), 5)
+    figures["shared_direction_mean_delta_e_at_mesh_vertices"] = round(_mean_delta_e(at_vertices["shared"],
+                                                                                    at_vertices["full"]), 5)
     figures["error_total_default_float_grid"] = round(_relative_rms(float_estimate, ref), 4)
 
     # Reconstruction variants at the default grid.

@@ -51,15 +51,15 @@ and push interpolates linearly.
 ================ ========= =============================================
 field            type      meaning
 ================ ========= =============================================
-magic            8 bytes   ``b"USDBIVG1"``
+magic            8 bytes   ``b"USDBIVG2"``
 vectors          uint32    vectors per vertex V (6)
 resolution       3 int32   nx, ny, nz
 grid_origin      3 float32 world position of vertex (0, 0, 0)
 cell_size        3 float32 cell size along x, y, z
 records          uint32    number of vertex records that follow
-records          ...       ``records`` x (uint32 vertex index, V uint8
-                           directions, V uint32 RGB9E5 colours), in
-                           progressive order
+records          ...       ``records`` x (uint32 vertex index, V x 3 uint8
+                           directions (8:8:8), V uint32 RGB9E5 colours),
+                           in progressive order
 ================ ========= =============================================
 
 A prefix of the file (any whole number of records) is a valid partial
@@ -74,7 +74,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-STREAM_MAGIC = b"USDBIVG1"
+STREAM_MAGIC = b"USDBIVG2"
 HEADER = struct.Struct("<8sI3i3f3fI")
 """magic, vectors per vertex, resolution, grid origin, cell size, record count."""
 
@@ -328,7 +328,7 @@ class Stream:
     vertex_index: np.ndarray
     """(R,) int64 received vertices, in stream order."""
     directions: np.ndarray
-    """(R, V) uint8."""
+    """(R, V, 3) uint8 8:8:8 direction codes."""
     colors: np.ndarray
     """(R, V) uint32 RGB9E5."""
     total_records: int
@@ -336,16 +336,16 @@ class Stream:
 
 
 def _record_dtype(vectors: int) -> np.dtype:
-    return np.dtype([("index", "<u4"), ("directions", "u1", (vectors,)), ("colors", "<u4", (vectors,))])
+    return np.dtype([("index", "<u4"), ("directions", "u1", (vectors, 3)), ("colors", "<u4", (vectors,))])
 
 
 def encode_stream(resolution, grid_origin, cell_size, order: np.ndarray, directions: np.ndarray,
                   colors: np.ndarray) -> bytes:
     """Bytes of a stream file holding the vertices ``order`` (in that order).
 
-    directions : (N, V) uint8 and colors : (N, V) uint32 for every vertex of the grid (storage order).
+    directions : (N, V, 3) uint8 and colors : (N, V) uint32 for every vertex of the grid (storage order).
     """
-    directions = np.asarray(directions, np.uint8)
+    directions = np.asarray(directions, np.uint8).reshape(len(colors), -1, 3)
     colors = np.asarray(colors, np.uint32)
     order = np.asarray(order, np.int64)
     vectors = directions.shape[1]

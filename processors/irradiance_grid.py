@@ -44,13 +44,14 @@ valid ones.
 **Quantization** (paper section 3.3). For hemisphere delta with RGB vectors
 ``I^R, I^G, I^B``::
 
-    d = (I^R + I^G + I^B) / |I^R + I^G + I^B|      -> 8 bits (kernels/octahedral.py)
+    d = (I^R + I^G + I^B) / |I^R + I^G + I^B|      -> 8:8:8 bits (kernels/direction24.py)
     c = [I^R . delta, I^G . delta, I^B . delta] / (d' . delta)   -> RGB9E5 (kernels/rgb9e5.py)
 
 with ``d'`` the *decoded* direction, so ``M delta = c (d' . delta)`` holds
 exactly for the stored direction (the paper's guarantee, kept through
-quantization). The paper quantizes d on 24 bits; the schema has 8: a
-hemi-octahedral 4 + 4-bit code in delta's frame (at most 8.8 degrees off).
+quantization). d takes 24 bits as in the paper, one signed byte a component
+(at most 0.55 degrees off, axis directions exact): 6 x (3 + 4) = 42 bytes a
+vertex.
 
 **Reconstruction** (paper section 3.2) at a point p with unit normal n:
 trilinear interpolation of the decoded vectors ``I_delta = c d'`` of the 8
@@ -81,12 +82,12 @@ property               type       value
 gridOrigin             point3f    world position of vertex (0, 0, 0)
 cellSize               float3     cell size along x, y, z (stage units)
 resolution             int3       vertices along x, y, z
-directions             uchar[]    6 per vertex (+x, -x, +y, -y, +z, -z), hemi-octahedral code
+directions             uchar[]    6 x 3 per vertex (+x, -x, +y, -y, +z, -z; x, y, z as q + 128)
 colorsRGB9E5           uint[]     6 per vertex, the colour c above
 vectorsPerVertex       int        6
 streamFile             asset      ``usdbake_irradiance_grid_<hash>.bin`` (streaming.py format)
 bake:vertexValid       uchar[]    1 = computed, 0 = inside geometry (filled by push-pull)
-bake:directionEncoding token      ``hemiOctahedral8`` (uniform)
+bake:directionEncoding token      ``snorm888`` (uniform)
 bake:includeDirect     bool       the include_direct parameter
 bake:rays              int        rays per vertex
 ====================== ========== ===============================================================
@@ -127,7 +128,7 @@ from ..kernels.lights import (
     sky_radiance,
     visible_light_sample,
 )
-from ..kernels.octahedral import AXES, decode_hemisphere, encode_hemisphere
+from ..kernels.direction24 import AXES, decode_directions, encode_directions
 from ..kernels.rgb9e5 import decode_rgb9e5, encode_rgb9e5
 from ..kernels.sampling import strata_for, stratified_pair
 from ..kernels.sh import uniform_sphere
@@ -313,31 +314,28 @@ def compute_irradiance_vectors(tracer, scene: Scene, positions: np.ndarray, *, r
 
 
 def quantize_vectors(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Compress (N, 6, 3, 3) vectors to (directions (N, 6) uint8, colors (N, 6) uint32) (paper 3.3)."""
+    """Compress (N, 6, 3, 3) vectors to (directions (N, 6, 3) uint8, colors (N, 6) uint32) (paper 3.3):
+    42 bytes a vertex."""
     vectors = np.nan_to_num(np.asarray(vectors, np.float64).reshape(-1, 6, 3, 3), nan=0.0, posinf=0.0, neginf=0.0)
     n = len(vectors)
     hemisphere = np.broadcast_to(np.arange(6), (n, 6)).reshape(-1)
     total = vectors.sum(axis=2).reshape(-1, 3)  # I^R + I^G + I^B
-    codes = encode_hemisphere(total, hemisphere)
-    decoded = decode_hemisphere(codes, hemisphere).astype(np.float64)
+    codes = encode_directions(total, hemisphere)
+    decoded = decode_directions(codes).astype(np.float64)
     axes = AXES[hemisphere].astype(np.float64)
     along = np.einsum("nci,ni->nc", vectors.reshape(-1, 3, 3), axes)  # I^c . delta
-    cosine = np.einsum("ni,ni->n", decoded, axes)  # >= octahedral.MIN_AXIS_COSINE
+    cosine = np.einsum("ni,ni->n", decoded, axes)  # >= direction24.MIN_AXIS_COSINE
     colors = encode_rgb9e5(np.maximum(along, 0.0) / cosine[:, None])
-    return codes.reshape(n, 6), colors.reshape(n, 6)
+    return codes.reshape(n, 6, 3), colors.reshape(n, 6)
 
 
 def dequantize_vectors(directions: np.ndarray, colors: np.ndarray) -> np.ndarray:
-    """(N, 6) uint8 + (N, 6) uint32 -> (N, 6, 3, 3) float32 vectors c d' (rows = RGB)."""
-    directions = np.asarray(directions, np.uint8).reshape(-1, 6)
+    """(N, 6, 3) uint8 + (N, 6) uint32 -> (N, 6, 3, 3) float32 vectors c d' (rows = RGB)."""
+    directions = np.asarray(directions, np.uint8).reshape(-1, 6, 3)
     n = len(directions)
-    hemisphere = np.broadcast_to(np.arange(6), (n, 6)).reshape(-1)
-    d = decode_hemisphere(directions.reshape(-1), hemisphere)
+    d = decode_directions(directions.reshape(-1, 3))
     c = decode_rgb9e5(np.asarray(colors, np.uint32).reshape(-1))
     return (c[:, :, None] * d[:, None, :]).reshape(n, 6, 3, 3).astype(np.float32)
-
-
-
 
 
 def fill_invalid(vectors: np.ndarray, resolution, valid: np.ndarray, *, smooth: bool = True) -> np.ndarray:
@@ -447,7 +445,7 @@ def grid_records(grid: IrradianceGridProduct, origin: np.ndarray, stream_file: s
         Attribute(path, "vectorsPerVertex", VECTORS_PER_VERTEX, "int"),
         Attribute(path, "streamFile", stream_file, "asset"),
         Attribute(path, "bake:vertexValid", grid.vertex_valid.astype(np.uint8), "uchar[]"),
-        Attribute(path, "bake:directionEncoding", "hemiOctahedral8", "token", uniform=True),
+        Attribute(path, "bake:directionEncoding", "snorm888", "token", uniform=True),
         Attribute(path, "bake:includeDirect", bool(include_direct), "bool"),
         Attribute(path, "bake:rays", int(rays), "int"),
     ]
@@ -464,7 +462,7 @@ def stream_bytes(grid: IrradianceGridProduct, origin: np.ndarray) -> bytes:
 
 class IrradianceGrid(Processor):
     name = "irradiance_grid"
-    version = "1"
+    version = "2"
     summary = "Irradiance vector grid: 6 vectors per vertex, 8-bit direction + RGB9E5, progressive stream."
     facets = ("geometry", "materials", "lights")
     follows_refinement = True

@@ -365,7 +365,7 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
 
 class Radiosity(Processor):
     name = "radiosity"
-    version = "1"
+    version = "2"
     summary = "Direct + multi-bounce indirect irradiance per vertex from the compressed form-factor operator."
     requires = (FormFactorProduct,)
     provides = (RadiosityProduct,)

@@ -20,14 +20,6 @@ def test_help_loads_no_warp():
     assert done.stdout.strip().splitlines()[-1] == "[]"
 
 
-def test_octahedral_covering_radius_is_measured_on_first_use_not_at_import():
-    done = run("import usdbake.kernels.octahedral as o\n"
-               "print(o.max_angle_error_deg.cache_info().currsize)\n"
-               "print(o.MAX_ANGLE_ERROR_DEG == o.max_angle_error_deg(), o.max_angle_error_deg.cache_info().currsize)")
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == ["0", "True", "1"]
-
-
 def test_cpu_init_prints_no_cuda_notice_and_no_banner():
     done = run("import usdbake\nusdbake.init_warp('cpu')\nimport warp as wp\nprint(wp.get_device('cpu'))")
     assert done.returncode == 0, done.stderr

@@ -176,18 +176,6 @@ LOG_CODE_SLACK = 2e-5
 """Log codes of the form-factor compression are stored as float32 (up to 255: 1.5e-5 absolute)
 before rounding to a byte, so a code may sit that much beyond half a step."""
 
-OCTAHEDRAL8_MAX_DEG = 9.0
-"""8-bit hemisphere direction codes: 256 codes on 2 pi sr are ~5 deg apart on average, so the
-code's worst-case angle error (its documented bound) must stay below 9 deg."""
-
-OCTAHEDRAL8_MEDIAN_DEG = 4.0
-"""8-bit hemisphere direction codes: median angle error of uniform directions, below the ~5 deg
-mean code spacing."""
-
-OCTAHEDRAL8_RIM_COSINE = 0.05
-"""8-bit hemisphere direction codes: decoded directions stay above their hemisphere's rim by at
-least this cosine (~3 deg)."""
-
 VIRIDIS_TOLERANCE = 3.0 / 255.0
 """VIRIDIS is 33 knots of matplotlib's table linearly interpolated: measured max deviation 2.5/255."""
 

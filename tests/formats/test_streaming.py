@@ -143,7 +143,7 @@ def test_non_finite_unknown_values_do_not_leak():
 def _grid(resolution, seed=0):
     rng = np.random.default_rng(seed)  # fixed seed
     v = int(np.prod(resolution))
-    return rng.integers(0, 256, (v, 6)).astype(np.uint8), rng.integers(0, 2**32, (v, 6), dtype=np.uint64).astype(
+    return rng.integers(0, 256, (v, 6, 3)).astype(np.uint8), rng.integers(0, 2**32, (v, 6), dtype=np.uint64).astype(
         np.uint32)
 
 

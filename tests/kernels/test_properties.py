@@ -37,7 +37,7 @@ from tolerances import (BARYCENTRIC, BC1_BOUND_SLACK, FLOAT32_ROUNDING, FLOAT32_
                         SH_LOBE, SH_QUADRATURE)
 from usdbake.geometry import tetrahedra
 from usdbake.kernels import bc1, operator_codec, rgb9e5, sh, sky
-from usdbake.kernels import octahedral as oct8
+from usdbake.kernels import direction24 as dir24
 
 PROPERTY = settings(derandomize=True, max_examples=100, deadline=None)
 """Fixed examples (reproducible in CI), few enough that the whole file runs in seconds."""
@@ -268,19 +268,19 @@ def test_rgb9e5_is_monotone_in_each_channel(rgb, channel, growth):
 
 
 # ---------------------------------------------------------------------------
-# 8-bit hemisphere directions
+# 24-bit (8:8:8) hemisphere directions
 
 
 @PROPERTY
 @given(unit_vectors(), st.integers(0, 5))
 def test_direction_code_angle_bound(direction, hemisphere):
-    axis = oct8.AXES[hemisphere].astype(np.float64)
+    axis = dir24.AXES[hemisphere].astype(np.float64)
     if direction @ axis < 0:
         direction = direction - 2 * (direction @ axis) * axis  # reflect into the hemisphere
-    decoded = oct8.decode_hemisphere(oct8.encode_hemisphere(direction[None], [hemisphere]), [hemisphere])[0]
+    decoded = dir24.decode_directions(dir24.encode_directions(direction[None], [hemisphere]))[0]
     angle = math.degrees(math.acos(min(1.0, float(decoded.astype(np.float64) @ direction))))
-    assert angle <= oct8.MAX_ANGLE_ERROR_DEG, f"{direction} in hemisphere {hemisphere}: {angle:.2f} deg"
-    assert float(decoded @ axis) >= oct8.MIN_AXIS_COSINE - FLOAT32_STORAGE, "decoded direction left its hemisphere"
+    assert angle <= dir24.MAX_ANGLE_ERROR_DEG, f"{direction} in hemisphere {hemisphere}: {angle:.2f} deg"
+    assert float(decoded @ axis) >= dir24.MIN_AXIS_COSINE - FLOAT32_STORAGE, "decoded direction left its hemisphere"
 
 
 # ---------------------------------------------------------------------------

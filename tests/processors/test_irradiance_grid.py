@@ -16,7 +16,7 @@ from usdbake.processors.irradiance_grid import dequantize_vectors
 from usdbake.processors import irradiance_grid as ig
 from usdbake.formats import streaming
 from usdbake.core import Context, ParamError
-from usdbake.kernels import octahedral as oct8
+from usdbake.kernels import direction24 as dir24
 from usdbake.kernels.rgb9e5 import RELATIVE_ERROR
 from usdbake.core.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Scene
 from usdbake.kernels.tracer import Tracer
@@ -59,15 +59,15 @@ def test_uniform_sky_gives_pi_l_along_each_axis():
     assert (back == 0).all()
     # i.i.d. std of one component of 4 pi L w 1[w.delta > 0] is at most 4 pi L / sqrt(3 N).
     tol = MC_SIGMAS * 4 * math.pi * dome.max() / math.sqrt(3 * rays)
-    expected = math.pi * dome[None, :, None] * oct8.AXES[:, None, :]  # (6, 3 channels, 3)
+    expected = math.pi * dome[None, :, None] * dir24.AXES[:, None, :]  # (6, 3 channels, 3)
     for v in vectors:
         np.testing.assert_allclose(v, expected, atol=tol)
     # Quantized: every direction decodes within the code's bound of its axis, and the paper's
     # guarantee M delta = c (d' . delta) = I . delta holds to RGB9E5 precision.
     directions, colors = ig.quantize_vectors(vectors)
     decoded = ig.dequantize_vectors(directions, colors)
-    along = np.einsum("vhci,hi->vhc", decoded, oct8.AXES)
-    truth = np.einsum("vhci,hi->vhc", vectors, oct8.AXES)
+    along = np.einsum("vhci,hi->vhc", decoded, dir24.AXES)
+    truth = np.einsum("vhci,hi->vhc", vectors, dir24.AXES)
     # RGB9E5 shares one exponent: the error bound is relative to the largest channel.
     bound = RELATIVE_ERROR * truth.max(axis=2, keepdims=True) * (1 + FLOAT32_ACCUMULATED)
     assert np.all(np.abs(along - truth) <= bound)
@@ -81,16 +81,16 @@ def test_single_distant_light_gives_vectors_along_the_light():
     e = np.array([3.0, 2.0, 1.0])
     scene = make_scene(*far_speck(), lights=make_lights((LIGHT_DISTANT, e, (0, 0, 0), -w, (0, 0))))
     vectors, _ = ig.compute_irradiance_vectors(Tracer.from_scene(scene), scene, np.zeros((1, 3)), rays=16)
-    for h, axis in enumerate(oct8.AXES):
+    for h, axis in enumerate(dir24.AXES):
         expected = np.outer(e, w) if axis @ w > 0 else np.zeros((3, 3))
         np.testing.assert_allclose(vectors[0, h], expected, rtol=FLOAT32_ACCUMULATED, atol=FLOAT32_ACCUMULATED)
     directions, colors = ig.quantize_vectors(vectors)
     decoded = ig.dequantize_vectors(directions, colors)[0]
     for h in (0, 2, 4):
         d = decoded[h].sum(axis=0)
-        assert math.degrees(math.acos(min(1.0, d @ w / np.linalg.norm(d)))) <= oct8.MAX_ANGLE_ERROR_DEG
-        np.testing.assert_allclose(decoded[h] @ oct8.AXES[h], e * (w @ oct8.AXES[h]),
-                                   atol=RELATIVE_ERROR * e.max() * (w @ oct8.AXES[h]) * (1 + FLOAT32_ACCUMULATED))
+        assert math.degrees(math.acos(min(1.0, d @ w / np.linalg.norm(d)))) <= dir24.MAX_ANGLE_ERROR_DEG
+        np.testing.assert_allclose(decoded[h] @ dir24.AXES[h], e * (w @ dir24.AXES[h]),
+                                   atol=RELATIVE_ERROR * e.max() * (w @ dir24.AXES[h]) * (1 + FLOAT32_ACCUMULATED))
 
 
 def test_shadowed_distant_light_gives_nothing():
@@ -126,13 +126,33 @@ def test_indirect_only_drops_the_light_but_keeps_its_bounce():
 
 def uniform_grid(radiance=1.0):
     layout = ig.GridLayout(np.zeros(3), np.ones(3), (2, 2, 2))
-    vectors = np.broadcast_to(math.pi * radiance * oct8.AXES[None, :, None, :], (8, 6, 3, 3)).copy()
+    vectors = np.broadcast_to(math.pi * radiance * dir24.AXES[None, :, None, :], (8, 6, 3, 3)).copy()
     return layout, vectors
 
 
 def random_normals(n, seed):
     d = np.random.default_rng(seed).normal(size=(n, 3))  # fixed seed
     return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_axis_aligned_normals_read_the_quantized_grid_exactly():
+    """Paper 3.3: c = I . delta / (d' . delta) keeps I . delta through quantization, so a surface facing an
+    axis reads the 42-byte grid as the float one, to RGB9E5 precision (relative to the largest channel)."""
+    rng = np.random.default_rng(5)  # fixed seed: arbitrary light
+    layout = ig.GridLayout(np.zeros(3), np.ones(3), (2, 2, 2))
+    w = rng.normal(size=(8, 6, 3, 3))
+    axes = dir24.AXES[None, :, None, :].astype(np.float64)
+    w += (np.abs(np.einsum("vhci,hi->vhc", w, dir24.AXES))[..., None] + 0.1) * axes  # into each hemisphere
+    vectors = (w * rng.random((8, 6, 3, 1)) * 10).astype(np.float32)
+    decoded = ig.dequantize_vectors(*ig.quantize_vectors(vectors))
+    points = rng.random((200, 3))
+    normals = dir24.AXES[rng.integers(0, 6, len(points))]
+    exact = ig.reconstruct_irradiance(layout, vectors, points, normals, normal_offset=0.0)
+    quantized = ig.reconstruct_irradiance(layout, decoded, points, normals, normal_offset=0.0)
+    bound = RELATIVE_ERROR * np.abs(vectors).max() * np.sqrt(3) * (1 + FLOAT32_ACCUMULATED)
+    assert np.abs(quantized - exact).max() <= bound
+    off_axis = ig.reconstruct_irradiance(layout, decoded, points, random_normals(len(points), 6), normal_offset=0.0)
+    assert np.isfinite(off_axis).all()
 
 
 def test_paper_reconstruction_closed_form_for_a_uniform_sky():
@@ -144,7 +164,7 @@ def test_paper_reconstruction_closed_form_for_a_uniform_sky():
     e = ig.reconstruct_irradiance(layout, vectors, points, n, normal_offset=0.0)
     np.testing.assert_allclose(e, np.repeat((math.pi * (np.abs(n) ** 3).sum(axis=1))[:, None], 3, 1),
                                rtol=FLOAT32_ACCUMULATED)
-    axes = ig.reconstruct_irradiance(layout, vectors, np.full((6, 3), 0.5), oct8.AXES, normal_offset=0.0)
+    axes = ig.reconstruct_irradiance(layout, vectors, np.full((6, 3), 0.5), dir24.AXES, normal_offset=0.0)
     np.testing.assert_allclose(axes, math.pi, rtol=FLOAT32_ACCUMULATED)
     normalized = ig.reconstruct_irradiance(layout, vectors, points, n, normal_offset=0.0, reconstruction="normalized")
     np.testing.assert_allclose(normalized, math.pi, rtol=FLOAT32_ACCUMULATED)
@@ -288,7 +308,7 @@ def test_end_to_end_small_stage(tmp_path):
     resolution = tuple(get("resolution"))
     count = int(np.prod(resolution))
     assert 8 < count <= 400 and get("vectorsPerVertex") == 6
-    assert len(get("directions")) == 6 * count and len(get("colorsRGB9E5")) == 6 * count
+    assert len(get("directions")) == 6 * 3 * count and len(get("colorsRGB9E5")) == 6 * count  # 42 bytes a vertex
     valid = np.asarray(get("bake:vertexValid"), bool)
     # The stream file: the valid vertices in progressive order, same codes as the prim's arrays.
     stream_path = tmp_path / get("streamFile").path
@@ -298,6 +318,8 @@ def test_end_to_end_small_stage(tmp_path):
     np.testing.assert_array_equal(stream.vertex_index, order[valid[order]])
     np.testing.assert_array_equal(stream.colors.ravel(),
                                   np.asarray(get("colorsRGB9E5")).reshape(-1, 6)[stream.vertex_index].ravel())
+    np.testing.assert_array_equal(stream.directions,
+                                  np.asarray(get("directions")).reshape(-1, 6, 3)[stream.vertex_index])
     np.testing.assert_allclose(stream.grid_origin, np.asarray(get("gridOrigin")), rtol=FLOAT32_STORAGE)
     # The mesh primvar and the preview's reading of the grid.
     primvar = baked.GetPrimAtPath("/World/Room").GetAttribute("primvars:bake:irradianceGrid")
