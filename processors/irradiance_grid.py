@@ -517,7 +517,7 @@ class IrradianceGrid(Processor):
         v = layout.count
         stats = {"rays": float(v * strata_for(p.rays) ** 2), "vertices": float(v), "valid_vertices": float(grid.vertex_valid.sum()),
                  "cell_size": float(layout.cell_size[0]), "stream_bytes": float(len(data)),
-                 "quantized_bytes": float(v * VECTORS_PER_VERTEX * 5),
+                 "quantized_bytes": float(grid.directions.nbytes + grid.colors.nbytes),
                  "float_bytes": float(v * VECTORS_PER_VERTEX * 9 * 4)}
         messages = []
         invalid = v - int(grid.vertex_valid.sum())

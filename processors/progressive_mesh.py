@@ -54,6 +54,9 @@ property                     type   interpolation value
 ============================ ====== ============= =====================================
 primvars:bake:pmRank         int[]  vertex        stream position of each point
 primvars:bake:pmCollapseTo   int[]  vertex        point it collapses onto, -1 for none
+bake:pmStreamFile            asset                ``usdbake_mesh_<hash>.bin``: the mesh as a
+                                                  progressive stream (formats/mesh_stream.py;
+                                                  world-space positions)
 ============================ ====== ============= =====================================
 
 Parameters: ``usdbake list progressive_mesh`` or docs/irradiance_grid.md, both generated from ``Params`` below.
@@ -61,14 +64,16 @@ Parameters: ``usdbake list progressive_mesh`` or docs/irradiance_grid.md, both g
 
 from __future__ import annotations
 
+import hashlib
 import heapq
 from dataclasses import dataclass
 
 import fast_simplification
 import numpy as np
 
-from ..core import Context, Params, Primvar, Processor, Result, param
+from ..core import Attribute, Context, File, Params, Primvar, Processor, Result, param
 from ..core.products import ProgressiveMeshProduct
+from ..formats.mesh_stream import encode_mesh_stream
 from ..geometry.mesh import missing_receivers, receiver_prims
 
 FLIP_PENALTY = 10.0
@@ -279,12 +284,13 @@ class ProgressiveMesh(Processor):
     summary = "Progressive meshes by half-edge collapse: stream order and vertex lookup table per mesh."
     facets = ("geometry",)
     follows_refinement = True
-    writes = ("primvars:bake:pmRank", "primvars:bake:pmCollapseTo")
+    writes = ("primvars:bake:pmRank", "primvars:bake:pmCollapseTo", "bake:pmStreamFile")
     provides = (ProgressiveMeshProduct,)
 
     @dataclass(frozen=True)
     class Params(Params):
         max_points: int = param(5_000_000, "meshes with more points are skipped", low=1)
+        packet_vertices: int = param(4096, "vertices per packet of the mesh stream file", low=1, high=1 << 24)
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
         reason = missing_receivers(ctx.scene)
@@ -303,11 +309,16 @@ class ProgressiveMesh(Processor):
                 skipped.append(scene.prim_paths[prim])
                 continue
             mine = (scene.tri_prim == prim) & (scene.tri_instance < 0)
-            rank, collapse_to = progressive_order(points, scene.tri_vertices[mine] - start)
+            tris = scene.tri_vertices[mine] - start
+            rank, collapse_to = progressive_order(points, tris)
             path = scene.prim_paths[prim]
             result.products[ProgressiveMeshProduct].orders[path] = (rank, collapse_to)
             result.outputs.append(Primvar(path, "bake:pmRank", rank, "int", "vertex"))
             result.outputs.append(Primvar(path, "bake:pmCollapseTo", collapse_to, "int", "vertex"))
+            data = encode_mesh_stream(points.astype(np.float64) + scene.origin, tris, rank, collapse_to,
+                                      packet_vertices=p.packet_vertices)
+            stream_file = f"usdbake_mesh_{hashlib.sha256(data).hexdigest()[:10]}.bin"
+            result.outputs += [Attribute(path, "bake:pmStreamFile", stream_file, "asset"), File(stream_file, data)]
             ctx.progress((done + 1) / len(receivers))
         if skipped:
             result.messages.append(f"{len(skipped)} meshes over max_points={p.max_points} were skipped: "

@@ -83,7 +83,7 @@ def test_degenerate_input_is_harmless():
 
 
 def test_end_to_end_cornell_box(tmp_path):
-    from pxr import Usd
+    from pxr import Usd, UsdGeom
     from usdbake.cli.main import main
 
     sample = SAMPLES / "cornell_box.usda"
@@ -96,6 +96,15 @@ def test_end_to_end_cornell_box(tmp_path):
     assert len(rank) == len(mesh.GetAttribute("points").Get())
     check_order(rank, collapse_to)
     assert mesh.GetAttribute("primvars:bake:pmRank").GetMetadata("interpolation") == "vertex"
+    # The stream file beside the layer: the whole stream is the mesh, world space, vertices in rank order.
+    from usdbake.formats.mesh_stream import decode_mesh_stream
+
+    stream = decode_mesh_stream((tmp_path / mesh.GetAttribute("bake:pmStreamFile").Get().path).read_bytes())
+    points = np.asarray(mesh.GetAttribute("points").Get(), np.float64)
+    world = np.asarray(UsdGeom.Xformable(mesh).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+    expected = (np.c_[points, np.ones(len(points))] @ world)[:, :3][np.argsort(rank)]
+    np.testing.assert_allclose(stream.positions, expected, atol=1e-4 * np.abs(expected).max())
+    assert len(stream.faces) == stream.total_faces > 0 and stream.faces.max() < len(rank)
 
 
 def test_params():
