@@ -104,6 +104,12 @@ def make_parser() -> argparse.ArgumentParser:
     sky.add_argument("--dhi", type=float, help="Perez: diffuse horizontal irradiance, W/m^2 (default 150, or the "
                      "weather file's)")
     sky.add_argument("--ground-albedo", type=float, default=0.2, help="the grey ground below the horizon")
+    serve = commands.add_parser("serve", help="serve a baked stage's progressive mesh and irradiance-grid streams "
+                                "over HTTP (range requests, ETags)")
+    serve.add_argument("input", help="a baked stage (usdbake bake -p progressive_mesh and/or -p irradiance_grid)")
+    serve.add_argument("--host", default="127.0.0.1", help="address to listen on (default: this machine only)")
+    serve.add_argument("--port", type=int, default=8642)
+    serve.add_argument("--max-clients", type=int, default=64, help="requests handled at once; more get 503")
     preview = commands.add_parser("preview", help="render a (baked) stage to an image: AO, daylight, irradiance")
     preview.add_argument("input", help="stage to render, e.g. a usdbake output")
     preview.add_argument("-o", "--output", required=True, help="image to write (.png, or .exr for float data)")
@@ -516,8 +522,20 @@ def cmd_sky(args, console: Console) -> int:
     return EXIT_OK
 
 
+def cmd_serve(args, console: Console) -> int:
+    from ..stages.serve import serve
+
+    if args.max_clients < 1:
+        raise UsageError(f"--max-clients {args.max_clients}: at least 1")
+    if not 0 <= args.port <= 65535:
+        raise UsageError(f"--port {args.port}: not a TCP port (0..65535)")
+    serve(args.input, host=args.host, port=args.port, max_clients=args.max_clients,
+          log=lambda line: console.print(line, highlight=False))
+    return EXIT_OK
+
+
 COMMANDS = {"bench": cmd_bench, "bake": cmd_bake, "plan": cmd_plan, "list": cmd_list, "inspect": cmd_inspect,
-            "preview": cmd_preview, "sky": cmd_sky}
+            "preview": cmd_preview, "sky": cmd_sky, "serve": cmd_serve}
 
 if __name__ == "__main__":
     sys.exit(main())

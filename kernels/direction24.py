@@ -21,6 +21,8 @@ import math
 
 import numpy as np
 
+from .rgb9e5 import decode_rgb9e5
+
 AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], np.float32)
 """(6, 3) the hemisphere axes delta in storage order: +x, -x, +y, -y, +z, -z."""
 
@@ -56,3 +58,13 @@ def decode_directions(codes: np.ndarray) -> np.ndarray:
     q = np.asarray(codes, np.float64).reshape(-1, 3) - 128.0
     length = np.linalg.norm(q, axis=1, keepdims=True)
     return np.where(length > 0, q / np.maximum(length, 1e-300), 0.0).astype(np.float32)
+
+
+def dequantize_vectors(directions: np.ndarray, colors: np.ndarray) -> np.ndarray:
+    """(N, 6, 3) uint8 directions + (N, 6) uint32 RGB9E5 colours of irradiance-grid vertices -> (N, 6, 3, 3)
+    float32 vectors c d' (rows = RGB): the decoder of the baker and of stream clients alike."""
+    directions = np.asarray(directions, np.uint8).reshape(-1, 6, 3)
+    n = len(directions)
+    d = decode_directions(directions.reshape(-1, 3))
+    c = decode_rgb9e5(np.asarray(colors, np.uint32).reshape(-1))
+    return (c[:, :, None] * d[:, None, :]).reshape(n, 6, 3, 3).astype(np.float32)

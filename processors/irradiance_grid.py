@@ -128,8 +128,8 @@ from ..kernels.lights import (
     sky_radiance,
     visible_light_sample,
 )
-from ..kernels.direction24 import AXES, decode_directions, encode_directions
-from ..kernels.rgb9e5 import decode_rgb9e5, encode_rgb9e5
+from ..kernels.direction24 import AXES, decode_directions, dequantize_vectors, encode_directions
+from ..kernels.rgb9e5 import encode_rgb9e5
 from ..kernels.sampling import strata_for, stratified_pair
 from ..kernels.sh import uniform_sphere
 from ..kernels.tracer import FAR
@@ -327,15 +327,6 @@ def quantize_vectors(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     cosine = np.einsum("ni,ni->n", decoded, axes)  # >= direction24.MIN_AXIS_COSINE
     colors = encode_rgb9e5(np.maximum(along, 0.0) / cosine[:, None])
     return codes.reshape(n, 6, 3), colors.reshape(n, 6)
-
-
-def dequantize_vectors(directions: np.ndarray, colors: np.ndarray) -> np.ndarray:
-    """(N, 6, 3) uint8 + (N, 6) uint32 -> (N, 6, 3, 3) float32 vectors c d' (rows = RGB)."""
-    directions = np.asarray(directions, np.uint8).reshape(-1, 6, 3)
-    n = len(directions)
-    d = decode_directions(directions.reshape(-1, 3))
-    c = decode_rgb9e5(np.asarray(colors, np.uint32).reshape(-1))
-    return (c[:, :, None] * d[:, None, :]).reshape(n, 6, 3, 3).astype(np.float32)
 
 
 def fill_invalid(vectors: np.ndarray, resolution, valid: np.ndarray, *, smooth: bool = True) -> np.ndarray:

@@ -1,6 +1,7 @@
 """The house plan, as imports: each folder of the package imports only the folders below it.
 
     cli, preview           -> stages, processors (via the registry), core, kernels, geometry
+                              (preview also formats: the stream client decodes the served streams)
     stages (+ schemas)     -> core                 USD lives here and in schemas/ only
     processors             -> core, kernels, geometry, formats; never each other
     kernels, geometry, formats -> core
@@ -29,7 +30,7 @@ MAY_IMPORT = {
     "processors": ("core", "kernels", "geometry", "formats"),
     "schemas": (),
     "stages": ("core", "schemas"),
-    "preview": ("core", "kernels", "geometry", "stages"),
+    "preview": ("core", "kernels", "geometry", "stages", "formats"),
     "cli": ("core", "stages", "preview", "benchmarks"),
 }
 """Folder -> the other folders of the package it may import."""

@@ -1,0 +1,135 @@
+"""usdbake serve under load on loopback: concurrent clients streaming one baked stage."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import harness
+
+NAME = "serve"
+DESCRIPTION = (
+    "`usdbake serve` in its own process on loopback, serving a stage baked with `progressive_mesh` and "
+    "`irradiance_grid` (atrium; cornell_box for --quick). Each client (aiohttp, all in one asyncio loop of the "
+    "benchmark process) reads the manifest, then takes every stream in 64 KiB range requests, round-robin over "
+    "the streams (geometry and light interleaved, as the paper's client). First lit frame: the first chunk of "
+    "every stream received (every mesh has its coarsest level and its collapse table, the grid its first "
+    "vertices); full scene: every byte. Per-request latency over all clients; server memory: the server "
+    "process's peak resident set (VmHWM). The issue's figure: 50 concurrent clients, bounded memory.")
+CHUNK = 64 * 1024
+CLIENTS = 50
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _bake(sample: str, folder: str) -> Path:
+    from usdbake.cli.main import main
+
+    out = Path(folder) / f"{sample}.baked.usdc"
+    code = main(["bake", str(harness.SAMPLES / f"{sample}.usda"), "-o", str(out), "-p", "progressive_mesh",
+                 "-p", "irradiance_grid", "--set", "irradiance_grid.rays=64", "--cache", str(Path(folder) / "cache")])
+    if code != 0:
+        raise RuntimeError(f"baking {sample} for the serve benchmark failed ({code})")
+    return out
+
+
+async def _client(session, base: str, latencies: list) -> tuple[float, float, int]:
+    started = time.perf_counter()
+    async with session.get(f"{base}/manifest") as response:
+        manifest = await response.json()
+    streams = [(m["url"], m["bytes"]) for m in manifest["meshes"]]
+    if manifest["grid"]:
+        streams.append((manifest["grid"]["url"], manifest["grid"]["bytes"]))
+    offsets = [0] * len(streams)
+    first_lit, received = None, 0
+    while any(offset < size for offset, (_, size) in zip(offsets, streams)):
+        for i, (url, size) in enumerate(streams):
+            if offsets[i] >= size:
+                continue
+            end = min(size, offsets[i] + CHUNK)
+            asked = time.perf_counter()
+            async with session.get(base + url, headers={"Range": f"bytes={offsets[i]}-{end - 1}"}) as response:
+                if response.status not in (200, 206):
+                    raise RuntimeError(f"{url}: HTTP {response.status}")
+                received += len(await response.read())
+            latencies.append(time.perf_counter() - asked)
+            offsets[i] = end
+        if first_lit is None:
+            first_lit = time.perf_counter() - started
+    return first_lit, time.perf_counter() - started, received
+
+
+async def _load(base: str, clients: int) -> tuple[list, list]:
+    import aiohttp
+
+    latencies: list = []
+    connector = aiohttp.TCPConnector(limit=0)
+    async with aiohttp.ClientSession(connector=connector) as session:
+        results = await asyncio.gather(*[_client(session, base, latencies) for _ in range(clients)])
+    return results, latencies
+
+
+def _server_peak_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def run(quick: bool = False) -> dict:
+    sample = "cornell_box" if quick else "atrium"
+    clients = 10 if quick else CLIENTS
+    with tempfile.TemporaryDirectory() as folder:
+        baked = _bake(sample, folder)
+        port = _free_port()
+        server = subprocess.Popen(
+            [sys.executable, "-c", "import sys; from usdbake.cli.main import main; sys.exit(main(sys.argv[1:]))",
+             "serve", str(baked), "--port", str(port), "--max-clients", "256"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        base = f"http://127.0.0.1:{port}"
+        try:
+            deadline = time.time() + 60
+            while True:
+                try:
+                    with socket.create_connection(("127.0.0.1", port), timeout=1):
+                        break
+                except OSError:
+                    if server.poll() is not None or time.time() > deadline:
+                        raise RuntimeError(f"usdbake serve did not start: {server.stderr.read().decode()[-2000:]}")
+                    time.sleep(0.2)
+            idle_mb = _server_peak_mb(server.pid)
+            started = time.perf_counter()
+            results, latencies = asyncio.run(_load(base, clients))
+            wall = time.perf_counter() - started
+            peak_mb = _server_peak_mb(server.pid)
+        finally:
+            server.terminate()
+            server.wait(10)
+    first_lit = np.array([r[0] for r in results])
+    full = np.array([r[1] for r in results])
+    served = sum(r[2] for r in results)
+    lat = np.array(latencies) * 1000
+    figures = {"sample": sample, "clients": clients, "requests": len(latencies), "bytes_per_client": results[0][2],
+               "first_lit_s_median": round(float(np.median(first_lit)), 3), "first_lit_s_max": round(float(first_lit.max()), 3),
+               "full_scene_s_median": round(float(np.median(full)), 3), "full_scene_s_max": round(float(full.max()), 3),
+               "request_ms_p50": round(float(np.percentile(lat, 50)), 2),
+               "request_ms_p99": round(float(np.percentile(lat, 99)), 2),
+               "throughput_mb_s": round(served / 2 ** 20 / wall, 1),
+               "server_peak_mb_idle": round(idle_mb, 1), "server_peak_mb_loaded": round(peak_mb, 1)}
+    table = harness.markdown_table([figures], list(figures))
+    return harness.result(NAME, description=DESCRIPTION, settings={"quick": quick, "chunk": CHUNK},
+                          points=[{"label": f"{clients} clients", "seconds": figures["full_scene_s_max"], "error": 0.0,
+                                   "default": True}],
+                          figures=figures, table=table, knob="clients", error_label="-")

@@ -1,0 +1,89 @@
+"""A client of ``usdbake serve``: fetch a prefix of every stream and rebuild meshes and light from it.
+
+What a remote viewer does (Pacanowski et al. 2008, section 4): read the
+manifest, take the first ``fraction`` of each stream with an HTTP range
+request, decode the meshes' levels of detail (``formats/mesh_stream.py``)
+and the grid vertices received so far (``formats/streaming.py``), and fill
+the grid vertices not received yet by 3D push-pull, which never modifies a
+received value. Plain ``urllib``: a client needs no server library.
+"""
+
+from __future__ import annotations
+
+import json
+import urllib.request
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..formats.mesh_stream import MESH_HEADER, MeshPrefix, decode_mesh_stream
+from ..formats.streaming import HEADER, decode_stream, push_pull
+from ..kernels.direction24 import dequantize_vectors
+
+
+@dataclass(frozen=True)
+class GridPrefix:
+    """The irradiance grid as a client holds it after a prefix of its stream."""
+
+    resolution: tuple[int, int, int]
+    grid_origin: np.ndarray
+    cell_size: np.ndarray
+    vectors: np.ndarray
+    """(V, 6, 3, 3) float32: received vertices decoded, the others filled by push-pull (zeros when none)."""
+    received: np.ndarray
+    """(V,) bool."""
+
+
+@dataclass(frozen=True)
+class StreamedScene:
+    meshes: dict[str, MeshPrefix]
+    """Prim path -> level of detail held."""
+    grid: GridPrefix | None
+    bytes_read: int
+
+
+def _get(url: str, *, end: int | None = None, timeout: float = 30.0) -> bytes:
+    """The body of ``url``, or its bytes [0, end) by a range request."""
+    request = urllib.request.Request(url, headers={"Range": f"bytes=0-{end - 1}"} if end else {})
+    with urllib.request.urlopen(request, timeout=timeout) as response:
+        return response.read()
+
+
+def _prefix_end(total: int, fraction: float, least: int) -> int:
+    return int(min(total, max(least, np.ceil(fraction * total))))
+
+
+def fetch_scene(base_url: str, *, fraction: float = 1.0, smooth: bool = True, timeout: float = 30.0) -> StreamedScene:
+    """Every stream of the server at ``base_url`` cut to its first ``fraction`` (at least its header and, for a
+    mesh, its collapse table), decoded."""
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"fraction {fraction}: between 0 and 1")
+    base = base_url.rstrip("/")
+    manifest = json.loads(_get(f"{base}/manifest", timeout=timeout))
+    meshes, read = {}, 0
+    for mesh in manifest["meshes"]:
+        header = _get(base + mesh["url"], end=MESH_HEADER.size, timeout=timeout)
+        table_end = MESH_HEADER.size + MESH_HEADER.unpack(header)[4]
+        data = _get(base + mesh["url"], end=_prefix_end(mesh["bytes"], fraction, table_end), timeout=timeout)
+        meshes[mesh["prim"]] = decode_mesh_stream(data)
+        read += len(data)
+    grid = None
+    if manifest["grid"]:
+        data = _get(base + manifest["grid"]["url"], end=_prefix_end(manifest["grid"]["bytes"], fraction, HEADER.size),
+                    timeout=timeout)
+        read += len(data)
+        grid = _grid_from(data, smooth)
+    return StreamedScene(meshes, grid, read)
+
+
+def _grid_from(data: bytes, smooth: bool) -> GridPrefix:
+    stream = decode_stream(data)
+    count = int(np.prod(stream.resolution))
+    vectors = np.zeros((count, 6, 3, 3), np.float32)
+    received = np.zeros(count, bool)
+    vectors[stream.vertex_index] = dequantize_vectors(stream.directions, stream.colors)
+    received[stream.vertex_index] = True
+    if received.any() and not received.all():
+        vectors = push_pull(vectors.reshape(count, -1), stream.resolution, received,
+                            smooth=smooth).reshape(vectors.shape).astype(np.float32)
+    return GridPrefix(stream.resolution, stream.grid_origin, stream.cell_size, vectors, received)

@@ -1,0 +1,128 @@
+"""``usdbake serve``: a baked stage's progressive streams over HTTP (aiohttp).
+
+Pacanowski et al. 2008 stream a scene to a remote viewer that shows it after
+the first packets and sharpens as the rest arrives. The bake writes the
+streams beside the layer (``bake:pmStreamFile`` per mesh, the irradiance
+grid's ``streamFile``); this server hands them out:
+
+==================== ======================================================
+route                what
+==================== ======================================================
+``GET /``            a page listing the streams (the WebGL viewer is not
+                     written yet)
+``GET /manifest``    JSON: the stage, each mesh stream (prim, url, bytes)
+                     and the grid stream; a client reads it first
+``GET /files/NAME``  one stream file: HTTP range requests (a client takes a
+                     prefix, then the rest), ETag / If-None-Match (aiohttp's
+                     FileResponse)
+==================== ======================================================
+
+Only the files the stage's bake names are served, looked up by name in a
+table built at start (no path from a request ever reaches the file system);
+anything else is 404. At most ``max_clients`` requests are handled at once;
+the others get 503 with Retry-After. Ctrl-C or SIGTERM stops the server
+after the requests in flight (aiohttp's run_app).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import html
+import json
+from pathlib import Path
+
+from aiohttp import web
+from pxr import Usd
+
+from ..core.errors import UsageError
+
+GRID_PRIM = "/usdbake/IrradianceGrid"
+MESH_STREAM_ATTRIBUTE = "bake:pmStreamFile"
+
+
+def stage_streams(path: str) -> dict:
+    """{'stage', 'meshes': [{'prim', 'name', 'file'}], 'grid': {'name', 'file'} | None} of a baked stage:
+    every stream file its bake names, resolved to an existing file."""
+    stage = Usd.Stage.Open(path)
+    if stage is None:
+        raise UsageError(f"{path}: cannot open the stage")
+
+    def resolved(attribute, prim_path: str) -> Path:
+        asset = attribute.Get()
+        file = Path(asset.resolvedPath) if asset is not None and asset.resolvedPath else None
+        if file is None or not file.is_file():
+            raise UsageError(f"{prim_path}.{attribute.GetName()}: {asset.path if asset else ''!r} is not a file "
+                             f"beside the bake; bake the stage again")
+        return file
+
+    meshes = []
+    for prim in stage.Traverse():
+        attribute = prim.GetAttribute(MESH_STREAM_ATTRIBUTE)
+        if attribute and attribute.HasAuthoredValue():
+            file = resolved(attribute, str(prim.GetPath()))
+            meshes.append({"prim": str(prim.GetPath()), "name": file.name, "file": file})
+    grid_prim = stage.GetPrimAtPath(GRID_PRIM)
+    grid = None
+    if grid_prim and grid_prim.GetAttribute("streamFile").HasAuthoredValue():
+        file = resolved(grid_prim.GetAttribute("streamFile"), GRID_PRIM)
+        grid = {"name": file.name, "file": file}
+    if not meshes and grid is None:
+        raise UsageError(f"{path}: no streams to serve: bake it with -p progressive_mesh and/or -p irradiance_grid")
+    return {"stage": Path(path).name, "meshes": meshes, "grid": grid}
+
+
+def make_app(path: str, *, max_clients: int = 64) -> web.Application:
+    """The aiohttp application serving ``path``'s streams (module docstring)."""
+    streams = stage_streams(path)
+    files = {m["name"]: m["file"] for m in streams["meshes"]}
+    if streams["grid"]:
+        files[streams["grid"]["name"]] = streams["grid"]["file"]
+    manifest = {
+        "stage": streams["stage"],
+        "meshes": [{"prim": m["prim"], "url": f"/files/{m['name']}", "bytes": m["file"].stat().st_size}
+                   for m in streams["meshes"]],
+        "grid": {"url": f"/files/{streams['grid']['name']}", "bytes": streams["grid"]["file"].stat().st_size}
+        if streams["grid"] else None,
+    }
+    slots = asyncio.Semaphore(max_clients)
+
+    @web.middleware
+    async def bounded(request: web.Request, handler):
+        if slots.locked():
+            raise web.HTTPServiceUnavailable(headers={"Retry-After": "1"}, text="too many clients; retry")
+        async with slots:
+            return await handler(request)
+
+    async def index(request: web.Request) -> web.Response:
+        rows = "".join(f"<li><a href='{html.escape(m['url'])}'>{html.escape(m['prim'])}</a> ({m['bytes']} bytes)</li>"
+                       for m in manifest["meshes"])
+        grid = manifest["grid"]
+        if grid:
+            rows += f"<li><a href='{html.escape(grid['url'])}'>irradiance grid</a> ({grid['bytes']} bytes)</li>"
+        return web.Response(content_type="text/html", text=(
+            f"<!doctype html><title>usdbake serve: {html.escape(manifest['stage'])}</title>"
+            f"<h1>{html.escape(manifest['stage'])}</h1><p>Streams (the <a href='/manifest'>manifest</a> lists "
+            f"them for a client):</p><ul>{rows}</ul>"))
+
+    async def manifest_route(request: web.Request) -> web.Response:
+        response = web.Response(text=json.dumps(manifest), content_type="application/json")
+        response.enable_compression()
+        return response
+
+    async def file_route(request: web.Request) -> web.StreamResponse:
+        file = files.get(request.match_info["name"])
+        if file is None:
+            raise web.HTTPNotFound(text="not a stream of this stage")
+        return web.FileResponse(file, headers={"Content-Type": "application/octet-stream"})
+
+    app = web.Application(middlewares=[bounded])
+    app.router.add_get("/", index)
+    app.router.add_get("/manifest", manifest_route)
+    app.router.add_get("/files/{name}", file_route)
+    return app
+
+
+def serve(path: str, *, host: str = "127.0.0.1", port: int = 8642, max_clients: int = 64, log=print) -> None:
+    """Serve until interrupted (Ctrl-C / SIGTERM): the requests in flight finish, then it stops."""
+    app = make_app(path, max_clients=max_clients)
+    web.run_app(app, host=host, port=port, print=lambda line: log(line.strip()) if line.strip() else None)

@@ -1,0 +1,130 @@
+"""usdbake serve on loopback: the manifest lists a baked stage's streams, range requests and ETags work,
+the client rebuilds exactly the baked meshes and grid from the whole streams and valid levels of detail
+from prefixes (push-pull never touches a received grid vertex), and no request reaches a file the bake
+did not name."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+import urllib.error
+import urllib.request
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+from aiohttp import web
+from pxr import Usd
+
+from repo_paths import SAMPLES
+from usdbake.cli.main import main
+from usdbake.formats.mesh_stream import decode_mesh_stream
+from usdbake.kernels.direction24 import dequantize_vectors
+from usdbake.preview.stream_client import fetch_scene
+from usdbake.stages.serve import make_app
+
+
+@pytest.fixture(scope="module")
+def baked(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("served")
+    out = folder / "cornell.usdc"
+    code = main(["bake", str(SAMPLES / "cornell_box.usda"), "-o", str(out), "-p", "progressive_mesh",
+                 "-p", "irradiance_grid", "--set", "irradiance_grid.vertices=500", "--set", "irradiance_grid.rays=16",
+                 "--set", "progressive_mesh.packet_vertices=4", "--cache", str(folder / "cache")])
+    assert code == 0
+    return out
+
+
+@contextmanager
+def running(app: web.Application):
+    """The app on a free loopback port in a thread of its own; yields its base URL."""
+    loop = asyncio.new_event_loop()
+    runner = web.AppRunner(app)
+    loop.run_until_complete(runner.setup())
+    site = web.TCPSite(runner, "127.0.0.1", 0)
+    loop.run_until_complete(site.start())
+    port = site._server.sockets[0].getsockname()[1]
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(5)
+        loop.run_until_complete(runner.cleanup())
+        loop.close()
+
+
+def get(url: str, headers=None):
+    request = urllib.request.Request(url, headers=headers or {})
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return response.status, response.headers, response.read()  # headers: case-insensitive
+    except urllib.error.HTTPError as error:
+        return error.code, error.headers, error.read()
+
+
+def test_whole_streams_rebuild_the_bake(baked):
+    stage = Usd.Stage.Open(str(baked))
+    with running(make_app(str(baked))) as url:
+        scene = fetch_scene(url)
+        status, _, page = get(url + "/")
+    assert status == 200 and b"irradiance grid" in page
+    meshes = [p for p in stage.Traverse() if p.GetAttribute("bake:pmStreamFile").HasAuthoredValue()]
+    assert set(scene.meshes) == {str(p.GetPath()) for p in meshes} and len(meshes) >= 5
+    for prim in meshes:
+        file = baked.parent / prim.GetAttribute("bake:pmStreamFile").Get().path
+        expected = decode_mesh_stream(file.read_bytes())
+        got = scene.meshes[str(prim.GetPath())]
+        np.testing.assert_array_equal(got.positions, expected.positions)
+        np.testing.assert_array_equal(got.faces, expected.faces)
+        assert len(got.faces) == got.total_faces
+    grid = stage.GetPrimAtPath("/usdbake/IrradianceGrid")
+    valid = np.asarray(grid.GetAttribute("bake:vertexValid").Get(), bool)
+    directions = np.asarray(grid.GetAttribute("directions").Get(), np.uint8)
+    colors = np.asarray(grid.GetAttribute("colorsRGB9E5").Get(), np.uint32)
+    np.testing.assert_array_equal(scene.grid.received, valid)
+    np.testing.assert_array_equal(scene.grid.vectors[valid], dequantize_vectors(directions, colors)[valid])
+
+
+def test_prefixes_are_valid_and_push_pull_keeps_received_vertices(baked):
+    with running(make_app(str(baked))) as url:
+        full = fetch_scene(url)
+        for fraction in (0.0, 0.1, 0.5):
+            part = fetch_scene(url, fraction=fraction)
+            assert part.bytes_read < full.bytes_read
+            for prim, mesh in part.meshes.items():
+                k = len(mesh.positions)
+                np.testing.assert_array_equal(mesh.positions, full.meshes[prim].positions[:k])
+                assert len(mesh.faces) == 0 or (mesh.faces.min() >= 0 and mesh.faces.max() < k)
+                assert (mesh.faces[:, 0] != mesh.faces[:, 1]).all() and (mesh.faces[:, 1] != mesh.faces[:, 2]).all()
+            got = part.grid
+            np.testing.assert_array_equal(got.vectors[got.received], full.grid.vectors[got.received])
+            if got.received.any():
+                assert np.isfinite(got.vectors).all()
+
+
+def test_range_requests_etags_and_only_the_bake_files(baked, tmp_path):
+    (baked.parent / "secret.txt").write_text("SECRET-CONTENT")
+    (baked.parent / "link.bin").symlink_to(baked.parent / "secret.txt")
+    with running(make_app(str(baked))) as url:
+        _, _, manifest = get(url + "/manifest")
+        first = __import__("json").loads(manifest)["meshes"][0]
+        status, headers, whole = get(url + first["url"])
+        assert status == 200 and len(whole) == first["bytes"] and headers["ETag"]
+        status, _, part = get(url + first["url"], {"Range": "bytes=10-29"})
+        assert status == 206 and part == whole[10:30]
+        status, _, _ = get(url + first["url"], {"If-None-Match": headers["ETag"]})
+        assert status == 304
+        for attack in ("/files/secret.txt", "/files/link.bin", "/files/..%2Fsecret.txt", "/files/%2Fetc%2Fpasswd",
+                       "/files/../secret.txt", "/" + str(baked.parent / "secret.txt").lstrip("/")):
+            status, _, body = get(url + attack)
+            assert status == 404 and b"SECRET-CONTENT" not in body, attack
+
+
+def test_a_stage_without_streams_is_refused(tmp_path):
+    from usdbake.core.errors import UsageError
+
+    with pytest.raises(UsageError, match="no streams to serve"):
+        make_app(str(SAMPLES / "cornell_box.usda"))
