@@ -11,7 +11,9 @@ received value. Plain ``urllib``: a client needs no server library.
 from __future__ import annotations
 
 import json
+import struct
 import urllib.request
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,3 +89,47 @@ def _grid_from(data: bytes, smooth: bool) -> GridPrefix:
         vectors = push_pull(vectors.reshape(count, -1), stream.resolution, received,
                             smooth=smooth).reshape(vectors.shape).astype(np.float32)
     return GridPrefix(stream.resolution, stream.grid_origin, stream.cell_size, vectors, received)
+
+
+STREAM_FRAME = struct.Struct("<IIQ")
+"""``/stream`` frame header (stages/serve.py FRAME): stream index (0 = manifest), payload length, offset."""
+
+
+def stream_scene(base_url: str, *, fractions=(0.1, 0.5, 1.0), chunk: int | None = None, smooth: bool = True,
+                 timeout: float = 30.0) -> Iterator[tuple[float, StreamedScene]]:
+    """Read the server's interleaved ``/stream`` in one request and yield (share received, scene) each time
+    the share of all stream bytes received passes one of ``fractions`` (and at the end): what a viewer
+    shows as the scene sharpens."""
+    url = base_url.rstrip("/") + "/stream" + (f"?chunk={chunk}" if chunk else "")
+    marks = sorted(set(float(f) for f in fractions))
+    with urllib.request.urlopen(url, timeout=timeout) as response:
+        index, length, _ = STREAM_FRAME.unpack(response.read(STREAM_FRAME.size))
+        manifest = json.loads(response.read(length))
+        sizes = [m["bytes"] for m in manifest["meshes"]] + ([manifest["grid"]["bytes"]] if manifest["grid"] else [])
+        buffers = [bytearray() for _ in sizes]
+        total, received = max(1, sum(sizes)), 0
+        while True:
+            head = response.read(STREAM_FRAME.size)
+            if len(head) < STREAM_FRAME.size:
+                break
+            index, length, offset = STREAM_FRAME.unpack(head)
+            payload = response.read(length)
+            if index < 1 or index > len(buffers) or offset != len(buffers[index - 1]) or len(payload) != length:
+                raise ValueError(f"{url}: frame for stream {index} at {offset} is out of order")
+            buffers[index - 1] += payload
+            received += length
+            while marks and received / total >= marks[0]:
+                marks.pop(0)
+                yield received / total, _scene_from(manifest, buffers, smooth, received)
+    if received < total:
+        raise ValueError(f"{url}: the stream ended after {received} of {total} bytes")
+
+
+def _scene_from(manifest: dict, buffers: list, smooth: bool, received: int) -> StreamedScene:
+    meshes = {}
+    for mesh, data in zip(manifest["meshes"], buffers):
+        if len(data) >= MESH_HEADER.size and len(data) >= MESH_HEADER.size + MESH_HEADER.unpack_from(data)[4]:
+            meshes[mesh["prim"]] = decode_mesh_stream(bytes(data))
+    grid_data = bytes(buffers[-1]) if manifest["grid"] else b""
+    grid = _grid_from(grid_data, smooth) if len(grid_data) >= HEADER.size else None
+    return StreamedScene(meshes, grid, received)

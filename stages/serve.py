@@ -15,6 +15,10 @@ route                what
 ``GET /files/NAME``  one stream file: HTTP range requests (a client takes a
                      prefix, then the rest), ETag / If-None-Match (aiohttp's
                      FileResponse)
+``GET /stream``      every stream in one response, interleaved: frames of
+                     ``chunk`` bytes, always from the stream least far
+                     along, so any prefix holds the same share of every mesh
+                     and of the grid (``interleave``; the paper's server)
 ==================== ======================================================
 
 Only the files the stage's bake names are served, looked up by name in a
@@ -27,8 +31,10 @@ after the requests in flight (aiohttp's run_app).
 from __future__ import annotations
 
 import asyncio
+import heapq
 import html
 import json
+import struct
 from pathlib import Path
 
 from aiohttp import web
@@ -38,6 +44,28 @@ from ..core.errors import UsageError
 
 GRID_PRIM = "/usdbake/IrradianceGrid"
 MESH_STREAM_ATTRIBUTE = "bake:pmStreamFile"
+FRAME = struct.Struct("<IIQ")
+"""Frame header of ``/stream``: stream index (0: the manifest, 1.. the manifest's streams: meshes, then the
+grid), payload length, offset of the payload in its stream."""
+STREAM_CHUNK = 16 * 1024
+
+
+def interleave(sizes: list[int], chunk: int) -> list[tuple[int, int, int]]:
+    """(stream, offset, length) of every frame: a chunk at a time from the stream with the smallest share
+    sent so far (ties: the lower index), so after any frame each stream is within one chunk of the same
+    share of its bytes."""
+    heap = [(0.0, i) for i, size in enumerate(sizes) if size > 0]
+    heapq.heapify(heap)
+    sent = [0] * len(sizes)
+    frames = []
+    while heap:
+        _, i = heapq.heappop(heap)
+        length = min(chunk, sizes[i] - sent[i])
+        frames.append((i, sent[i], length))
+        sent[i] += length
+        if sent[i] < sizes[i]:
+            heapq.heappush(heap, (sent[i] / sizes[i], i))
+    return frames
 
 
 def stage_streams(path: str) -> dict:
@@ -109,6 +137,25 @@ def make_app(path: str, *, max_clients: int = 64) -> web.Application:
         response.enable_compression()
         return response
 
+    urls = [m["url"] for m in manifest["meshes"]] + ([manifest["grid"]["url"]] if manifest["grid"] else [])
+    contents = [files[url.rsplit("/", 1)[1]].read_bytes() for url in urls]  # read once: sent to every client
+    header = json.dumps({**manifest, "order": urls}).encode()
+
+    async def stream_route(request: web.Request) -> web.StreamResponse:
+        try:
+            chunk = int(request.query.get("chunk", STREAM_CHUNK))
+        except ValueError:
+            raise web.HTTPBadRequest(text="chunk must be an integer") from None
+        if not 1024 <= chunk <= 1 << 24:
+            raise web.HTTPBadRequest(text="chunk must be within 1024..16777216 bytes")
+        response = web.StreamResponse(headers={"Content-Type": "application/octet-stream"})
+        await response.prepare(request)
+        await response.write(FRAME.pack(0, len(header), 0) + header)
+        for index, offset, length in interleave([len(c) for c in contents], chunk):
+            await response.write(FRAME.pack(index + 1, length, offset) + contents[index][offset:offset + length])
+        await response.write_eof()
+        return response
+
     async def file_route(request: web.Request) -> web.StreamResponse:
         file = files.get(request.match_info["name"])
         if file is None:
@@ -119,6 +166,7 @@ def make_app(path: str, *, max_clients: int = 64) -> web.Application:
     app.router.add_get("/", index)
     app.router.add_get("/manifest", manifest_route)
     app.router.add_get("/files/{name}", file_route)
+    app.router.add_get("/stream", stream_route)
     return app
 
 

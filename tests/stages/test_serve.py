@@ -15,14 +15,16 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 from aiohttp import web
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pxr import Usd
 
 from repo_paths import SAMPLES
 from usdbake.cli.main import main
 from usdbake.formats.mesh_stream import decode_mesh_stream
 from usdbake.kernels.direction24 import dequantize_vectors
-from usdbake.preview.stream_client import fetch_scene
-from usdbake.stages.serve import make_app
+from usdbake.preview.stream_client import fetch_scene, stream_scene
+from usdbake.stages.serve import interleave, make_app
 
 
 @pytest.fixture(scope="module")
@@ -110,7 +112,7 @@ def test_range_requests_etags_and_only_the_bake_files(baked, tmp_path):
     (baked.parent / "link.bin").symlink_to(baked.parent / "secret.txt")
     with running(make_app(str(baked))) as url:
         _, _, manifest = get(url + "/manifest")
-        first = __import__("json").loads(manifest)["meshes"][0]
+        first = json.loads(manifest)["meshes"][0]
         status, headers, whole = get(url + first["url"])
         assert status == 200 and len(whole) == first["bytes"] and headers["ETag"]
         status, _, part = get(url + first["url"], {"Range": "bytes=10-29"})
@@ -128,3 +130,35 @@ def test_a_stage_without_streams_is_refused(tmp_path):
 
     with pytest.raises(UsageError, match="no streams to serve"):
         make_app(str(SAMPLES / "cornell_box.usda"))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.integers(0, 5000), min_size=1, max_size=8), st.integers(1, 700))
+def test_interleaving_keeps_every_stream_at_the_same_share(sizes, chunk):
+    frames = interleave(sizes, chunk)
+    sent = [0] * len(sizes)
+    for index, offset, length in frames:
+        assert offset == sent[index] and 0 < length <= chunk  # each stream in order, no gaps
+        sent[index] += length
+        shares = [sent[i] / size for i, size in enumerate(sizes) if size]
+        # The stream just served was the least far along: nothing is more than a chunk ahead of another.
+        assert max(shares) - min(shares) <= max(chunk / size for size in sizes if size) + 1e-12
+    assert sent == sizes
+
+
+def test_the_interleaved_stream_sharpens_into_the_bake(baked):
+    with running(make_app(str(baked))) as url:
+        full = fetch_scene(url)
+        seen = list(stream_scene(url, fractions=(0.25, 0.6, 1.0), chunk=1024))
+    assert [round(share, 2) >= mark for (share, _), mark in zip(seen, (0.25, 0.6, 1.0))] == [True] * 3
+    last = seen[-1][1]
+    assert set(last.meshes) == set(full.meshes)
+    for prim, mesh in last.meshes.items():
+        np.testing.assert_array_equal(mesh.positions, full.meshes[prim].positions)
+        np.testing.assert_array_equal(mesh.faces, full.meshes[prim].faces)
+    np.testing.assert_array_equal(last.grid.vectors, full.grid.vectors)
+    middle = seen[1][1]
+    assert 0 < middle.grid.received.sum() < full.grid.received.sum()
+    for prim, mesh in middle.meshes.items():
+        assert len(mesh.positions) <= len(full.meshes[prim].positions)
+        assert len(mesh.faces) == 0 or mesh.faces.max() < len(mesh.positions)
