@@ -99,6 +99,20 @@ def stage_streams(path: str) -> dict:
     return {"stage": Path(path).name, "meshes": meshes, "grid": grid}
 
 
+def bounded_requests(limit: int):
+    """Middleware: at most ``limit`` requests in the handlers at once; the others get 503 with Retry-After."""
+    slots = asyncio.Semaphore(limit)
+
+    @web.middleware
+    async def bounded(request: web.Request, handler):
+        if slots.locked():
+            raise web.HTTPServiceUnavailable(headers={"Retry-After": "1"}, text="too many clients; retry")
+        async with slots:
+            return await handler(request)
+
+    return bounded
+
+
 def make_app(path: str, *, max_clients: int = 64) -> web.Application:
     """The aiohttp application serving ``path``'s streams (module docstring)."""
     streams = stage_streams(path)
@@ -112,15 +126,6 @@ def make_app(path: str, *, max_clients: int = 64) -> web.Application:
         "grid": {"url": f"/files/{streams['grid']['name']}", "bytes": streams["grid"]["file"].stat().st_size}
         if streams["grid"] else None,
     }
-    slots = asyncio.Semaphore(max_clients)
-
-    @web.middleware
-    async def bounded(request: web.Request, handler):
-        if slots.locked():
-            raise web.HTTPServiceUnavailable(headers={"Retry-After": "1"}, text="too many clients; retry")
-        async with slots:
-            return await handler(request)
-
     async def index(request: web.Request) -> web.Response:
         rows = "".join(f"<li><a href='{html.escape(m['url'])}'>{html.escape(m['prim'])}</a> ({m['bytes']} bytes)</li>"
                        for m in manifest["meshes"])
@@ -162,7 +167,7 @@ def make_app(path: str, *, max_clients: int = 64) -> web.Application:
             raise web.HTTPNotFound(text="not a stream of this stage")
         return web.FileResponse(file, headers={"Content-Type": "application/octet-stream"})
 
-    app = web.Application(middlewares=[bounded])
+    app = web.Application(middlewares=[bounded_requests(max_clients)])
     app.router.add_get("/", index)
     app.router.add_get("/manifest", manifest_route)
     app.router.add_get("/files/{name}", file_route)

@@ -7,7 +7,12 @@ from __future__ import annotations
 
 import asyncio
 import json
+import signal
+import socket
+import subprocess
+import sys
 import threading
+import time
 import urllib.error
 import urllib.request
 from contextlib import contextmanager
@@ -162,3 +167,52 @@ def test_the_interleaved_stream_sharpens_into_the_bake(baked):
     for prim, mesh in middle.meshes.items():
         assert len(mesh.positions) <= len(full.meshes[prim].positions)
         assert len(mesh.faces) == 0 or mesh.faces.max() < len(mesh.positions)
+
+
+def test_requests_beyond_the_bound_get_503_until_a_slot_frees():
+    from usdbake.stages.serve import bounded_requests
+
+    async def scenario():
+        middleware = bounded_requests(2)
+        release = asyncio.Event()
+
+        async def slow(request):
+            await release.wait()
+            return web.Response(text="done")
+
+        held = [asyncio.create_task(middleware(None, slow)) for _ in range(2)]
+        await asyncio.sleep(0)
+        with pytest.raises(web.HTTPServiceUnavailable) as refused:
+            await middleware(None, slow)
+        assert refused.value.headers["Retry-After"] == "1"
+        release.set()
+        assert [r.text for r in await asyncio.gather(*held)] == ["done", "done"]
+        assert (await middleware(None, slow)).text == "done"  # a freed slot serves again
+
+    asyncio.run(scenario())
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_the_command_serves_until_stopped_then_exits_cleanly(baked, stop):
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    process = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from usdbake.cli.main import main; sys.exit(main(sys.argv[1:]))",
+         "serve", str(baked), "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                status, _, body = get(f"http://127.0.0.1:{port}/manifest")
+                break
+            except urllib.error.URLError:
+                assert process.poll() is None and time.monotonic() < deadline, process.stderr.read()
+                time.sleep(0.2)
+        assert status == 200 and json.loads(body)["meshes"]
+        process.send_signal(stop)
+        out, err = process.communicate(timeout=30)
+    finally:
+        process.kill()
+    assert process.returncode == 0 and "Traceback" not in err, err
+    assert f"127.0.0.1:{port}" in out + err  # the address it listens on, on the console
