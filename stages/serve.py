@@ -8,8 +8,9 @@ grid's ``streamFile``); this server hands them out:
 ==================== ======================================================
 route                what
 ==================== ======================================================
-``GET /``            a page listing the streams (the WebGL viewer is not
-                     written yet)
+``GET /``            the viewer: a WebGL2 page (``viewer/``) that reads
+                     ``/stream`` and draws the meshes lit by the grid as
+                     they arrive
 ``GET /manifest``    JSON: the stage, each mesh stream (prim, url, bytes)
                      and the grid stream; a client reads it first
 ``GET /files/NAME``  one stream file: HTTP range requests (a client takes a
@@ -32,7 +33,6 @@ from __future__ import annotations
 
 import asyncio
 import heapq
-import html
 import json
 import struct
 from pathlib import Path
@@ -48,6 +48,8 @@ FRAME = struct.Struct("<IIQ")
 """Frame header of ``/stream``: stream index (0: the manifest, 1.. the manifest's streams: meshes, then the
 grid), payload length, offset of the payload in its stream."""
 STREAM_CHUNK = 16 * 1024
+VIEWER = Path(__file__).with_name("viewer")
+"""The browser viewer (index.html, viewer.js: WebGL2, written here) served at / ."""
 
 
 def interleave(sizes: list[int], chunk: int) -> list[tuple[int, int, int]]:
@@ -127,15 +129,10 @@ def make_app(path: str, *, max_clients: int = 64) -> web.Application:
         if streams["grid"] else None,
     }
     async def index(request: web.Request) -> web.Response:
-        rows = "".join(f"<li><a href='{html.escape(m['url'])}'>{html.escape(m['prim'])}</a> ({m['bytes']} bytes)</li>"
-                       for m in manifest["meshes"])
-        grid = manifest["grid"]
-        if grid:
-            rows += f"<li><a href='{html.escape(grid['url'])}'>irradiance grid</a> ({grid['bytes']} bytes)</li>"
-        return web.Response(content_type="text/html", text=(
-            f"<!doctype html><title>usdbake serve: {html.escape(manifest['stage'])}</title>"
-            f"<h1>{html.escape(manifest['stage'])}</h1><p>Streams (the <a href='/manifest'>manifest</a> lists "
-            f"them for a client):</p><ul>{rows}</ul>"))
+        return web.Response(content_type="text/html", text=(VIEWER / "index.html").read_text())
+
+    async def viewer_script(request: web.Request) -> web.Response:
+        return web.Response(content_type="text/javascript", text=(VIEWER / "viewer.js").read_text())
 
     async def manifest_route(request: web.Request) -> web.Response:
         response = web.Response(text=json.dumps(manifest), content_type="application/json")
@@ -169,6 +166,7 @@ def make_app(path: str, *, max_clients: int = 64) -> web.Application:
 
     app = web.Application(middlewares=[bounded_requests(max_clients)])
     app.router.add_get("/", index)
+    app.router.add_get("/viewer.js", viewer_script)
     app.router.add_get("/manifest", manifest_route)
     app.router.add_get("/files/{name}", file_route)
     app.router.add_get("/stream", stream_route)

@@ -11,11 +11,9 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 import urllib.error
 import urllib.request
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -25,7 +23,7 @@ from hypothesis import strategies as st
 from pxr import Usd
 
 from repo_paths import SAMPLES
-from usdbake.cli.main import main
+from served_stage import bake_streams, running
 from usdbake.formats.mesh_stream import decode_mesh_stream
 from usdbake.kernels.direction24 import dequantize_vectors
 from usdbake.preview.stream_client import fetch_scene, stream_scene
@@ -34,33 +32,7 @@ from usdbake.stages.serve import interleave, make_app
 
 @pytest.fixture(scope="module")
 def baked(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("served")
-    out = folder / "cornell.usdc"
-    code = main(["bake", str(SAMPLES / "cornell_box.usda"), "-o", str(out), "-p", "progressive_mesh",
-                 "-p", "irradiance_grid", "--set", "irradiance_grid.vertices=500", "--set", "irradiance_grid.rays=16",
-                 "--set", "progressive_mesh.packet_vertices=4", "--cache", str(folder / "cache")])
-    assert code == 0
-    return out
-
-
-@contextmanager
-def running(app: web.Application):
-    """The app on a free loopback port in a thread of its own; yields its base URL."""
-    loop = asyncio.new_event_loop()
-    runner = web.AppRunner(app)
-    loop.run_until_complete(runner.setup())
-    site = web.TCPSite(runner, "127.0.0.1", 0)
-    loop.run_until_complete(site.start())
-    port = site._server.sockets[0].getsockname()[1]
-    thread = threading.Thread(target=loop.run_forever, daemon=True)
-    thread.start()
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        loop.call_soon_threadsafe(loop.stop)
-        thread.join(5)
-        loop.run_until_complete(runner.cleanup())
-        loop.close()
+    return bake_streams(tmp_path_factory.mktemp("served"))
 
 
 def get(url: str, headers=None):
@@ -77,7 +49,7 @@ def test_whole_streams_rebuild_the_bake(baked):
     with running(make_app(str(baked))) as url:
         scene = fetch_scene(url)
         status, _, page = get(url + "/")
-    assert status == 200 and b"irradiance grid" in page
+    assert status == 200 and b"/viewer.js" in page
     meshes = [p for p in stage.Traverse() if p.GetAttribute("bake:pmStreamFile").HasAuthoredValue()]
     assert set(scene.meshes) == {str(p.GetPath()) for p in meshes} and len(meshes) >= 5
     for prim in meshes:
