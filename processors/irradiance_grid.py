@@ -32,9 +32,14 @@ UsdLux lights (distant, sphere, rect, disk) are added directly
 (``sample_light``): ``rays`` stratified shadow-ray samples each (one for a
 zero-angle distant light), each adding ``L weight w`` (weight = the solid
 angle the sample stands for) to every hemisphere containing w.
-``include_direct = false`` keeps only light reflected once by the scene
-(no dome, no emission, no direct lights): the paper's indirect-only grid,
-for a renderer that adds direct light itself.
+``bounces = k`` > 1 carries more light: k - 1 indirect-only passes come first,
+and in each later pass a hit y also reflects ``rho(y) / pi E_ind(y)``, with
+E_ind(y) read from the previous pass's grid at y moved half a cell along its
+normal (``kernels/grid_irradiance.grid_irradiance``, the paper's
+reconstruction as a ``wp.func``): light that has bounced k times.
+``include_direct = false`` keeps only the light the scene reflects (no dome,
+no emission, no direct lights): the paper's indirect-only grid, for a
+renderer that adds direct light itself.
 
 **Inside geometry.** A vertex whose rays hit the back of single-sided
 triangles more than half of the time is *invalid* (inside closed geometry);
@@ -90,6 +95,7 @@ bake:vertexValid       uchar[]    1 = computed, 0 = inside geometry (filled by p
 bake:directionEncoding token      ``snorm888`` (uniform)
 bake:includeDirect     bool       the include_direct parameter
 bake:rays              int        rays per vertex
+bake:bounces           int        the bounces parameter
 ====================== ========== ===============================================================
 
 and on every writable mesh ``primvars:bake:irradianceGrid`` (color3f[],
@@ -129,6 +135,7 @@ from ..kernels.lights import (
     visible_light_sample,
 )
 from ..kernels.direction24 import AXES, decode_directions, dequantize_vectors, encode_directions
+from ..kernels.grid_irradiance import GridVectors, grid_irradiance, grid_vectors
 from ..kernels.rgb9e5 import encode_rgb9e5
 from ..kernels.sampling import strata_for, stratified_pair
 from ..kernels.sh import uniform_sphere
@@ -138,6 +145,9 @@ wp.set_module_options({"enable_backward": False})
 
 GRID_PRIM = "/usdbake/IrradianceGrid"
 VECTORS_PER_VERTEX = 6
+
+BOUNCE_OFFSET = 0.5
+"""A hit reads the previous pass's grid this many cells off its surface (as a mesh vertex reads the grid)."""
 
 INSIDE_BACK_FRACTION = 0.5
 """A vertex is inside geometry when more than this fraction of its rays hit single-sided back faces."""
@@ -180,12 +190,17 @@ def irradiance_vectors_kernel(
     epsilon: float,
     include_direct: int,
     see_emission: int,
+    bounce: GridVectors,
+    use_bounce: int,
+    bounce_offset: float,
     vectors: wp.array(dtype=wp.mat33),
     back_hits: wp.array(dtype=int),
 ):
     """Vertex i: the six hemisphere irradiance vectors (paper eq. 1), I = integral L(w) w dw over each
     hemisphere, rows = RGB channels, by strata^2 stratified uniform sphere rays (weight 4 pi / N) whose
-    hits return ``hit_radiance``, plus the small lights sampled directly (``light_sample_at``)."""
+    hits return ``hit_radiance``, plus the small lights sampled directly (``light_sample_at``). With
+    ``use_bounce`` a hit y also reflects rho(y) / pi E_ind(y), E_ind read from the previous pass's
+    indirect grid ``bounce`` at y moved ``bounce_offset`` along its normal (``grid_irradiance``)."""
     i = start + wp.tid()
     p = positions[i]
     state = wp.rand_init(seed, i)
@@ -206,6 +221,12 @@ def irradiance_vectors_kernel(
                 back += 1
             value = hit_radiance(mesh, surfaces, lights, p, d, q.face, q.t, see_emission, epsilon,
                                  wp.rand_init(wp.int32(state), samples + k))
+            hn = surfaces.tri_normals[q.face]
+            if use_bounce != 0 and (wp.dot(hn, d) < 0.0 or surfaces.tri_double_sided[q.face] != 0):
+                if wp.dot(hn, d) > 0.0:
+                    hn = -hn  # the side the ray sees
+                e_ind = grid_irradiance(bounce, p + d * q.t + hn * bounce_offset, hn)
+                value += wp.cw_mul(surfaces.tri_albedo[q.face], e_ind) * (1.0 / wp.pi)
         if wp.length_sq(value) > 0.0:
             add_to_hemispheres(vectors, base, d, wp.outer(value * weight, d))
     back_hits[i] = back
@@ -283,9 +304,11 @@ def see_emission(scene: Scene, include_direct: bool) -> int:
 
 
 def compute_irradiance_vectors(tracer, scene: Scene, positions: np.ndarray, *, rays: int, seed: int = 0,
-                               include_direct: bool = True, lighting: SceneLighting | None = None
-                               ) -> tuple[np.ndarray, np.ndarray]:
+                               include_direct: bool = True, lighting: SceneLighting | None = None,
+                               bounce: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Irradiance vectors at points (module docstring, paper eq. 1).
+
+    bounce : (layout, vectors) of an indirect-only grid whose light the hits reflect once more (``bounces``).
 
     Parameters
     ----------
@@ -304,9 +327,16 @@ def compute_irradiance_vectors(tracer, scene: Scene, positions: np.ndarray, *, r
     strata = strata_for(rays)
     vectors = wp.zeros(count * 6, dtype=wp.mat33, device=tracer.device)
     back = wp.zeros(count, dtype=int, device=tracer.device)
+    if bounce is None:
+        previous, offset = grid_vectors(np.zeros((1, 6, 3, 3)), (1, 1, 1), (0, 0, 0), (1, 1, 1), tracer.device), 0.0
+    else:
+        layout, grid = bounce
+        previous = grid_vectors(grid, layout.resolution, layout.grid_origin, layout.cell_size, tracer.device)
+        offset = BOUNCE_OFFSET * float(np.min(layout.cell_size))
     tracer.launch(irradiance_vectors_kernel, count, [
         tracer.mesh.id, lighting.surfaces, lighting.lights, tracer.array(positions, wp.vec3), strata, int(seed),
-        tracer.epsilon, int(bool(include_direct)), see_emission(scene, include_direct), vectors, back,
+        tracer.epsilon, int(bool(include_direct)), see_emission(scene, include_direct), previous,
+        int(bounce is not None), offset, vectors, back,
     ])
     tracer.rays_cast += count * strata * strata * (1 + lighting.shadow_rays + len(scene.lights))
     out = np.nan_to_num(vectors.numpy().reshape(count, 6, 3, 3), nan=0.0, posinf=0.0, neginf=0.0)
@@ -339,10 +369,18 @@ def fill_invalid(vectors: np.ndarray, resolution, valid: np.ndarray, *, smooth: 
 
 
 def bake_grid(tracer, scene: Scene, layout: GridLayout, *, rays: int, seed: int = 0, include_direct: bool = True,
-              smooth: bool = True, progress=lambda f: None) -> IrradianceGridProduct:
-    """Compute, fill and quantize the grid (module docstring)."""
+              smooth: bool = True, bounces: int = 1, progress=lambda f: None) -> IrradianceGridProduct:
+    """Compute, fill and quantize the grid (module docstring); ``bounces`` - 1 indirect-only passes first,
+    each reflected once more by the next."""
+    bounce = None
+    for step in range(bounces - 1):
+        indirect, back = compute_irradiance_vectors(tracer, scene, layout.positions(), rays=rays,
+                                                    seed=seed + 1000 * (step + 1), include_direct=False,
+                                                    bounce=bounce)
+        bounce = (layout, fill_invalid(indirect, layout.resolution, back <= INSIDE_BACK_FRACTION, smooth=smooth))
+        progress(0.8 * (step + 1) / bounces)
     vectors, back = compute_irradiance_vectors(tracer, scene, layout.positions(), rays=rays, seed=seed,
-                                               include_direct=include_direct)
+                                               include_direct=include_direct, bounce=bounce)
     progress(0.8)
     valid = back <= INSIDE_BACK_FRACTION
     # Fill from the dequantized valid vertices, as a client completing the full stream does.
@@ -421,7 +459,7 @@ def reconstruct_irradiance(layout: GridLayout, vectors: np.ndarray, points: np.n
 
 
 def grid_records(grid: IrradianceGridProduct, origin: np.ndarray, stream_file: str, *, rays: int,
-                 include_direct: bool) -> list:
+                 include_direct: bool, bounces: int) -> list:
     """Prim and attribute records of the IrradianceVectorGrid at GRID_PRIM (world space)."""
     path = GRID_PRIM
     layout = grid.layout
@@ -439,6 +477,7 @@ def grid_records(grid: IrradianceGridProduct, origin: np.ndarray, stream_file: s
         Attribute(path, "bake:directionEncoding", "snorm888", "token", uniform=True),
         Attribute(path, "bake:includeDirect", bool(include_direct), "bool"),
         Attribute(path, "bake:rays", int(rays), "int"),
+        Attribute(path, "bake:bounces", int(bounces), "int"),
     ]
 
 
@@ -474,6 +513,9 @@ class IrradianceGrid(Processor):
                                     choices=RECONSTRUCTIONS)
         behind_cutoff: bool = param(False, "reconstruction ignores grid vertices behind the surface's plane")
         smooth: bool = param(True, "pyramidal smoothing in the push-pull fill of invalid vertices")
+        bounces: int = param(1, "light bounces the grid carries: 1 = surfaces reflect direct light (the paper); "
+                             "k adds k - 1 capture passes, each hit reflecting the previous pass's indirect light "
+                             "read from the grid", low=1, high=8)
         seed: int = param(0, "random seed (identical results across thread counts)", low=0, high=2**31 - 1)
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
@@ -490,10 +532,11 @@ class IrradianceGrid(Processor):
         layout = grid_layout(lo, hi, cell_size=p.cell_size, vertices=p.vertices)
         ctx.progress(0.0)
         grid = bake_grid(ctx.tracer, scene, layout, rays=p.rays, seed=p.seed, include_direct=p.include_direct,
+                         bounces=p.bounces,
                          smooth=p.smooth, progress=ctx.progress)
         data = stream_bytes(grid, scene.origin)
         stream_file = f"usdbake_irradiance_grid_{hashlib.sha256(data).hexdigest()[:10]}.bin"
-        outputs = [*grid_records(grid, scene.origin, stream_file, rays=strata_for(p.rays) ** 2,
+        outputs = [*grid_records(grid, scene.origin, stream_file, rays=strata_for(p.rays) ** 2, bounces=p.bounces,
                                  include_direct=p.include_direct), File(stream_file, data)]
         receivers = receiver_prims(scene)
         normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
@@ -506,7 +549,7 @@ class IrradianceGrid(Processor):
             outputs.append(Primvar(scene.prim_paths[prim], "bake:irradianceGrid", values, "color3f", "vertex"))
         ctx.progress(1.0)
         v = layout.count
-        stats = {"rays": float(v * strata_for(p.rays) ** 2), "vertices": float(v), "valid_vertices": float(grid.vertex_valid.sum()),
+        stats = {"rays": float(v * strata_for(p.rays) ** 2 * p.bounces), "vertices": float(v), "valid_vertices": float(grid.vertex_valid.sum()),
                  "cell_size": float(layout.cell_size[0]), "stream_bytes": float(len(data)),
                  "quantized_bytes": float(grid.directions.nbytes + grid.colors.nbytes),
                  "float_bytes": float(v * VECTORS_PER_VERTEX * 9 * 4)}

@@ -334,6 +334,12 @@ DISTANT_CONE = 1e-3
 """Relative error of 1024 stratified samples of a distant light's 10 deg cone: the cosine varies by
 0.4 % across it."""
 
+GRID_BOUNCE_SHARE = 0.2
+"""An irradiance grid with k bounces, its mean indirect light on the walls of a closed lit room as a share
+of a k-bounce path tracer's, against the same share at one bounce: each pass reflects light read from
+the previous grid, which carries the grid's own shortfall along (measured 0.90 at 2 bounces and 0.84 at
+3; on the Cornell box 0.97 and 0.94). A bounce term off by a factor of 2 or pi would leave this band."""
+
 SUN_TABLE_BLEND = 0.03
 """Relative difference of the sunlight on a plane beside a 0.5 m wall, the sun's visibility blended
 bilinearly from a 4 x 3.75 degree grid of declination and hour angle, against 256 shadow rays per face

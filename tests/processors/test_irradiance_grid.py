@@ -9,7 +9,8 @@ import numpy as np
 from lit_scenes import cube, make_lights, make_scene, merge, quad
 from stage_builders import base_context
 import pytest
-from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_ROUNDING, FLOAT32_STORAGE, MC_SIGMAS,
+from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_ROUNDING, FLOAT32_STORAGE, GRID_BOUNCE_SHARE,
+                        MC_SIGMAS,
                         ON_BOUNDARY)
 from usdbake.core.products import IrradianceGridProduct
 from usdbake.processors.irradiance_grid import dequantize_vectors
@@ -18,7 +19,7 @@ from usdbake.formats import streaming
 from usdbake.core import Context, ParamError
 from usdbake.kernels import direction24 as dir24
 from usdbake.kernels.rgb9e5 import RELATIVE_ERROR
-from usdbake.core.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Scene
+from usdbake.core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Scene
 from usdbake.kernels.tracer import Tracer
 
 
@@ -353,3 +354,63 @@ def test_emissive_geometry_is_seen_only_without_usdlux_lights():
     vectors, _ = ig.compute_irradiance_vectors(Tracer.from_scene(lit), lit, np.zeros((1, 3)), rays=rays)
     np.testing.assert_allclose(vectors[0, 4], 0.0, atol=FLOAT32_ROUNDING)  # the sun (from below) is not in +z
     np.testing.assert_allclose(vectors[0, 5], np.tile([0, 0, -1.0], (3, 1)), rtol=FLOAT32_ACCUMULATED)
+
+
+def test_grid_function_matches_the_numpy_reconstruction():
+    """kernels/grid_irradiance.grid_irradiance (wp.func) is reconstruct_irradiance's paper formula."""
+    import warp as wp
+
+    from usdbake.kernels.grid_irradiance import GridVectors, grid_irradiance, grid_vectors
+
+    @wp.kernel
+    def read(grid: GridVectors, p: wp.array(dtype=wp.vec3), n: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+        i = wp.tid()
+        out[i] = grid_irradiance(grid, p[i], n[i])
+
+    rng = np.random.default_rng(8)  # fixed seed: arbitrary vectors, points in and around the grid
+    layout = ig.GridLayout(np.array([-1.0, 0.5, 2.0]), np.array([0.5, 0.5, 0.5]), (4, 3, 5))
+    vectors = rng.normal(size=(layout.count, 6, 3, 3)).astype(np.float32)
+    points = (layout.grid_origin - 0.2 + rng.random((400, 3)) * 2.8).astype(np.float32)
+    normals = random_normals(400, 9).astype(np.float32)
+    out = wp.zeros(400, dtype=wp.vec3, device="cpu")
+    wp.launch(read, 400, [grid_vectors(vectors, layout.resolution, layout.grid_origin, layout.cell_size, "cpu"),
+                          wp.array(points, dtype=wp.vec3, device="cpu"), wp.array(normals, dtype=wp.vec3, device="cpu"),
+                          out], device="cpu")
+    expected = ig.reconstruct_irradiance(layout, vectors, points, normals, normal_offset=0.0)
+    np.testing.assert_allclose(out.numpy(), expected, atol=FLOAT32_ACCUMULATED * np.abs(vectors).max())
+
+
+@pytest.fixture(scope="module")
+def lit_room():
+    """A closed 2 m room of six grey prims with a disk light under the ceiling, and 300 points on its walls."""
+    from patch_scenes import box_parts
+    from patch_scenes import make_scene as make_parts_scene
+
+    light = (LIGHT_DISK, [10, 9, 8], [1, 1, 1.9], [0, 0, -1], [0.3, 0.3])
+    scene = make_parts_scene(box_parts(size=2.0, grid=2), albedo=(0.6, 0.5, 0.4), lights=make_lights(light))
+    rng = np.random.default_rng(4)  # fixed seed: points on the walls
+    areas = scene.tri_areas.astype(np.float64)
+    pick = rng.choice(len(areas), 300, p=areas / areas.sum())
+    r1, r2 = np.sqrt(rng.random(300))[:, None], rng.random(300)[:, None]
+    c = scene.points[scene.tri_vertices[pick]].astype(np.float64)
+    points = (c[:, 0] * (1 - r1) + c[:, 1] * r1 * (1 - r2) + c[:, 2] * r1 * r2).astype(np.float32)
+    return scene, Tracer.from_scene(scene), points, scene.tri_normals[pick]
+
+
+def test_more_bounces_carry_the_light_a_path_tracer_sees(lit_room):
+    """Indirect light at points on the walls of a closed lit room: each bounce adds light, and the k-bounce
+    grid's mean, as a share of a k-bounce path tracer's, stays near the one-bounce grid's share (the passes
+    that reflect the previous grid's light neither drop nor double it)."""
+    from usdbake.benchmarks.references import path_traced_indirect
+
+    scene, tracer, points, normals = lit_room
+    layout = ig.grid_layout(scene.points.min(0), scene.points.max(0), vertices=1500)
+    means, shares = [], []
+    for bounces in (1, 2, 3):
+        grid = ig.bake_grid(tracer, scene, layout, rays=256, include_direct=False, bounces=bounces)
+        estimate = ig.reconstruct_irradiance(layout, grid.vectors, points, normals)
+        reference = path_traced_indirect(tracer, scene, points, normals, paths=2048, bounces=bounces)
+        means.append(float(estimate.mean()))
+        shares.append(float(estimate.mean() / reference.mean()))
+    assert means[0] < means[1] < means[2]
+    assert all(abs(share / shares[0] - 1.0) <= GRID_BOUNCE_SHARE for share in shares[1:]), shares
