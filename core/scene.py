@@ -145,6 +145,9 @@ class Scene:
     relative to ``origin``: ``points[prim_points(m)] ~ [local, 1] @ prim_to_world[m]``."""
     up_axis: str = "Y"
     meters_per_unit: float = 1.0
+    probe_volumes: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 3), np.float64))
+    """(K, 2, 3) float64 (min, max) world bounds, relative to ``origin``, of the prims with ProbeVolumeAPI:
+    where light volumes (the irradiance grid) go; none: the whole scene."""
     site: dict = field(default_factory=dict)
     """The stage's place, when its layer stack says (a ``usdbake sky`` layer): latitude, longitude (degrees),
     timezone (hours east of UTC) and the layer's identifier; empty when unknown."""
@@ -217,7 +220,7 @@ FACETS: dict[str, tuple[str, ...]] = {
     "geometry": (
         "points", "tri_vertices", "tri_corner", "tri_prim", "tri_face", "tri_instance", "tri_double_sided",
         "point_prim", "prim_paths", "prim_point_start", "prim_writable", "prim_skip", "prim_instance_roots",
-        "origin", "up_axis", "meters_per_unit", "prim_to_world",
+        "origin", "up_axis", "meters_per_unit", "prim_to_world", "probe_volumes",
     ),
     "materials": ("tri_albedo", "tri_emission", "prim_surface"),
     "lights": (

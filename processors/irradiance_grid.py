@@ -4,7 +4,10 @@ Pacanowski, Raynaud, Granier, Reuter, Schlick, Poulin, "Efficient Streaming
 of 3D Scenes with Complex Geometry and Complex Lighting", Web3D 2008
 (doi:10.1145/1394209.1394214), sections 3 and 4.1.
 
-**Grid.** A regular grid of cubic cells over the scene bounds: ``cell_size``
+**Grid.** A regular grid of cubic cells over the union of the stage's probe
+volumes (prims with the ProbeVolumeAPI schema: a room on a 200 m ground plane
+gets its grid in the room, not on the lawn), or over the scene bounds when
+there are none: ``cell_size``
 stage units, or (``cell_size = 0``) the size that gives at most ``vertices``
 vertices. Each axis has ``n = max(2, ceil(extent / h + 0.5) + 1)`` vertices
 centred on the bounds, so the outer vertices lie between h/4 and 3h/4
@@ -263,6 +266,14 @@ class GridLayout:
 
 def _axis_counts(extent: np.ndarray, h: float) -> np.ndarray:
     return np.maximum(2, np.ceil(extent / h + 0.5).astype(np.int64) + 1)
+
+
+def grid_bounds(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Where the grid goes: the union of the stage's probe volumes (prims with ProbeVolumeAPI), or, with none,
+    the scene's bounds."""
+    if len(scene.probe_volumes):
+        return scene.probe_volumes[:, 0].min(axis=0), scene.probe_volumes[:, 1].max(axis=0)
+    return scene.bounds
 
 
 def grid_layout(lo: np.ndarray, hi: np.ndarray, *, cell_size: float = 0.0, vertices: int = 20000) -> GridLayout:
@@ -528,7 +539,7 @@ class IrradianceGrid(Processor):
 
     def run(self, ctx: Context) -> Result:
         scene, p = ctx.scene, ctx.params
-        lo, hi = scene.bounds
+        lo, hi = grid_bounds(scene)
         layout = grid_layout(lo, hi, cell_size=p.cell_size, vertices=p.vertices)
         ctx.progress(0.0)
         grid = bake_grid(ctx.tracer, scene, layout, rays=p.rays, seed=p.seed, include_direct=p.include_direct,
@@ -554,6 +565,9 @@ class IrradianceGrid(Processor):
                  "quantized_bytes": float(grid.directions.nbytes + grid.colors.nbytes),
                  "float_bytes": float(v * VECTORS_PER_VERTEX * 9 * 4)}
         messages = []
+        if len(scene.probe_volumes):
+            messages.append(f"grid over {len(scene.probe_volumes)} probe volume(s) (ProbeVolumeAPI): "
+                            f"{' x '.join(f'{x:.3g}' for x in hi - lo)} stage units, cell {layout.cell_size[0]:.3g}")
         invalid = v - int(grid.vertex_valid.sum())
         if invalid:
             messages.append(f"{invalid} of {v} grid vertices are inside geometry (filled by push-pull)")

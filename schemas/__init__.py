@@ -8,9 +8,9 @@ This folder is a USD plugin of ``Type: "resource"`` (no compiled code):
   of it (regenerate with ``usdGenSchema schema.usda .`` after editing it).
 
 It defines three concrete typed schemas based on ``Xformable``
-(``LightProbeCloud``, ``IrradianceVectorGrid``, ``RadiosityPatches``) and two
-single-apply API schemas whose properties live under ``bake:``
-(``DisplacementFieldAPI``, ``SkyVisibilityAPI``).
+(``LightProbeCloud``, ``IrradianceVectorGrid``, ``RadiosityPatches``) and three
+single-apply API schemas (their properties live under ``bake:``)
+(``DisplacementFieldAPI``, ``ProbeVolumeAPI``, ``SkyVisibilityAPI``).
 
 A DCC or any other USD application picks the schemas up by setting
 ``PXR_PLUGINPATH_NAME`` to this folder (``SCHEMA_DIR``) before USD starts, or
@@ -27,7 +27,7 @@ from pxr import Plug, Usd
 SCHEMA_DIR = os.path.dirname(os.path.abspath(__file__))
 
 TYPED_SCHEMAS = ("LightProbeCloud", "IrradianceVectorGrid", "RadiosityPatches")
-API_SCHEMAS = ("DisplacementFieldAPI", "SkyVisibilityAPI")
+API_SCHEMAS = ("DisplacementFieldAPI", "ProbeVolumeAPI", "SkyVisibilityAPI")
 
 
 def register() -> bool:

@@ -333,6 +333,7 @@ def _assemble(stage, builder: _Builder, light_prims, instances: _InstanceTable, 
         instances=_instances(instances, origin),
         origin=origin,
         prim_to_world=_prim_to_world(builder, origin),
+        probe_volumes=probe_volumes(stage, timecode, origin),
         up_axis=str(UsdGeom.GetStageUpAxis(stage)),
         meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
         site=stage_site(stage),
@@ -340,6 +341,21 @@ def _assemble(stage, builder: _Builder, light_prims, instances: _InstanceTable, 
         source=stage.GetRootLayer().identifier,
         warnings=tuple(builder.warnings),
     )
+
+
+def probe_volumes(stage: Usd.Stage, timecode: Usd.TimeCode, origin: np.ndarray) -> np.ndarray:
+    """(K, 2, 3) world bounds (relative to ``origin``) of the active prims with ProbeVolumeAPI."""
+    cache = UsdGeom.BBoxCache(timecode, [UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.proxy,
+                                         UsdGeom.Tokens.guide])
+    boxes = []
+    for prim in stage.Traverse():
+        if prim.HasAPI("ProbeVolumeAPI"):
+            box = cache.ComputeWorldBound(prim).ComputeAlignedRange()
+            if box.IsEmpty():
+                raise StageError(str(prim.GetPath()), "ProbeVolumeAPI", "the probe volume has no extent (a "
+                                 "boundable prim with a size, such as a Cube, is needed)")
+            boxes.append([np.array(box.GetMin()) - origin, np.array(box.GetMax()) - origin])
+    return np.array(boxes, np.float64).reshape(-1, 2, 3)
 
 
 def stage_site(stage: Usd.Stage) -> dict:

@@ -414,3 +414,38 @@ def test_more_bounces_carry_the_light_a_path_tracer_sees(lit_room):
         shares.append(float(estimate.mean() / reference.mean()))
     assert means[0] < means[1] < means[2]
     assert all(abs(share / shares[0] - 1.0) <= GRID_BOUNCE_SHARE for share in shares[1:]), shares
+
+
+def test_the_grid_goes_where_the_probe_volume_is():
+    """A 4 x 4 x 3 m room on a 200 m ground plane: with a ProbeVolumeAPI cube around the room the grid lies
+    over the room (its cells 0.3 m, not 8 m); an extentless volume is refused naming the prim."""
+    from pxr import Gf, UsdGeom, UsdLux
+
+    from stage_builders import add_mesh, new_stage
+    from usdbake.core.errors import StageError
+    from usdbake.stages.extract import extract_scene
+
+    stage = new_stage(up_axis="Z")
+    add_mesh(stage, "/World/Ground", [(-100, -100, 0), (100, -100, 0), (100, 100, 0), (-100, 100, 0)], [4],
+             [0, 1, 2, 3])
+    box = [(x, y, z) for z in (0, 3) for y in (-2, 2) for x in (-2, 2)]
+    add_mesh(stage, "/World/Room", box, [4] * 6, [0, 2, 3, 1, 4, 5, 7, 6, 0, 1, 5, 4, 2, 6, 7, 3, 0, 4, 6, 2,
+                                                 1, 3, 7, 5])
+    UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(1.0)
+    whole = ig.grid_layout(*ig.grid_bounds(extract_scene(stage)), vertices=1000)
+    cube = UsdGeom.Cube.Define(stage, "/World/RoomVolume")
+    UsdGeom.Xformable(cube).AddTranslateOp().Set(Gf.Vec3d(0, 0, 1.5))
+    UsdGeom.Xformable(cube).AddScaleOp().Set(Gf.Vec3f(2, 2, 1.5))
+    cube.GetPrim().ApplyAPI("ProbeVolumeAPI")
+    scene = extract_scene(stage)
+    np.testing.assert_allclose(scene.probe_volumes[0] + scene.origin, [[-2, -2, 0], [2, 2, 3]], atol=1e-9)
+    result, _ = run(scene, vertices=1000, rays=16)
+    layout = result.products[IrradianceGridProduct].layout
+    world_lo = layout.grid_origin + scene.origin
+    world_hi = world_lo + (np.array(layout.resolution) - 1) * layout.cell_size
+    assert (world_lo >= [-2, -2, 0] - layout.cell_size).all() and (world_hi <= [2, 2, 3] + layout.cell_size).all()
+    assert layout.cell_size[0] < 0.1 * whole.cell_size[0]
+    assert any("1 probe volume(s)" in m for m in result.messages)
+    UsdGeom.Xform.Define(stage, "/World/Empty").GetPrim().ApplyAPI("ProbeVolumeAPI")
+    with pytest.raises(StageError, match="/World/Empty.ProbeVolumeAPI: the probe volume has no extent"):
+        extract_scene(stage)

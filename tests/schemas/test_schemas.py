@@ -52,6 +52,7 @@ TYPED_PROPS = {
 }
 
 API_PROPS = {
+    "ProbeVolumeAPI": set(),
     "DisplacementFieldAPI": {
         "bake:field:file",
         "bake:field:center",
