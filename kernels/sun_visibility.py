@@ -22,6 +22,7 @@ wp.set_module_options({"enable_backward": False})
 def sun_visibility_kernel(
     start: int,
     mesh: wp.uint64,
+    faces: wp.array(dtype=int),
     corners: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
     sun: wp.vec3,
@@ -31,7 +32,7 @@ def sun_visibility_kernel(
     seed: int,
     visible: wp.array(dtype=float),
 ):
-    """Share of rays from random points of face i toward random points of the solar disk that escape.
+    """Share of rays from random points of face faces[i] toward random points of the solar disk that escape.
 
     The sun's visibility S_i of Bosch, Besuievsky & Martin, Sec. 5 (they use a
     shadow map; here rays): directions uniform in solid angle over the cone of
@@ -41,10 +42,11 @@ def sun_visibility_kernel(
     Dimensionless in [0, 1]; rays below the face's horizon count as blocked.
     """
     i = start + wp.tid()
-    n = normals[i]
-    a = corners[3 * i]
-    b = corners[3 * i + 1]
-    c = corners[3 * i + 2]
+    f = faces[i]
+    n = normals[f]
+    a = corners[3 * f]
+    b = corners[3 * f + 1]
+    c = corners[3 * f + 2]
     frame = tangent_frame(sun)
     state = wp.rand_init(seed, i)
     hits = int(0)
@@ -60,30 +62,40 @@ def sun_visibility_kernel(
     visible[i] = float(hits) / float(samples)
 
 
+class SunFaces:
+    """Faces uploaded once for shadow rays toward any number of sun directions."""
+
+    def __init__(self, tracer, corners: np.ndarray, normals: np.ndarray):
+        self.tracer = tracer
+        self.normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
+        self.corners = tracer.array(np.ascontiguousarray(corners, np.float32).reshape(-1, 3), wp.vec3)
+        self.normals_device = tracer.array(self.normals, wp.vec3)
+
+    def visibility(self, sun: np.ndarray, *, samples: int, seed: int) -> np.ndarray:
+        """(F,) float32 share of the solar disk visible from each face (0 for faces turned away):
+        ``sun_visibility_kernel`` on the faces not wholly turned away."""
+        sun = np.asarray(sun, np.float64)
+        sun = (sun / np.linalg.norm(sun)).astype(np.float32)
+        result = np.zeros(len(self.normals), np.float32)
+        facing = np.flatnonzero(self.normals @ sun > -math.sin(math.radians(SUN_ANGULAR_DIAMETER / 2)))
+        if len(facing) == 0:
+            return result
+        tracer = self.tracer
+        visible = wp.zeros(len(facing), dtype=float, device=tracer.device)
+        cos_half = math.cos(math.radians(SUN_ANGULAR_DIAMETER / 2))
+        tracer.launch(sun_visibility_kernel, len(facing), [
+            tracer.mesh.id, tracer.array(facing.astype(np.int32), wp.int32), self.corners, self.normals_device,
+            wp.vec3(*sun.tolist()), cos_half, int(samples), tracer.epsilon, int(seed), visible])
+        tracer.rays_cast += len(facing) * samples
+        result[facing] = visible.numpy()
+        return result
+
+
 def compute_sun_visibility(tracer, corners: np.ndarray, normals: np.ndarray, sun: np.ndarray, *,
                            samples: int = 4, seed: int = 0) -> np.ndarray:
-    """(F,) float32 share of the solar disk visible from each face (0 for faces turned away).
-
-    S_i of the module docstring (Bosch, Besuievsky & Martin, Sec. 5: the sun's
-    visibility from its current position); dimensionless, launches
-    ``sun_visibility_kernel`` on the faces not wholly turned away.
-    """
-    corners = np.ascontiguousarray(corners, np.float32).reshape(-1, 3, 3)
-    normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
-    sun = np.asarray(sun, np.float64)
-    sun = (sun / np.linalg.norm(sun)).astype(np.float32)
-    result = np.zeros(len(corners), np.float32)
-    facing = np.flatnonzero(normals @ sun > -math.sin(math.radians(SUN_ANGULAR_DIAMETER / 2)))
-    if len(facing) == 0:
-        return result
-    visible = wp.zeros(len(facing), dtype=float, device=tracer.device)
-    cos_half = math.cos(math.radians(SUN_ANGULAR_DIAMETER / 2))
-    tracer.launch(sun_visibility_kernel, len(facing), [
-        tracer.mesh.id, tracer.array(corners[facing].reshape(-1, 3), wp.vec3), tracer.array(normals[facing], wp.vec3),
-        wp.vec3(*sun.tolist()), cos_half, int(samples), tracer.epsilon, int(seed), visible])
-    tracer.rays_cast += len(facing) * samples
-    result[facing] = visible.numpy()
-    return result
+    """(F,) float32 share of the solar disk visible from each face (0 for faces turned away): S_i of the
+    module docstring (Bosch, Besuievsky & Martin, Sec. 5: the sun's visibility from its current position)."""
+    return SunFaces(tracer, corners, normals).visibility(sun, samples=samples, seed=seed)
 
 
 def sun_bins(suns: np.ndarray, up: np.ndarray, subdivision: int) -> tuple[np.ndarray, np.ndarray]:
@@ -108,9 +120,10 @@ def sun_bin_hits(tracer, corners: np.ndarray, normals: np.ndarray, directions: n
     direction (world, (B, 3)): S_i of every bin, as exact counts in a byte each."""
     if not 1 <= samples <= 255:
         raise ValueError(f"sun samples {samples}: a count per face is kept in a byte (1..255)")
-    hits = np.zeros((len(directions), len(corners)), np.uint8)
+    faces = SunFaces(tracer, corners, normals)  # uploaded once for every bin
+    hits = np.zeros((len(directions), len(faces.normals)), np.uint8)
     for b, direction in enumerate(directions):
-        share = compute_sun_visibility(tracer, corners, normals, direction, samples=samples, seed=seed + b)
+        share = faces.visibility(direction, samples=samples, seed=seed + b)
         hits[b] = np.rint(share * samples).astype(np.uint8)
         progress((b + 1) / max(1, len(directions)))
     return hits

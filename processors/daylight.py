@@ -62,7 +62,7 @@ from ..core.products import DaylightProduct, SkyVisibilityProduct
 from ..core.scene import Scene
 from ..kernels.sky import enu_to_world, patch_radiance, sun_normal_irradiance
 from ..kernels.solar import SunPosition, day_of_year, horizontal_position, parse_times, sun_position
-from ..kernels.sun_visibility import compute_sun_visibility, sun_bin_hits
+from ..kernels.sun_visibility import SunFaces, sun_bin_hits
 
 wp.set_module_options({"enable_backward": False})
 
@@ -144,7 +144,7 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
     """
     position = sun_position(times, latitude, longitude, timezone)
     turn = enu_to_world("Z", north)  # rotation about up: site ENU -> layout ENU
-    corners = product.face_points[product.face_vertices].astype(np.float32)
+    faces = SunFaces(tracer, product.face_points[product.face_vertices], product.face_normals) if sun else None
     albedo = scene.tri_albedo[product.face_source]
     visibility = product.visibility_patch_major()
     out = np.zeros((len(times), product.num_faces, 3), np.float32)
@@ -161,8 +161,7 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
         if e_normal is not None:
             sun_world = product.to_world @ sun_layout
             cos_i = np.maximum(product.face_normals @ sun_world.astype(np.float32), 0.0)
-            seen = compute_sun_visibility(tracer, corners, product.face_normals, sun_world, samples=sun_samples,
-                                          seed=seed + k)
+            seen = faces.visibility(sun_world, samples=sun_samples, seed=seed + k)
             sun_rays += int((cos_i > 0).sum()) * sun_samples
             direct = (cos_i * seen)[:, None] * e_normal[None, :].astype(np.float32)
         started = _time.perf_counter()

@@ -82,6 +82,7 @@ def extract_scene(stage: Usd.Stage, *, time: float | None = None, allow_missing:
     materials = MaterialReader(timecode, warnings=builder.warnings)
     local_meshes: dict[str, LocalMesh] = {}
     light_prims: list[Usd.Prim] = []
+    volume_prims: list[Usd.Prim] = []
     instances = _InstanceTable()
 
     def local_mesh(prim: Usd.Prim) -> LocalMesh:
@@ -93,6 +94,8 @@ def extract_scene(stage: Usd.Stage, *, time: float | None = None, allow_missing:
     predicate = Usd.TraverseInstanceProxies(Usd.PrimIsActive & Usd.PrimIsDefined & ~Usd.PrimIsAbstract)
     iterator = iter(Usd.PrimRange.Stage(stage, predicate))
     for prim in iterator:
+        if prim.HasAPI("ProbeVolumeAPI"):  # before the visibility test: a volume is often an invisible cube
+            volume_prims.append(prim)
         if not _renderable(prim, timecode):
             iterator.PruneChildren()
             continue
@@ -107,7 +110,7 @@ def extract_scene(stage: Usd.Stage, *, time: float | None = None, allow_missing:
         elif any(prim.IsA(light_type) for light_type, _ in LIGHT_TYPES):
             light_prims.append(prim)
 
-    return _assemble(stage, builder, light_prims, instances, xforms, timecode, time)
+    return _assemble(stage, builder, light_prims, volume_prims, instances, xforms, timecode, time)
 
 
 def _instance_roots(prim: Usd.Prim) -> tuple[str, ...]:
@@ -288,7 +291,8 @@ def _prototype_meshes(root: Usd.Prim, timecode, xforms, local_mesh) -> list:
     return found
 
 
-def _assemble(stage, builder: _Builder, light_prims, instances: _InstanceTable, xforms, timecode, time) -> Scene:
+def _assemble(stage, builder: _Builder, light_prims, volume_prims, instances: _InstanceTable, xforms, timecode,
+              time) -> Scene:
     world_points = [np.c_[m.points, np.ones(len(m.points))] @ world for m, world, _, _ in builder.meshes]
     all_points = np.concatenate([p[:, :3] for p in world_points]) if world_points else np.zeros((0, 3))
     origin = ((all_points.min(axis=0) + all_points.max(axis=0)) / 2) if len(all_points) else np.zeros(3)
@@ -333,7 +337,7 @@ def _assemble(stage, builder: _Builder, light_prims, instances: _InstanceTable, 
         instances=_instances(instances, origin),
         origin=origin,
         prim_to_world=_prim_to_world(builder, origin),
-        probe_volumes=probe_volumes(stage, timecode, origin),
+        probe_volumes=probe_volumes(volume_prims, timecode, origin),
         up_axis=str(UsdGeom.GetStageUpAxis(stage)),
         meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
         site=stage_site(stage),
@@ -343,18 +347,18 @@ def _assemble(stage, builder: _Builder, light_prims, instances: _InstanceTable, 
     )
 
 
-def probe_volumes(stage: Usd.Stage, timecode: Usd.TimeCode, origin: np.ndarray) -> np.ndarray:
-    """(K, 2, 3) world bounds (relative to ``origin``) of the active prims with ProbeVolumeAPI."""
+def probe_volumes(prims: list, timecode: Usd.TimeCode, origin: np.ndarray) -> np.ndarray:
+    """(K, 2, 3) world bounds (relative to ``origin``) of the probe-volume prims (ProbeVolumeAPI) the
+    extraction met, visible or not."""
     cache = UsdGeom.BBoxCache(timecode, [UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.proxy,
                                          UsdGeom.Tokens.guide])
     boxes = []
-    for prim in stage.Traverse():
-        if prim.HasAPI("ProbeVolumeAPI"):
-            box = cache.ComputeWorldBound(prim).ComputeAlignedRange()
-            if box.IsEmpty():
-                raise StageError(str(prim.GetPath()), "ProbeVolumeAPI", "the probe volume has no extent (a "
-                                 "boundable prim with a size, such as a Cube, is needed)")
-            boxes.append([np.array(box.GetMin()) - origin, np.array(box.GetMax()) - origin])
+    for prim in prims:
+        box = cache.ComputeWorldBound(prim).ComputeAlignedRange()  # invisible prims count: volumes often are
+        if box.IsEmpty():
+            raise StageError(str(prim.GetPath()), "ProbeVolumeAPI", "the probe volume has no extent (a "
+                             "boundable prim with a size, such as a Cube, is needed)")
+        boxes.append([np.array(box.GetMin()) - origin, np.array(box.GetMax()) - origin])
     return np.array(boxes, np.float64).reshape(-1, 2, 3)
 
 

@@ -118,30 +118,31 @@ def bounded_requests(limit: int):
 def make_app(path: str, *, max_clients: int = 64) -> web.Application:
     """The aiohttp application serving ``path``'s streams (module docstring)."""
     streams = stage_streams(path)
-    files = {m["name"]: m["file"] for m in streams["meshes"]}
-    if streams["grid"]:
-        files[streams["grid"]["name"]] = streams["grid"]["file"]
+    ordered = streams["meshes"] + ([streams["grid"]] if streams["grid"] else [])  # /stream's numbering
+    files = {stream["name"]: stream["file"] for stream in ordered}
+    contents = [stream["file"].read_bytes() for stream in ordered]  # read once: /stream sends them to every client
+
+    def entry(stream: dict, data: bytes) -> dict:
+        return {"url": f"/files/{stream['name']}", "bytes": len(data)}
+
     manifest = {
         "stage": streams["stage"],
-        "meshes": [{"prim": m["prim"], "url": f"/files/{m['name']}", "bytes": m["file"].stat().st_size}
-                   for m in streams["meshes"]],
-        "grid": {"url": f"/files/{streams['grid']['name']}", "bytes": streams["grid"]["file"].stat().st_size}
-        if streams["grid"] else None,
+        "meshes": [{"prim": m["prim"], **entry(m, data)} for m, data in zip(streams["meshes"], contents)],
+        "grid": entry(streams["grid"], contents[-1]) if streams["grid"] else None,
     }
+    header = json.dumps(manifest).encode()
+    page, script = (VIEWER / "index.html").read_text(), (VIEWER / "viewer.js").read_text()
+
     async def index(request: web.Request) -> web.Response:
-        return web.Response(content_type="text/html", text=(VIEWER / "index.html").read_text())
+        return web.Response(content_type="text/html", text=page)
 
     async def viewer_script(request: web.Request) -> web.Response:
-        return web.Response(content_type="text/javascript", text=(VIEWER / "viewer.js").read_text())
+        return web.Response(content_type="text/javascript", text=script)
 
     async def manifest_route(request: web.Request) -> web.Response:
         response = web.Response(text=json.dumps(manifest), content_type="application/json")
         response.enable_compression()
         return response
-
-    urls = [m["url"] for m in manifest["meshes"]] + ([manifest["grid"]["url"]] if manifest["grid"] else [])
-    contents = [files[url.rsplit("/", 1)[1]].read_bytes() for url in urls]  # read once: sent to every client
-    header = json.dumps({**manifest, "order": urls}).encode()
 
     async def stream_route(request: web.Request) -> web.StreamResponse:
         try:

@@ -10,15 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
+from usdbake.benchmarks.bench_progressive_mesh import height_field
 from usdbake.formats import mesh_stream as ms
 from usdbake.processors import progressive_mesh as pm
-
-
-def bumpy_grid(n: int):
-    x, y = np.meshgrid(np.arange(n, dtype=np.float64), np.arange(n, dtype=np.float64))
-    points = np.c_[x.ravel(), y.ravel(), np.sin(x.ravel() / 3.0) * np.cos(y.ravel() / 4.0)]
-    a = (np.arange(n - 1)[None, :] + n * np.arange(n - 1)[:, None]).ravel()
-    return points, np.concatenate([np.c_[a, a + 1, a + n + 1], np.c_[a, a + n + 1, a + n]])
 
 
 def random_mesh(seed: int, count: int):
@@ -68,7 +62,7 @@ def packet_ends(data: bytes) -> list[int]:
 
 
 def test_every_packet_prefix_is_its_level_of_detail():
-    check_prefixes(*bumpy_grid(12), packet_vertices=7)
+    check_prefixes(*height_field(12, bumps=3.0), packet_vertices=7)
 
 
 @settings(max_examples=25, deadline=None)
@@ -90,7 +84,7 @@ def test_appearance_levels_match_a_brute_force_search():
 
 
 def test_a_truncated_stream_drops_the_partial_packet_and_broken_data_is_refused():
-    points, tris = bumpy_grid(6)
+    points, tris = height_field(6, bumps=3.0)
     rank, collapse_to = pm.progressive_order(points, tris)
     data = ms.encode_mesh_stream(points, tris, rank, collapse_to, packet_vertices=10)
     ends = packet_ends(data)

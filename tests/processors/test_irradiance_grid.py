@@ -437,7 +437,9 @@ def test_the_grid_goes_where_the_probe_volume_is():
     UsdGeom.Xformable(cube).AddTranslateOp().Set(Gf.Vec3d(0, 0, 1.5))
     UsdGeom.Xformable(cube).AddScaleOp().Set(Gf.Vec3f(2, 2, 1.5))
     cube.GetPrim().ApplyAPI("ProbeVolumeAPI")
+    cube.CreateVisibilityAttr(UsdGeom.Tokens.invisible)  # a volume, not a wall: it still counts
     scene = extract_scene(stage)
+    assert len(scene.prim_paths) == 2  # the cube is no receiver
     np.testing.assert_allclose(scene.probe_volumes[0] + scene.origin, [[-2, -2, 0], [2, 2, 3]], atol=1e-9)
     result, _ = run(scene, vertices=1000, rays=16)
     layout = result.products[IrradianceGridProduct].layout
