@@ -40,7 +40,7 @@ def ao_ray_arrays(tracer, scene, count: int, seed: int = 7) -> tuple[np.ndarray,
     picks = usable[rng.integers(0, len(usable), count)]
     origins = wp.empty(count, dtype=wp.vec3, device=tracer.device)
     directions = wp.empty(count, dtype=wp.vec3, device=tracer.device)
-    rays = ao_rays(tracer.mesh.id, samples=1, max_distance=np.inf, epsilon=tracer.epsilon, seed=seed)
+    rays = ao_rays(tracer.scene, samples=1, max_distance=np.inf, epsilon=tracer.epsilon, seed=seed)
     tracer.launch(ao_ray_kernel, count, [rays, tracer.array(scene.points[picks], wp.vec3),
                                          tracer.array(normals[picks], wp.vec3), origins, directions])
     return origins.numpy(), directions.numpy()

@@ -23,6 +23,7 @@ from usdbake.kernels.lights import (
 )
 from usdbake.kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
 from usdbake.kernels.tracer import FAR, surface_origin
+from usdbake.kernels.traversal import TraceScene, trace_any, trace_closest
 
 wp.set_module_options({"enable_backward": False})
 
@@ -33,7 +34,7 @@ PATH_CHUNKS = 16
 @wp.kernel
 def indirect_paths_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     surfaces: Surfaces,
     lights: Lights,
     positions: wp.array(dtype=wp.vec3),
@@ -65,8 +66,8 @@ def indirect_paths_kernel(
         throughput = wp.vec3(1.0, 1.0, 1.0)
         for h in range(bounces):
             w = tangent_frame(normal) * cosine_hemisphere(wp.randf(state), wp.randf(state))
-            origin = surface_origin(mesh, p, normal, wp.vec3(0.0, 0.0, 0.0), epsilon)
-            q = wp.mesh_query_ray(mesh, origin, w, FAR)
+            origin = surface_origin(scene, p, normal, wp.vec3(0.0, 0.0, 0.0), epsilon)
+            q = trace_closest(scene, origin, w, FAR)
             if not q.result:
                 break
             hn = surfaces.tri_normals[q.face]
@@ -75,7 +76,7 @@ def indirect_paths_kernel(
             p = origin + w * q.t
             normal = hn
             throughput = wp.cw_mul(throughput, surfaces.tri_albedo[q.face])
-            total += wp.cw_mul(throughput, direct_irradiance(mesh, lights, p, normal, 1, 1, epsilon, state))
+            total += wp.cw_mul(throughput, direct_irradiance(scene, lights, p, normal, 1, 1, epsilon, state))
     out[item] = total
 
 
@@ -85,7 +86,7 @@ def path_traced_indirect(tracer, scene, positions, normals, *, paths: int, bounc
     lighting = scene_lighting(scene, tracer.device)
     out = wp.zeros(len(positions) * PATH_CHUNKS, dtype=wp.vec3, device=tracer.device)
     tracer.launch(indirect_paths_kernel, len(positions) * PATH_CHUNKS, [
-        tracer.mesh.id, lighting.surfaces, lighting.lights, tracer.array(positions, wp.vec3),
+        tracer.scene, lighting.surfaces, lighting.lights, tracer.array(positions, wp.vec3),
         tracer.array(normals, wp.vec3), per_item, PATH_CHUNKS, bounces, tracer.epsilon, seed, out])
     return out.numpy().reshape(len(positions), PATH_CHUNKS, 3).sum(axis=1) / (per_item * PATH_CHUNKS)
 
@@ -93,7 +94,7 @@ def path_traced_indirect(tracer, scene, positions, normals, *, paths: int, bounc
 @wp.kernel
 def point_irradiance_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     surfaces: Surfaces,
     lights: Lights,
     positions: wp.array(dtype=wp.vec3),
@@ -113,7 +114,7 @@ def point_irradiance_kernel(
     if wp.length(n) < 0.5:
         irradiance[i] = wp.vec3(0.0, 0.0, 0.0)
         return
-    p = surface_origin(mesh, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
+    p = surface_origin(scene, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
     state = wp.rand_init(seed, i)
     frame = tangent_frame(n)
     samples = strata * strata
@@ -121,18 +122,18 @@ def point_irradiance_kernel(
     for k in range(samples):
         u = stratified_pair(k, strata, state)
         d = frame * cosine_hemisphere(u[0], u[1])
-        q = wp.mesh_query_ray(mesh, p, d, FAR)
+        q = trace_closest(scene, p, d, FAR)
         if not q.result:
             if include_direct != 0:
                 total = total + lights.dome_radiance
         else:
-            total = total + hit_radiance(mesh, surfaces, lights, p, d, q.face, q.t, see_emission, epsilon,
+            total = total + hit_radiance(scene, surfaces, lights, p, d, q.face, q.t, see_emission, epsilon,
                                          wp.rand_init(wp.int32(state), samples + k))
     result = total * (wp.pi / float(samples))
     if include_direct != 0:  # the small lights, as the grid samples them; domes are seen by the escaped rays
         for l in range(lights.light_kind.shape[0]):
             for k in range(light_sample_count(lights, l, strata)):
-                s = visible_light_sample(mesh, lights, l, p, k, strata, state)
+                s = visible_light_sample(scene, lights, l, p, k, strata, state)
                 result = result + lights.light_radiance[l] * (s.weight * wp.max(wp.dot(n, s.direction), 0.0))
     irradiance[i] = result
 
@@ -150,7 +151,7 @@ def point_irradiance(tracer, scene, positions: np.ndarray, normals: np.ndarray, 
     lighting = scene_lighting(scene, tracer.device)
     out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
     tracer.launch(point_irradiance_kernel, len(positions), [
-        tracer.mesh.id, lighting.surfaces, lighting.lights, tracer.array(positions, wp.vec3),
+        tracer.scene, lighting.surfaces, lighting.lights, tracer.array(positions, wp.vec3),
         tracer.array(normals, wp.vec3), strata, int(seed), tracer.epsilon, int(bool(include_direct)), see_emission,
         out,
     ])
@@ -160,7 +161,7 @@ def point_irradiance(tracer, scene, positions: np.ndarray, normals: np.ndarray, 
 @wp.kernel
 def point_sky_view_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     positions: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
     up: wp.vec3,
@@ -185,12 +186,12 @@ def point_sky_view_kernel(
     frame = tangent_frame(n)
     state = wp.rand_init(seed, i)
     hits = int(0)
-    origin = surface_origin(mesh, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
+    origin = surface_origin(scene, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
     for k in range(strata * strata):
         u = stratified_pair(k, strata, state)
         d = frame * cosine_hemisphere(u[0], u[1])
         if wp.dot(d, up) > 0.0:
-            if not wp.mesh_query_ray_anyhit(mesh, origin, d, FAR):
+            if not trace_any(scene, origin, d, FAR):
                 hits += 1
     view[i] = float(hits) / float(strata * strata)
 
@@ -211,7 +212,7 @@ def compute_point_sky_view(tracer, positions: np.ndarray, normals: np.ndarray, u
     view = wp.zeros(len(positions), dtype=float, device=tracer.device)
     up = np.asarray(up, np.float32)
     tracer.launch(point_sky_view_kernel, len(positions), [
-        tracer.mesh.id, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3),
+        tracer.scene, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3),
         wp.vec3(float(up[0]), float(up[1]), float(up[2])), strata, tracer.epsilon, int(seed), view])
     tracer.rays_cast += len(positions) * strata * strata
     return view.numpy()

@@ -47,6 +47,7 @@ from .sphere_maps import (
     octahedral_wrap,
 )
 from .tracer import Tracer
+from .traversal import TraceScene
 
 wp.set_module_options({"enable_backward": False})
 
@@ -88,8 +89,9 @@ class FieldArrays:
     """(F,) first byte of the field in ``texels``."""
     field_mean_offset: wp.array(dtype=int)
     """(F,) first byte of the field in ``means``."""
-    field_mesh: wp.array(dtype=wp.uint64)
-    """(F,) BVH of the prototype's triangles in prototype space (self-occlusion of instance vertices)."""
+    prototypes: TraceScene
+    """Each field's prototype triangles in prototype space, instance f of this scene (self-occlusion of
+    instance vertices: ``trace_any_in_instance``)."""
     texels: wp.array(dtype=wp.uint8)
     """Every field's texels (codes or packed hit bits), concatenated."""
     means: wp.array(dtype=wp.uint8)
@@ -348,11 +350,10 @@ class FieldSet:
         array = lambda values, dtype: wp.array(np.ascontiguousarray(values), dtype=dtype, device=device)  # noqa: E731
         count = max(1, len(self.fields))
         pad = lambda values, fill: np.asarray(list(values) + [fill] * (count - len(values)))  # noqa: E731
-        self.meshes = []  # prototype BVHs for self-occlusion of instance vertices (kept alive here)
-        for field in self.fields:
-            points = np.asarray(getattr(field, "prototype_points", np.zeros((0, 3))), np.float32).reshape(-1, 3)
-            triangles = np.asarray(getattr(field, "prototype_triangles", np.zeros((0, 3))), np.int32).reshape(-1, 3)
-            self.meshes.append(Tracer(points, triangles, device=device))
+        meshes = [(np.asarray(getattr(field, "prototype_points", np.zeros((0, 3))), np.float32).reshape(-1, 3),
+                   np.asarray(getattr(field, "prototype_triangles", np.zeros((0, 3))), np.int32).reshape(-1, 3))
+                  for field in self.fields]
+        self.prototypes = Tracer.of_meshes(meshes, device=device)  # kept alive with the arrays
         arrays = FieldArrays()
         arrays.field_center = array(pad([f.center for f in self.fields], np.zeros(3)).astype(np.float32)
                                     .reshape(-1, 3), wp.vec3)
@@ -362,7 +363,7 @@ class FieldSet:
         arrays.field_bits = array(pad([int(f.encoding == "bit1") for f in self.fields], 0).astype(np.int32), int)
         arrays.field_offset = array(pad(offsets, 0).astype(np.int32), int)
         arrays.field_mean_offset = array(pad(mean_offsets, 0).astype(np.int32), int)
-        arrays.field_mesh = array(pad([t.mesh.id for t in self.meshes], 0).astype(np.uint64), wp.uint64)
+        arrays.prototypes = self.prototypes.scene
         arrays.texels = array(cat(texel_parts).astype(np.uint8), wp.uint8)
         arrays.means = array(cat(mean_parts).astype(np.uint8), wp.uint8)
         self.arrays = arrays

@@ -45,6 +45,7 @@ import warp as wp
 from ..core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Scene
 from .sampling import concentric_disk, cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
 from .tracer import FAR, surface_origin
+from .traversal import TraceScene, trace_any
 
 wp.set_module_options({"enable_backward": False})
 
@@ -159,12 +160,12 @@ def sky_radiance(lights: Lights, d: wp.vec3) -> wp.vec3:
 
 
 @wp.func
-def shadow_visible(mesh: wp.uint64, origin: wp.vec3, direction: wp.vec3, distance: float, epsilon: float) -> float:
+def shadow_visible(scene: TraceScene, origin: wp.vec3, direction: wp.vec3, distance: float, epsilon: float) -> float:
     """V: 1 if nothing lies along the ray within ``distance``. The origin also steps ``epsilon`` along the
     ray: a point on the seam of two meshes would otherwise hit the neighbouring surface at t = 0."""
     if distance <= epsilon:
         return 1.0
-    if wp.mesh_query_ray_anyhit(mesh, origin + direction * epsilon, direction, distance - epsilon):
+    if trace_any(scene, origin + direction * epsilon, direction, distance - epsilon):
         return 0.0
     return 1.0
 
@@ -259,14 +260,14 @@ def light_sample_at(lights: Lights, l: int, p: wp.vec3, k: int, strata: int, sta
 
 
 @wp.func
-def visible_light_sample(mesh: wp.uint64, lights: Lights, l: int, p: wp.vec3, k: int, strata: int,
+def visible_light_sample(scene: TraceScene, lights: Lights, l: int, p: wp.vec3, k: int, strata: int,
                          state: wp.uint32) -> LightSample:
     """Sample k of light l seen from a point p in free space, its shadow ray cast: weight = Omega V / count,
     so sum_k L weight estimates the light's part of integral L dw (zero for a dome light, which escaped
     rays see, and for an occluded sample). Vector irradiance and SH projections sum L weight f(w)."""
     s = light_sample_at(lights, l, p, k, strata, state)
     if s.weight > 0.0:
-        s.weight = s.weight * shadow_visible(mesh, p, s.direction, s.distance, 0.0) / float(
+        s.weight = s.weight * shadow_visible(scene, p, s.direction, s.distance, 0.0) / float(
             light_sample_count(lights, l, strata))
     return s
 
@@ -297,14 +298,14 @@ def emitter_pmf(lights: Lights, t: int) -> float:
 
 
 @wp.func
-def direct_irradiance(mesh: wp.uint64, lights: Lights, p: wp.vec3, n: wp.vec3, strata: int, sky_strata: int,
+def direct_irradiance(scene: TraceScene, lights: Lights, p: wp.vec3, n: wp.vec3, strata: int, sky_strata: int,
                       epsilon: float, state: wp.uint32) -> wp.vec3:
     """Direct irradiance E0 (W/m^2) at p with unit normal n: E0 = sum_l L_l <weight cos V> over strata^2
     stratified samples per light (sky_strata^2 cosine-weighted rays per dome light, E = pi L <V>) plus
     strata^2 emissive-triangle samples picked by power (weight / pmf). Unbiased; ``state`` must differ
     between calls that should be independent (the samples are drawn from generators seeded by it)."""
     e = wp.vec3(0.0, 0.0, 0.0)
-    origin = surface_origin(mesh, p, n, wp.vec3(0.0, 0.0, 0.0), epsilon)
+    origin = surface_origin(scene, p, n, wp.vec3(0.0, 0.0, 0.0), epsilon)
     for l in range(lights.light_kind.shape[0]):
         acc = float(0.0)
         if lights.light_kind[l] == 1:  # dome
@@ -314,7 +315,7 @@ def direct_irradiance(mesh: wp.uint64, lights: Lights, p: wp.vec3, n: wp.vec3, s
             for k in range(sky):
                 u = stratified_pair(k, sky_strata, state)
                 w = frame * cosine_hemisphere(u[0], u[1])
-                textured += sky_texel(lights, w) * (shadow_visible(mesh, origin, w, FAR, epsilon) * (wp.pi / float(sky)))
+                textured += sky_texel(lights, w) * (shadow_visible(scene, origin, w, FAR, epsilon) * (wp.pi / float(sky)))
             e += wp.cw_mul(lights.light_radiance[l], textured)
         elif lights.light_kind[l] == 2 and wp.length(lights.light_position[l] - p) <= lights.light_size[l][0]:
             acc = wp.pi  # inside a sphere light: radiance from every direction of the hemisphere
@@ -325,7 +326,7 @@ def direct_irradiance(mesh: wp.uint64, lights: Lights, p: wp.vec3, n: wp.vec3, s
                 s = light_sample_at(lights, l, p, k, strata, state)
                 c = wp.dot(n, s.direction)
                 if s.weight > 0.0 and c > 0.0:
-                    acc += s.weight * c * shadow_visible(mesh, origin, s.direction, s.distance - 2.0 * epsilon,
+                    acc += s.weight * c * shadow_visible(scene, origin, s.direction, s.distance - 2.0 * epsilon,
                                                          epsilon) * inv
         e += lights.light_radiance[l] * acc
     if lights.emitter_area.shape[0] > 0:
@@ -342,13 +343,13 @@ def direct_irradiance(mesh: wp.uint64, lights: Lights, p: wp.vec3, n: wp.vec3, s
                                       lights.emitter_area[t], lights.min_d2)
                 c = wp.dot(n, s.direction)
                 if s.weight > 0.0 and c > 0.0:
-                    v = shadow_visible(mesh, origin, s.direction, s.distance - 2.0 * epsilon, epsilon)
+                    v = shadow_visible(scene, origin, s.direction, s.distance - 2.0 * epsilon, epsilon)
                     e += lights.emitter_radiance[t] * (s.weight * c * v / (pmf * float(samples)))
     return e
 
 
 @wp.func
-def hit_radiance(mesh: wp.uint64, surfaces: Surfaces, lights: Lights, origin: wp.vec3, d: wp.vec3, tri: int,
+def hit_radiance(scene: TraceScene, surfaces: Surfaces, lights: Lights, origin: wp.vec3, d: wp.vec3, tri: int,
                  t: float, see_emission: int, epsilon: float, state: wp.uint32) -> wp.vec3:
     """Radiance L(origin, -d) leaving the surface a ray hit, one bounce: L_e + rho E0 / pi for a
     Lambertian surface with E0 by ``direct_irradiance`` (one sample per light); zero on the back of a
@@ -360,7 +361,7 @@ def hit_radiance(mesh: wp.uint64, surfaces: Surfaces, lights: Lights, origin: wp
     if (front or surfaces.tri_double_sided[tri] != 0) and wp.length(n) > 0.5:
         if not front:
             n = -n
-        e = direct_irradiance(mesh, lights, origin + d * t, n, 1, 1, epsilon, state)
+        e = direct_irradiance(scene, lights, origin + d * t, n, 1, 1, epsilon, state)
         value = wp.cw_mul(surfaces.tri_albedo[tri], e) / wp.pi
         if see_emission != 0:
             value = value + surfaces.tri_emission[tri]

@@ -27,6 +27,7 @@ import warp as wp
 
 from .sampling import cosine_hemisphere, strata_for, stratified_pair
 from .tracer import FAR
+from .traversal import TraceScene
 
 wp.set_module_options({"enable_backward": False})
 
@@ -36,7 +37,7 @@ wp.set_module_options({"enable_backward": False})
 class AORays:
     """How an AO kernel casts its rays (one struct for every AO kernel)."""
 
-    mesh: wp.uint64
+    scene: TraceScene
     """BVH the rays are tested against."""
     strata: int
     """strata x strata stratified directions per point."""
@@ -48,10 +49,10 @@ class AORays:
     """Random seed; point i draws from ``wp.rand_init(seed, i)``."""
 
 
-def ao_rays(mesh: int, *, samples: int, max_distance: float, epsilon: float, seed: int) -> AORays:
+def ao_rays(scene: TraceScene, *, samples: int, max_distance: float, epsilon: float, seed: int) -> AORays:
     """An ``AORays`` for ``samples`` rays per point (rounded to a square, ``strata_for``)."""
     rays = AORays()
-    rays.mesh = mesh
+    rays.scene = scene
     rays.strata = strata_for(samples)
     rays.max_distance = float(min(max_distance, FAR))
     rays.epsilon = float(epsilon)

@@ -29,6 +29,7 @@ from .lights import (
 from .sampling import strata_for, stratified_pair
 from .sh import COSINE_LOBE, project_kernel, sh_basis, uniform_sphere
 from .tracer import FAR
+from .traversal import TraceScene, trace_closest
 
 wp.set_module_options({"enable_backward": False})
 
@@ -51,7 +52,7 @@ PROBE_DIRECTIONS = _directions_26()
 @wp.kernel
 def capture_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     surfaces: Surfaces,
     lights: Lights,
     probe_positions: wp.array(dtype=wp.vec3),
@@ -73,17 +74,17 @@ def capture_kernel(
     d = uniform_sphere(u[0], u[1])
     directions[i] = d
     origin = probe_positions[probe]
-    q = wp.mesh_query_ray(mesh, origin, d, FAR)
+    q = trace_closest(scene, origin, d, FAR)
     value = sky_radiance(lights, d)
     if q.result:
-        value = hit_radiance(mesh, surfaces, lights, origin, d, q.face, q.t, 1, epsilon, wp.rand_init(wp.int32(state), samples))
+        value = hit_radiance(scene, surfaces, lights, origin, d, q.face, q.t, 1, epsilon, wp.rand_init(wp.int32(state), samples))
     radiance[i] = value
 
 
 @wp.kernel
 def probe_lights_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     lights: Lights,
     probe_positions: wp.array(dtype=wp.vec3),
     strata: int,
@@ -97,7 +98,7 @@ def probe_lights_kernel(
     state = wp.rand_init(seed, i)
     for l in range(lights.light_kind.shape[0]):
         for k in range(light_sample_count(lights, l, strata)):
-            s = visible_light_sample(mesh, lights, l, p, k, strata, state)
+            s = visible_light_sample(scene, lights, l, p, k, strata, state)
             if s.weight > 0.0:
                 c = lights.light_radiance[l] * s.weight
                 y = sh_basis(s.direction)
@@ -110,7 +111,7 @@ def probe_lights_kernel(
 @wp.kernel
 def inside_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     positions: wp.array(dtype=wp.vec3),
     directions: wp.array(dtype=wp.vec3),
     surfaces: Surfaces,
@@ -125,7 +126,7 @@ def inside_kernel(
     near = FAR
     for k in range(directions.shape[0]):
         d = directions[k]
-        q = wp.mesh_query_ray(mesh, p, d, FAR)
+        q = trace_closest(scene, p, d, FAR)
         if q.result:
             near = wp.min(near, q.t)
             if surfaces.tri_double_sided[q.face] == 0:
@@ -155,13 +156,13 @@ def compute_probe_sh(tracer, scene: Scene, positions: np.ndarray, *, rays: int, 
     directions = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
     radiance = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
     tracer.launch(capture_kernel, count * samples, [
-        tracer.mesh.id, lighting.surfaces, lighting.lights, probes_wp, strata, int(seed), tracer.epsilon,
+        tracer.scene, lighting.surfaces, lighting.lights, probes_wp, strata, int(seed), tracer.epsilon,
         directions, radiance,
     ])
     coefficients = wp.zeros((count, 27), dtype=float, device=tracer.device)
     tracer.launch(project_kernel, count, [directions, radiance, samples, coefficients])
     light_strata = strata_for(LIGHT_SAMPLES)
-    tracer.launch(probe_lights_kernel, count, [tracer.mesh.id, lighting.lights, probes_wp, light_strata,
+    tracer.launch(probe_lights_kernel, count, [tracer.scene, lighting.lights, probes_wp, light_strata,
                                                int(seed) + 1, coefficients])
     tracer.rays_cast += count * samples * (1 + lighting.shadow_rays) + count * len(scene.lights) * LIGHT_SAMPLES
     radiance_sh = np.nan_to_num(coefficients.numpy().reshape(count, 9, 3).astype(np.float64),
@@ -176,7 +177,7 @@ def classify_points(tracer, lighting: SceneLighting, positions: np.ndarray) -> t
     votes = wp.zeros(n, dtype=int, device=tracer.device)
     nearest = wp.zeros(n, dtype=float, device=tracer.device)
     if n:
-        tracer.launch(inside_kernel, n, [tracer.mesh.id, tracer.array(positions, wp.vec3),
+        tracer.launch(inside_kernel, n, [tracer.scene, tracer.array(positions, wp.vec3),
                                          tracer.array(PROBE_DIRECTIONS, wp.vec3), lighting.surfaces, votes,
                                          nearest])
         tracer.rays_cast += n * len(PROBE_DIRECTIONS)

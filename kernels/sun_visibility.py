@@ -14,6 +14,7 @@ import warp as wp
 from .sampling import tangent_frame, triangle_point
 from .sky import SUN_ANGULAR_DIAMETER, reinhart_patches
 from .tracer import FAR, triangle_origin
+from .traversal import TraceScene, trace_any
 
 wp.set_module_options({"enable_backward": False})
 
@@ -21,7 +22,7 @@ wp.set_module_options({"enable_backward": False})
 @wp.kernel
 def sun_visibility_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     faces: wp.array(dtype=int),
     corners: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
@@ -57,7 +58,7 @@ def sun_visibility_kernel(
         d = frame * wp.vec3(sin_t * wp.cos(phi), sin_t * wp.sin(phi), cos_t)
         x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))
         if wp.dot(n, d) > 0.0:
-            if not wp.mesh_query_ray_anyhit(mesh, triangle_origin(mesh, a, b, c, x, n, epsilon), d, FAR):
+            if not trace_any(scene, triangle_origin(scene, a, b, c, x, n, epsilon), d, FAR):
                 hits += 1
     visible[i] = float(hits) / float(samples)
 
@@ -84,7 +85,7 @@ class SunFaces:
         visible = wp.zeros(len(facing), dtype=float, device=tracer.device)
         cos_half = math.cos(math.radians(SUN_ANGULAR_DIAMETER / 2))
         tracer.launch(sun_visibility_kernel, len(facing), [
-            tracer.mesh.id, tracer.array(facing.astype(np.int32), wp.int32), self.corners, self.normals_device,
+            tracer.scene, tracer.array(facing.astype(np.int32), wp.int32), self.corners, self.normals_device,
             wp.vec3(*sun.tolist()), cos_half, int(samples), tracer.epsilon, int(seed), visible])
         tracer.rays_cast += len(facing) * samples
         result[facing] = visible.numpy()

@@ -26,6 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .bvh_build import TraceArrays, build_triangle_bvh, single_level, two_level
+from .trace_instances import instanced_arrays
+from .traversal import TraceScene, surface_origin, trace_any, trace_closest
+
 wp.set_module_options({"enable_backward": False})
 
 RAY_EPSILON_RELATIVE = 1e-5
@@ -98,56 +102,7 @@ class Hits:
 
 
 @wp.func
-def through_point(a: wp.vec3, b: wp.vec3, c: wp.vec3, normal: wp.vec3, p: wp.vec3, tolerance: float) -> bool:
-    """Triangle abc (unit normal ``normal``) passes within ``tolerance`` of p: p lies near its plane and
-    inside it or on its boundary (edge tests with the same tolerance)."""
-    if wp.abs(wp.dot(p - a, normal)) > tolerance:
-        return False
-    inside = True
-    for k in range(3):
-        start = wp.where(k == 0, a, wp.where(k == 1, b, c))
-        end = wp.where(k == 0, b, wp.where(k == 1, c, a))
-        edge = end - start
-        length = wp.length(edge)
-        if length > 0.0 and wp.dot(wp.cross(edge, p - start), normal) < -tolerance * length:
-            inside = False
-    return inside
-
-
-@wp.func
-def surface_origin(mesh: wp.uint64, p: wp.vec3, n: wp.vec3, inward: wp.vec3, epsilon: float) -> wp.vec3:
-    """Ray origin for point p on a surface with unit normal n. ``inward`` is a unit tangent pointing into
-    the point's own surface (zero inside a face or a smooth region): at an unwelded crease it takes the
-    origin off the crease line, to the side where its own face lies. The origin is q + epsilon n,
-    q = p + epsilon inward, then moved to at least epsilon in front of every other face through q whose
-    normal is not opposite n (the face a T-junction vertex rests on, a wall the point touches; their
-    winding side, the outside of a solid). A ray from it meets no face through p at t <= 0. Stage units."""
-    q = p + inward * epsilon
-    o = q + n * epsilon
-    reach = wp.vec3(2.0 * epsilon, 2.0 * epsilon, 2.0 * epsilon)
-    sweeps = int(0)
-    moved = bool(True)
-    while moved and sweeps < 2:  # a second sweep, after a move, settles faces that are not perpendicular
-        moved = bool(False)
-        sweeps += 1
-        query = wp.mesh_query_aabb(mesh, q - reach, q + reach)
-        face = int(0)
-        while wp.mesh_query_aabb_next(query, face):
-            normal = wp.mesh_eval_face_normal(mesh, face)
-            if wp.dot(normal, n) > -0.5:
-                a = wp.mesh_eval_position(mesh, face, 1.0, 0.0)
-                b = wp.mesh_eval_position(mesh, face, 0.0, 1.0)
-                c = wp.mesh_eval_position(mesh, face, 0.0, 0.0)
-                if through_point(a, b, c, normal, q, 0.5 * epsilon):
-                    height = wp.dot(o - q, normal)
-                    if height < epsilon:
-                        o = o + normal * (epsilon - height)
-                        moved = True
-    return o
-
-
-@wp.func
-def triangle_origin(mesh: wp.uint64, a: wp.vec3, b: wp.vec3, c: wp.vec3, x: wp.vec3, n: wp.vec3,
+def triangle_origin(scene: TraceScene, a: wp.vec3, b: wp.vec3, c: wp.vec3, x: wp.vec3, n: wp.vec3,
                     epsilon: float) -> wp.vec3:
     """Ray origin for point x of triangle abc (unit normal n): x + epsilon n when x lies more than 2 epsilon
     from every edge (another face can pass through it only where geometry interpenetrates), else
@@ -165,13 +120,13 @@ def triangle_origin(mesh: wp.uint64, a: wp.vec3, b: wp.vec3, c: wp.vec3, x: wp.v
     inward = inward - n * wp.dot(inward, n)
     if wp.length(inward) > 0.0:
         inward = wp.normalize(inward)
-    return surface_origin(mesh, x, n, inward, epsilon)
+    return surface_origin(scene, x, n, inward, epsilon)
 
 
 @wp.kernel
 def closest_hit_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     origins: wp.array(dtype=wp.vec3),
     directions: wp.array(dtype=wp.vec3),
     max_t: float,
@@ -180,15 +135,15 @@ def closest_hit_kernel(
     hit_uv: wp.array(dtype=wp.vec2),
     hit_front: wp.array(dtype=wp.int8),
 ):
-    """Closest hit of ray i within max_t through Warp's BVH (wp.mesh_query_ray): distance t along the unit
-    direction, triangle, barycentrics and side; a miss leaves t = inf and triangle -1."""
+    """Closest hit of ray i within max_t (``trace_closest``): distance t along the unit direction, triangle,
+    barycentrics and side; a miss leaves t = inf and triangle -1."""
     i = start + wp.tid()
     d = directions[i]
     length = wp.length(d)
     hit_t[i] = wp.inf
     hit_triangle[i] = -1
     if length > 0.0:
-        q = wp.mesh_query_ray(mesh, origins[i], d / length, max_t)
+        q = trace_closest(scene, origins[i], d / length, max_t)
         if q.result:
             hit_t[i] = q.t
             hit_triangle[i] = q.face
@@ -199,25 +154,28 @@ def closest_hit_kernel(
 @wp.kernel
 def any_hit_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     origins: wp.array(dtype=wp.vec3),
     directions: wp.array(dtype=wp.vec3),
     max_t: float,
     occluded: wp.array(dtype=wp.int8),
 ):
-    """1 if anything lies along ray i within max_t (wp.mesh_query_ray_anyhit: stops at the first hit)."""
+    """1 if anything lies along ray i within max_t (``trace_any``: stops at the first hit)."""
     i = start + wp.tid()
     d = directions[i]
     length = wp.length(d)
     blocked = 0
     if length > 0.0:
-        if wp.mesh_query_ray_anyhit(mesh, origins[i], d / length, max_t):
+        if trace_any(scene, origins[i], d / length, max_t):
             blocked = 1
     occluded[i] = wp.int8(blocked)
 
 
 class Tracer:
-    """A BVH over the scene triangles with batched ray queries.
+    """The scene's triangles in the ray core (``kernels.traversal``), with batched ray queries.
+
+    Kernels trace through ``tracer.scene`` (a ``TraceScene``) with ``trace_closest``/``trace_any``;
+    ``closest_hit``/``occluded`` are the batched host API for tests and tools.
 
     Parameters
     ----------
@@ -227,31 +185,65 @@ class Tracer:
         "cpu" (default) or "cuda:N".
     threads : int, optional
         CPU threads for chunked launches (default: one per core).
+    arrays : TraceArrays, optional
+        A prebuilt (e.g. instanced) scene for these triangles; by default one tree over them is built.
     """
 
     def __init__(self, points: np.ndarray, tri_vertices: np.ndarray, *, device: str = "cpu",
-                 threads: int | None = None):
+                 threads: int | None = None, arrays: TraceArrays | None = None):
         points = np.ascontiguousarray(points, np.float32).reshape(-1, 3)
         tri_vertices = np.ascontiguousarray(tri_vertices, np.int32).reshape(-1, 3)
         if not np.isfinite(points).all():
             raise ValueError("Tracer: points contain NaN or inf")
-        if len(tri_vertices) == 0:
-            # wp.Mesh needs at least one triangle; a zero-area one is never hit.
-            points = np.zeros((3, 3), np.float32) if len(points) == 0 else points
-            tri_vertices = np.zeros((1, 3), np.int32)
         self.device = wp.get_device(device)
         self.threads = threads or default_threads()
         self.num_triangles = len(tri_vertices)
-        self._points = wp.array(points, dtype=wp.vec3, device=self.device)
-        self._indices = wp.array(tri_vertices.ravel(), dtype=wp.int32, device=self.device)
-        self.mesh = wp.Mesh(points=self._points, indices=self._indices)
-        diagonal = float(np.linalg.norm(points.max(axis=0).astype(np.float64) - points.min(axis=0)))
-        self.epsilon = max(RAY_EPSILON_RELATIVE * diagonal, 1e-30)
+        if arrays is None:
+            arrays = single_level(build_triangle_bvh(*_nonempty(points, tri_vertices)))
+        self.arrays = arrays
+        self.scene = self._upload(arrays)
+        extent = points.max(axis=0).astype(np.float64) - points.min(axis=0) if len(points) else np.zeros(3)
+        self.epsilon = max(RAY_EPSILON_RELATIVE * float(np.linalg.norm(extent)), 1e-30)
         self.rays_cast = 0
 
     @classmethod
-    def from_scene(cls, scene, *, device: str = "cpu", threads: int | None = None) -> "Tracer":
-        return cls(scene.points, scene.tri_vertices, device=device, threads=threads)
+    def from_scene(cls, scene, *, device: str = "cpu", threads: int | None = None,
+                   instancing: str = "auto") -> "Tracer":
+        """The scene's tracer; instanced prototypes are traced once each under a top-level tree
+        (``instancing``: "auto" when it saves memory, "always", or "never": every triangle flat)."""
+        arrays = instanced_arrays(scene, instancing)
+        return cls(scene.points, scene.tri_vertices, device=device, threads=threads, arrays=arrays)
+
+    @classmethod
+    def of_meshes(cls, meshes: list[tuple[np.ndarray, np.ndarray]], *, device: str = "cpu",
+                  threads: int | None = None) -> "Tracer":
+        """Separate meshes ((points, triangles) each, in their own space) as instances 0, 1, ... of one
+        scene, to be traced one at a time with ``trace_any_in_instance`` (they may overlap in space)."""
+        bottoms = [build_triangle_bvh(*_nonempty(points, triangles)) for points, triangles in meshes] or \
+            [build_triangle_bvh(*_nonempty(np.zeros((0, 3)), np.zeros((0, 3))))]
+        count = len(bottoms)
+        arrays = two_level(bottoms, np.arange(count), np.repeat(np.eye(3, 4)[None], count, axis=0),
+                           np.zeros(count, np.int32), np.zeros(count, np.int32))
+        points = np.concatenate([np.asarray(p, np.float32).reshape(-1, 3) for p, _ in meshes] + [np.zeros((0, 3))])
+        return cls(points, np.zeros((0, 3), np.int32), device=device, threads=threads, arrays=arrays)
+
+    def _upload(self, arrays: TraceArrays) -> TraceScene:
+        """Device copies of the arrays (kept alive here) and the struct of their addresses."""
+        self._device_arrays = {}
+        scene = TraceScene()
+        for name in ("nodes", "packets", "packet_triangle", "instance_to_object", "instance_to_world", "instance_root",
+                     "instance_face", "instance_mirrored", "top_instances"):
+            values = np.ascontiguousarray(getattr(arrays, name)).ravel()
+            array = wp.array(values, dtype=wp.float32 if values.dtype == np.float32 else wp.int32, device=self.device)
+            self._device_arrays[name] = array
+            setattr(scene, name, array.ptr)
+        scene.top_root = arrays.top_root
+        return scene
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the traced scene (nodes, triangle packets, instances)."""
+        return self.arrays.nbytes
 
     # -- launching ---------------------------------------------------------
 
@@ -272,7 +264,7 @@ class Tracer:
         hit_uv = wp.zeros(n, dtype=wp.vec2, device=self.device)
         hit_front = wp.zeros(n, dtype=wp.int8, device=self.device)
         self.launch(closest_hit_kernel, n,
-                    [self.mesh.id, origins_wp, directions_wp, finite_distance(max_t), hit_t, hit_triangle, hit_uv, hit_front])
+                    [self.scene, origins_wp, directions_wp, finite_distance(max_t), hit_t, hit_triangle, hit_uv, hit_front])
         self.rays_cast += n
         return Hits(hit_t.numpy(), hit_triangle.numpy(), hit_uv.numpy(), hit_front.numpy().astype(bool))
 
@@ -280,7 +272,7 @@ class Tracer:
         """(N,) bool: something lies along the ray within max_t."""
         origins_wp, directions_wp, n = self._rays(origins, directions)
         occluded = wp.zeros(n, dtype=wp.int8, device=self.device)
-        self.launch(any_hit_kernel, n, [self.mesh.id, origins_wp, directions_wp, finite_distance(max_t), occluded])
+        self.launch(any_hit_kernel, n, [self.scene, origins_wp, directions_wp, finite_distance(max_t), occluded])
         self.rays_cast += n
         return occluded.numpy().astype(bool)
 
@@ -290,6 +282,13 @@ class Tracer:
         if origins.shape != directions.shape:
             raise ValueError(f"origins {origins.shape} and directions {directions.shape} differ")
         return self.array(origins, wp.vec3), self.array(directions, wp.vec3), len(origins)
+
+
+def _nonempty(points: np.ndarray, tri_vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The core needs one triangle: an empty mesh becomes one zero-area triangle, which is never hit."""
+    if len(tri_vertices) == 0:
+        return np.zeros((3, 3), np.float32), np.zeros((1, 3), np.int32)
+    return points, tri_vertices
 
 
 def finite_distance(max_t: float) -> float:

@@ -4,7 +4,7 @@ Pure compute (no pxr): ``usdbake.stages.baked_data`` reads the stage and
 ``preview.compose`` hands this module arrays. Per pixel, one primary ray
 through the pixel centre:
 
-1. ``primary_kernel`` casts the ray into ``Tracer.mesh`` (closest hit).
+1. ``primary_kernel`` casts the ray into ``Tracer.scene`` (closest hit).
    Back faces of single-sided triangles are skipped (the ray continues
    behind them), as a rasterizer culls them: a closed room of inward-facing
    walls seen from outside becomes a cutaway.
@@ -33,6 +33,7 @@ import numpy as np
 import warp as wp
 
 from .camera import AUTO_AZIMUTH_DEG, Camera, auto_camera
+from ..kernels.traversal import TraceScene, trace_closest
 
 wp.set_module_options({"enable_backward": False})
 
@@ -49,7 +50,7 @@ TILE = wp.constant(16)
 @wp.kernel
 def primary_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     width: int,
     height: int,
     basis: wp.mat33,
@@ -86,7 +87,7 @@ def primary_kernel(
     hit_t[i] = wp.inf
     travelled = float(0.0)
     for layer in range(MAX_CULLED_LAYERS):
-        q = wp.mesh_query_ray(mesh, origin, direction, 1.0e30)
+        q = trace_closest(scene, origin, direction, 1.0e30)
         if not q.result:
             return
         if q.sign > 0.0 or tri_cull[q.face] == 0:
@@ -288,7 +289,7 @@ def trace_frame(tracer, scene, camera: Camera, width: int, height: int, *,
     hit_t = wp.empty(n, dtype=float, device=device)
     directions = wp.empty(n, dtype=wp.vec3, device=device)
     tracer.launch(primary_kernel, n, [
-        tracer.mesh.id, width, height, _mat33(basis), eye, _film(camera), float(camera.focal_length), ortho,
+        tracer.scene, width, height, _mat33(basis), eye, _film(camera), float(camera.focal_length), ortho,
         tracer.array(cull.astype(np.int8), wp.int8), float(tracer.epsilon),
         hit_triangle, hit_uv, hit_t, directions,
     ])

@@ -52,6 +52,7 @@ from ..geometry.mesh import NO_RECEIVERS, face_means, receiver_prims, vertex_inw
 from ..kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
 from ..kernels.sampling import strata_for, tangent_frame, triangle_point
 from ..kernels.tracer import surface_origin, triangle_origin
+from ..kernels.traversal import trace_any
 
 wp.set_module_options({"enable_backward": False})
 
@@ -64,7 +65,7 @@ def occlusion_at(rays: AORays, origin: wp.vec3, frame: wp.mat33, state: wp.uint3
     13.2 and 13.6.3; ``kernels.occlusion``)."""
     visible = int(0)
     for k in range(rays.strata * rays.strata):
-        if not wp.mesh_query_ray_anyhit(rays.mesh, origin, ao_direction(rays, frame, k, state), rays.max_distance):
+        if not trace_any(rays.scene, origin, ao_direction(rays, frame, k, state), rays.max_distance):
             visible += 1
     return float(visible) / float(rays.strata * rays.strata)
 
@@ -81,7 +82,7 @@ def vertex_ao_kernel(start: int, rays: AORays, positions: wp.array(dtype=wp.vec3
         ao[i] = 1.0
         return
     state = wp.rand_init(rays.seed, i)
-    ao[i] = occlusion_at(rays, surface_origin(rays.mesh, positions[i], n, inward[i], rays.epsilon), tangent_frame(n),
+    ao[i] = occlusion_at(rays, surface_origin(rays.scene, positions[i], n, inward[i], rays.epsilon), tangent_frame(n),
                          state)
 
 
@@ -106,8 +107,8 @@ def face_ao_kernel(start: int, rays: AORays, points: wp.array(dtype=wp.vec3), tr
     visible = int(0)
     for k in range(rays.strata * rays.strata):
         x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))  # drawn before the direction: keep the order
-        origin = triangle_origin(rays.mesh, a, b, c, x, n, rays.epsilon)
-        if not wp.mesh_query_ray_anyhit(rays.mesh, origin, ao_direction(rays, frame, k, state), rays.max_distance):
+        origin = triangle_origin(rays.scene, a, b, c, x, n, rays.epsilon)
+        if not trace_any(rays.scene, origin, ao_direction(rays, frame, k, state), rays.max_distance):
             visible += 1
     ao[i] = float(visible) / float(rays.strata * rays.strata)
 
@@ -130,7 +131,7 @@ def compute_vertex_ao(tracer, positions: np.ndarray, normals: np.ndarray, *, sam
     (N,) float32 in [0, 1]; 1 where the normal is zero.
     """
     positions, normals = as_points_and_normals(positions, normals)
-    rays = ao_rays(tracer.mesh.id, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed)
+    rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed)
     inward = np.zeros_like(positions) if inward is None else np.ascontiguousarray(inward, np.float32).reshape(-1, 3)
     return launch_ao(tracer, vertex_ao_kernel, len(positions), rays,
                      [tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3), tracer.array(inward, wp.vec3)])
@@ -143,7 +144,7 @@ def compute_face_ao(tracer, points: np.ndarray, tri_vertices: np.ndarray, tri_no
 
     ``points`` (P, 3) float32 stage units, ``tri_vertices`` (T, 3) int, ``tri_normals`` (T, 3) unit.
     """
-    rays = ao_rays(tracer.mesh.id, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed)
+    rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed)
     return launch_ao(tracer, face_ao_kernel, len(tri_vertices), rays, [
         tracer.array(points, wp.vec3), tracer.array(tri_vertices.astype(np.int32), wp.vec3i),
         tracer.array(tri_normals, wp.vec3)])

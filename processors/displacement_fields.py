@@ -82,6 +82,7 @@ from ..kernels.displacement_field import (
 )
 from ..kernels.sampling import tangent_frame
 from ..kernels.tracer import Tracer
+from ..kernels.traversal import TraceScene, trace_closest
 
 wp.set_module_options({"enable_backward": False})
 
@@ -97,7 +98,7 @@ MAX_FIELD_TEXELS = 2 ** 28
 @wp.kernel
 def field_distances_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     side: int,
     map_size: int,
     radius: float,
@@ -120,7 +121,7 @@ def field_distances_kernel(
     direction = texel_direction(tangent_frame(-s), a, b, map_size)
     diameter = 2.0 * radius
     distances[i] = 2.0
-    q = wp.mesh_query_ray(mesh, s * radius, direction, diameter)
+    q = trace_closest(scene, s * radius, direction, diameter)
     if q.result:
         distances[i] = q.t / diameter
 
@@ -207,7 +208,7 @@ def compute_field_distances(points: np.ndarray, triangles: np.ndarray, *, side: 
                     threads=threads)
     count = side * side * map_size * map_size
     distances = wp.zeros(count, dtype=float, device=tracer.device)
-    tracer.launch(field_distances_kernel, count, [tracer.mesh.id, side, map_size, float(radius), distances])
+    tracer.launch(field_distances_kernel, count, [tracer.scene, side, map_size, float(radius), distances])
     return distances.numpy().reshape(side * side, map_size, map_size), center, radius
 
 

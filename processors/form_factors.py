@@ -89,6 +89,7 @@ from ..kernels.operator_codec import compress_operator
 from ..kernels.patches import fragment_of_hit
 from ..kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
 from ..kernels.tracer import FAR, launch_chunked, triangle_origin
+from ..kernels.traversal import TraceScene, trace_closest
 
 wp.set_module_options({"enable_backward": False})
 
@@ -124,7 +125,7 @@ def sample_fragment(patch: int, u0: float, patch_fragment_start: wp.array(dtype=
 @wp.kernel
 def form_factor_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     rays: int,
     strata: int,
     stride: int,
@@ -173,7 +174,7 @@ def form_factor_kernel(
     uv = stratified_pair((k * stride) % rays, strata, state)
     direction = tangent_frame(n) * cosine_hemisphere(uv[0], uv[1])
     hit_patch[item - base] = -1
-    q = wp.mesh_query_ray(mesh, triangle_origin(mesh, fa, fb, fc, x, n, epsilon), direction, FAR)
+    q = trace_closest(scene, triangle_origin(scene, fa, fb, fc, x, n, epsilon), direction, FAR)
     if q.result:
         if wp.dot(direction, tri_normals[q.face]) < 0.0:
             hit_patch[item - base] = fragment_patch[fragment_of_hit(q.face, q.u, q.v, tri_subdivision, tri_fragment_start)]
@@ -229,7 +230,7 @@ def compute_form_factors(tracer, patches: Patches, tri_normals: np.ndarray, *, r
         total = (hi - lo) * rays
         hit = wp.empty(total, dtype=int, device=device)
         launch_chunked(form_factor_kernel, total,
-                       [tracer.mesh.id, rays, strata, stride, *arrays, tracer.epsilon, seed, lo * rays, hit],
+                       [tracer.scene, rays, strata, stride, *arrays, tracer.epsilon, seed, lo * rays, hit],
                        device=tracer.device, threads=tracer.threads, offset=lo * rays)
         hits = hit.numpy()
         source = np.repeat(np.arange(lo, hi, dtype=np.int64), rays)

@@ -80,6 +80,7 @@ from ..kernels.displacement_field import INTERPOLATION_MODES, FieldArrays, Field
 from ..kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
 from ..kernels.sampling import strata_for, tangent_frame
 from ..kernels.tracer import FAR, Tracer, surface_origin
+from ..kernels.traversal import trace_any, trace_any_in_instance
 
 wp.set_module_options({"enable_backward": False})
 
@@ -122,7 +123,7 @@ def instance_ao_kernel(
     dimensionless, [0, 1]) at
     point i, estimated with the rays of ``kernels.occlusion`` (the rays of
     ambient_occlusion.vertex_ao_kernel with the same seed). Per ray, V = 0 if it hits a traced triangle
-    (``rays.mesh``) within ``max_distance`` (stage units), else the product of ``field_visibility``
+    (``rays.scene``) within ``max_distance`` (stage units), else the product of ``field_visibility``
     (Section 3.2) over the instances whose sphere bounds (``instances.instance_bounds``) it meets.
 
     A point on an instance (own[i] >= 0) traces its own prototype's triangles for self-occlusion (in
@@ -135,11 +136,11 @@ def instance_ao_kernel(
         return
     state = wp.rand_init(rays.seed, i)
     frame = tangent_frame(n)
-    origin = surface_origin(rays.mesh, positions[i], n, inward[i], rays.epsilon)
+    origin = surface_origin(rays.scene, positions[i], n, inward[i], rays.epsilon)
     visible = float(0.0)
     for k in range(rays.strata * rays.strata):
         direction = ao_direction(rays, frame, k, state)
-        if wp.mesh_query_ray_anyhit(rays.mesh, origin, direction, rays.max_distance):
+        if trace_any(rays.scene, origin, direction, rays.max_distance):
             continue
         self_instance = own[i]
         if self_instance >= 0:
@@ -147,9 +148,9 @@ def instance_ao_kernel(
             local_direction = linear * direction
             scale = wp.length(local_direction)
             if scale > 0.0:
-                if wp.mesh_query_ray_anyhit(fields.field_mesh[instances.instance_field[self_instance]],
-                                            linear * origin + instances.instance_inverse_offset[self_instance],
-                                            local_direction / scale, rays.max_distance * scale):
+                if trace_any_in_instance(fields.prototypes, instances.instance_field[self_instance],
+                                         linear * origin + instances.instance_inverse_offset[self_instance],
+                                         local_direction / scale, rays.max_distance * scale):
                     continue
         v = float(1.0)
         query = wp.bvh_query_ray(instances.instance_bounds, origin, direction)
@@ -266,7 +267,7 @@ def compute_instance_ao(tracer: Tracer, spheres: InstanceSpheres, positions: np.
     if own.shape != (len(positions),):
         raise ValueError(f"own {own.shape} does not match {len(positions)} positions")
     inward = np.zeros_like(positions) if inward is None else np.ascontiguousarray(inward, np.float32).reshape(-1, 3)
-    rays = ao_rays(tracer.mesh.id, samples=samples, max_distance=max_distance, epsilon=epsilon, seed=seed)
+    rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=epsilon, seed=seed)
     return launch_ao(tracer, instance_ao_kernel, len(positions), rays, [
         spheres.arrays, spheres.fieldset.arrays, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3),
         tracer.array(inward, wp.vec3), tracer.array(own, wp.int32), INTERPOLATION_MODES[interpolation],

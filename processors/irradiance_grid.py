@@ -143,6 +143,7 @@ from ..kernels.rgb9e5 import encode_rgb9e5
 from ..kernels.sampling import strata_for, stratified_pair
 from ..kernels.sh import uniform_sphere
 from ..kernels.tracer import FAR
+from ..kernels.traversal import TraceScene, trace_closest
 
 wp.set_module_options({"enable_backward": False})
 
@@ -184,7 +185,7 @@ def add_to_hemispheres(m: wp.array(dtype=wp.mat33), base: int, w: wp.vec3, o: wp
 @wp.kernel
 def irradiance_vectors_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     surfaces: Surfaces,
     lights: Lights,
     positions: wp.array(dtype=wp.vec3),
@@ -215,14 +216,14 @@ def irradiance_vectors_kernel(
         u = stratified_pair(k, strata, state)
         d = uniform_sphere(u[0], u[1])
         value = wp.vec3(0.0, 0.0, 0.0)
-        q = wp.mesh_query_ray(mesh, p, d, FAR)
+        q = trace_closest(scene, p, d, FAR)
         if not q.result:
             if include_direct != 0:
                 value = sky_radiance(lights, d)
         else:
             if wp.dot(surfaces.tri_normals[q.face], d) >= 0.0 and surfaces.tri_double_sided[q.face] == 0:
                 back += 1
-            value = hit_radiance(mesh, surfaces, lights, p, d, q.face, q.t, see_emission, epsilon,
+            value = hit_radiance(scene, surfaces, lights, p, d, q.face, q.t, see_emission, epsilon,
                                  wp.rand_init(wp.int32(state), samples + k))
             hn = surfaces.tri_normals[q.face]
             if use_bounce != 0 and (wp.dot(hn, d) < 0.0 or surfaces.tri_double_sided[q.face] != 0):
@@ -237,7 +238,7 @@ def irradiance_vectors_kernel(
         return
     for l in range(lights.light_kind.shape[0]):  # the small lights; domes are seen by the escaped rays above
         for k in range(light_sample_count(lights, l, strata)):
-            s = visible_light_sample(mesh, lights, l, p, k, strata, state)
+            s = visible_light_sample(scene, lights, l, p, k, strata, state)
             if s.weight > 0.0:
                 add_to_hemispheres(vectors, base, s.direction,
                                    wp.outer(lights.light_radiance[l] * s.weight, s.direction))
@@ -345,7 +346,7 @@ def compute_irradiance_vectors(tracer, scene: Scene, positions: np.ndarray, *, r
         previous = grid_vectors(grid, layout.resolution, layout.grid_origin, layout.cell_size, tracer.device)
         offset = BOUNCE_OFFSET * float(np.min(layout.cell_size))
     tracer.launch(irradiance_vectors_kernel, count, [
-        tracer.mesh.id, lighting.surfaces, lighting.lights, tracer.array(positions, wp.vec3), strata, int(seed),
+        tracer.scene, lighting.surfaces, lighting.lights, tracer.array(positions, wp.vec3), strata, int(seed),
         tracer.epsilon, int(bool(include_direct)), see_emission(scene, include_direct), previous,
         int(bounce is not None), offset, vectors, back,
     ])

@@ -68,6 +68,7 @@ from ..kernels.operator_relight import relight
 from ..kernels.patches import fragment_of_hit
 from ..kernels.sampling import cosine_hemisphere, strata_for, tangent_frame
 from ..kernels.tracer import FAR, surface_origin
+from ..kernels.traversal import TraceScene, trace_closest
 
 wp.set_module_options({"enable_backward": False})
 
@@ -79,7 +80,7 @@ wp.set_module_options({"enable_backward": False})
 @wp.kernel
 def direct_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     lights: Lights,
     positions: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
@@ -97,7 +98,7 @@ def direct_kernel(
         irradiance[i] = wp.vec3(0.0, 0.0, 0.0)
         return
     state = wp.rand_init(seed, i)
-    irradiance[i] = direct_irradiance(mesh, lights, positions[i], n, strata, sky_strata, epsilon, state)
+    irradiance[i] = direct_irradiance(scene, lights, positions[i], n, strata, sky_strata, epsilon, state)
 
 
 def compute_direct_irradiance(tracer, scene: Scene, positions: np.ndarray, normals: np.ndarray, *,
@@ -112,7 +113,7 @@ def compute_direct_irradiance(tracer, scene: Scene, positions: np.ndarray, norma
     strata, sky_strata = strata_for(light_samples), strata_for(sky_samples)
     out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
     tracer.launch(direct_kernel, len(positions), [
-        tracer.mesh.id, light_bundle(scene, tracer.device, emissive=emissive), tracer.array(positions, wp.vec3),
+        tracer.scene, light_bundle(scene, tracer.device, emissive=emissive), tracer.array(positions, wp.vec3),
         tracer.array(normals, wp.vec3), strata, sky_strata, tracer.epsilon, seed, out,
     ])
     tracer.rays_cast += len(positions) * shadow_rays_per_point(scene, strata=strata, sky_strata=sky_strata,
@@ -126,7 +127,7 @@ def compute_direct_irradiance(tracer, scene: Scene, positions: np.ndarray, norma
 
 @wp.func
 def patch_light(
-    mesh: wp.uint64,
+    scene: TraceScene,
     origin: wp.vec3,
     direction: wp.vec3,
     tri_normals: wp.array(dtype=wp.vec3),
@@ -137,7 +138,7 @@ def patch_light(
     patch_direct: wp.array(dtype=wp.vec3),
 ) -> wp.vec3:
     """rho(z) E0(patch of z) at the front face z a ray meets (W/m^2; zero on a miss or a back face)."""
-    q = wp.mesh_query_ray(mesh, origin, direction, FAR)
+    q = trace_closest(scene, origin, direction, FAR)
     if q.result:
         if wp.dot(direction, tri_normals[q.face]) < 0.0:
             patch = fragment_patch[fragment_of_hit(q.face, q.u, q.v, tri_subdivision, tri_fragment_start)]
@@ -149,7 +150,7 @@ def patch_light(
 @wp.kernel
 def final_gather_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     lights: Lights,
     positions: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
@@ -185,7 +186,7 @@ def final_gather_kernel(
         return
     state = wp.rand_init(seed, i)
     frame = tangent_frame(n)
-    origin = surface_origin(mesh, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
+    origin = surface_origin(scene, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
     rays = strata * strata
     inv = 1.0 / float(strata)
     for k in range(rays):
@@ -194,7 +195,7 @@ def final_gather_kernel(
         u1 = (float(k % strata) + wp.randf(state)) * inv
         u2 = (float(k // strata) + wp.randf(state)) * inv
         w = frame * cosine_hemisphere(u1, u2)
-        q = wp.mesh_query_ray(mesh, origin, w, FAR)
+        q = trace_closest(scene, origin, w, FAR)
         if q.result:
             hn = tri_normals[q.face]
             if wp.dot(w, hn) < 0.0:
@@ -206,11 +207,11 @@ def final_gather_kernel(
                     direct = patch_direct[patch]
                 if q.t < near or patch < 0:
                     y = origin + w * q.t
-                    direct = direct_irradiance(mesh, lights, y, hn, 1, sky_strata, epsilon, state)
+                    direct = direct_irradiance(scene, lights, y, hn, 1, sky_strata, epsilon, state)
                     # The first bounce at y varies fast near corners and contact edges: one more cosine ray
                     # from y to the direct light it meets; bounces 2..k from y's patch.
                     v = tangent_frame(hn) * cosine_hemisphere(wp.randf(state), wp.randf(state))
-                    indirect = patch_light(mesh, surface_origin(mesh, y, hn, wp.vec3(0.0, 0.0, 0.0), epsilon), v,
+                    indirect = patch_light(scene, surface_origin(scene, y, hn, wp.vec3(0.0, 0.0, 0.0), epsilon), v,
                                            tri_normals, tri_albedo, tri_subdivision, tri_fragment_start,
                                            fragment_patch, patch_direct)
                     if patch >= 0:
@@ -229,7 +230,7 @@ def final_gather(tracer, scene: Scene, patches, patch_direct: np.ndarray, patch_
     out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
     near_hits = wp.zeros(len(positions), dtype=int, device=tracer.device)
     tracer.launch(final_gather_kernel, len(positions), [
-        tracer.mesh.id, light_bundle(scene, tracer.device, emissive=emissive),
+        tracer.scene, light_bundle(scene, tracer.device, emissive=emissive),
         tracer.array(np.ascontiguousarray(positions, np.float32), wp.vec3),
         tracer.array(np.ascontiguousarray(normals, np.float32), wp.vec3),
         tracer.array(scene.tri_normals, wp.vec3), tracer.array(scene.tri_albedo, wp.vec3),

@@ -77,6 +77,7 @@ from ..geometry.refined_scene import refine_scene
 from ..kernels.sampling import strata_for, stratified_pair, triangle_point
 from ..kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
 from ..kernels.tracer import FAR, triangle_origin
+from ..kernels.traversal import TraceScene, trace_any
 
 wp.set_module_options({"enable_backward": False})
 
@@ -93,7 +94,7 @@ PAIRS_PER_BATCH = 4_000_000
 @wp.kernel
 def patch_visibility_kernel(
     start: int,
-    mesh: wp.uint64,
+    scene: TraceScene,
     corners: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
     tri_ids: wp.array(dtype=int),
@@ -146,7 +147,7 @@ def patch_visibility_kernel(
         u2 = wp.randf(state)
         if cos_theta > 0.0:
             x = triangle_point(a, b, c, u1, u2)
-            if wp.mesh_query_ray_anyhit(mesh, triangle_origin(mesh, a, b, c, x, n, epsilon), d, FAR):
+            if trace_any(scene, triangle_origin(scene, a, b, c, x, n, epsilon), d, FAR):
                 occ += cos_theta
             else:
                 vis += cos_theta
@@ -205,7 +206,7 @@ def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, p
         vis_wp = wp.empty(pairs, dtype=float, device=tracer.device)
         part_wp = wp.empty(pairs, dtype=float, device=tracer.device)
         tracer.launch(patch_visibility_kernel, pairs, [
-            tracer.mesh.id, tracer.array(corners[lo:hi].reshape(-1, 3), wp.vec3),
+            tracer.scene, tracer.array(corners[lo:hi].reshape(-1, 3), wp.vec3),
             tracer.array(normals[lo:hi], wp.vec3), tracer.array(tri_ids[lo:hi], int),
             bounds_wp, centers_wp, horizon_wp, matrix, n_patch, strata, tracer.epsilon, int(seed),
             int(criterion == "any"), vis_wp, part_wp,

@@ -9,14 +9,15 @@ import warp as wp
 
 from usdbake.kernels.lights import Lights, direct_irradiance, light_bundle
 from usdbake.kernels.tracer import Tracer
+from usdbake.kernels.traversal import TraceScene
 
 
 @wp.kernel
-def irradiance_kernel(mesh: wp.uint64, lights: Lights, points: wp.array(dtype=wp.vec3),
+def irradiance_kernel(scene: TraceScene, lights: Lights, points: wp.array(dtype=wp.vec3),
                       normals: wp.array(dtype=wp.vec3), strata: int, sky_strata: int, epsilon: float,
                       seed: int, out: wp.array(dtype=wp.vec3)):
     i = wp.tid()
-    out[i] = direct_irradiance(mesh, lights, points[i], normals[i], strata, sky_strata, epsilon,
+    out[i] = direct_irradiance(scene, lights, points[i], normals[i], strata, sky_strata, epsilon,
                                wp.rand_init(seed, i))
 
 
@@ -28,7 +29,7 @@ def direct_irradiance_at(scene, points, normals, *, strata: int = 1, sky_strata:
     points = np.asarray(points, np.float32).reshape(-1, 3)
     out = wp.zeros(len(points), dtype=wp.vec3, device=tracer.device)
     wp.launch(irradiance_kernel, dim=len(points), device=tracer.device,
-              inputs=[tracer.mesh.id, light_bundle(scene, tracer.device), tracer.array(points, wp.vec3),
+              inputs=[tracer.scene, light_bundle(scene, tracer.device), tracer.array(points, wp.vec3),
                       tracer.array(np.asarray(normals, np.float32).reshape(-1, 3), wp.vec3), strata, sky_strata,
                       tracer.epsilon, seed, out])
     return out.numpy()
