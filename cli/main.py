@@ -57,6 +57,8 @@ def make_parser() -> argparse.ArgumentParser:
                          help="set a processor parameter (repeatable)")
         sub.add_argument("--config", metavar="FILE.toml", help="processors and params from a TOML file")
         sub.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda:N")
+        sub.add_argument("--threads", type=_thread_count, default=None, metavar="N",
+                         help="CPU threads for ray casting (default: all cores)")
         sub.add_argument("--cache", metavar="DIR", default=os.environ.get("USDBAKE_CACHE", _default_cache()),
                          help="result cache folder (default: $USDBAKE_CACHE or ~/.cache/usdbake)")
         sub.add_argument("--force", action="store_true", help="re-run even when results are up to date")
@@ -278,6 +280,17 @@ def check_run_options(args, pipeline: Pipeline, console: Console) -> None:
         check_writable_folder(Path(args.cache), what=f"--cache {args.cache}")
 
 
+def _thread_count(text: str) -> int:
+    """--threads N: a whole number of at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number of threads, at least 1")
+    return value
+
+
 def check_device(device: str) -> None:
     """'cpu', or a CUDA device Warp can see ('cuda', 'cuda:N'); Warp is asked only for a CUDA one."""
     import re
@@ -305,7 +318,7 @@ def cmd_plan(args, console: Console) -> int:
 
     names, params = resolve_options(args, default=sorted(registry.registry()))  # plan: every processor
     pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force,
-                              allow_conflicts=True)
+                              threads=args.threads, allow_conflicts=True)
     check_run_options(args, pipeline, console)
     with quiet_composition_warnings():  # extract_scene reports each missing asset in one line
         _, stage = open_source(args.input)
@@ -333,7 +346,8 @@ def cmd_bake(args, console: Console) -> int:
     from ..stages.refined_mesh import complete_outputs, refinement_guard
 
     names, params = resolve_options(args)
-    pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force)
+    pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force,
+                              threads=args.threads)
     check_run_options(args, pipeline, console)
     with quiet_composition_warnings():  # extract_scene reports each missing asset in one line
         source, stage = open_source(args.input)

@@ -37,7 +37,7 @@ from .refined_mesh import complete_outputs, refinement_guard
 def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | None = None,
          time: float | None = None, device: str = "cpu", cache_dir: str | None = None, force: bool = False,
          texture_dir: str | None = None, on_progress=None, allow_missing: bool = False,
-         deinstance: bool = False) -> Sdf.Layer:
+         deinstance: bool = False, threads: int | None = None) -> Sdf.Layer:
     """Run processors on ``stage`` and author their results into a bake layer.
 
     Parameters
@@ -52,6 +52,7 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
         warning) instead of raising StageError naming the first
     deinstance : bake natively instanced meshes as ordinary ones (per vertex); the layer sets
         ``instanceable = false`` on the instances whose meshes receive data
+    threads : CPU threads for ray casting (default: all cores)
 
     Warnings (missing assets allowed, textures that could not be read and the fallback used, faces
     left out) are issued as Python warnings and kept in the layer's report: ``last_warnings(layer)``.
@@ -60,7 +61,9 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     -------
     The Sdf.Layer holding the results. On failure nothing is authored.
     """
-    pipeline = Pipeline.build(processors, params, device=device, cache_dir=cache_dir, force=force)
+    if threads is not None and (not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"threads={threads!r}: expected a whole number of at least 1")
+    pipeline = Pipeline.build(processors, params, device=device, cache_dir=cache_dir, force=force, threads=threads)
     check_param_targets(params or {}, [step.name for step in pipeline.steps])
     target = layer if layer is not None else _session_bake_layer(stage)
     muted = _mute_for_extraction(stage, target)

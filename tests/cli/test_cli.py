@@ -66,6 +66,8 @@ def test_unparseable_layer(capsys, tmp_path, cache, text):
     (["--set", "samples=16"], ["expected NAME.param=value"]),
     (["--set", "nope.samples=16"], ["unknown processor 'nope'"]),
     (["--bogus-flag"], ["unrecognized arguments"]),
+    (["--threads", "0"], ["--threads", "'0'", "at least 1"]),
+    (["--threads", "two"], ["--threads", "'two'", "at least 1"]),
 ])
 def test_bad_options(capsys, stage_in, cache, tmp_path, argv, fragments):
     code, out, err = run_cli(capsys, "bake", stage_in, "-o", tmp_path / "out.usda", "--cache", cache, *argv)
@@ -200,3 +202,22 @@ def test_console_script_runs(stage_in, cache, tmp_path):
                            "--json", *FAST], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout)["steps"][0]["action"] == "run"
+
+
+def test_threads_reach_the_ray_core(capsys, stage_in, cache, tmp_path, monkeypatch):
+    """--threads N is the thread count of the shared tracer every processor casts its rays with."""
+    from usdbake.kernels import tracer as tracer_module
+
+    seen = []
+    original = tracer_module.shared_tracer
+
+    def recording(scene, **kwargs):
+        built = original(scene, **kwargs)
+        seen.append(built.threads)
+        return built
+
+    monkeypatch.setattr(tracer_module, "shared_tracer", recording)
+    code, _, err = run_cli(capsys, "bake", stage_in, "-o", tmp_path / "out.usda", "--cache", cache, "--force",
+                           "--threads", "3", *FAST)
+    assert code == 0, err
+    assert seen and set(seen) == {3}

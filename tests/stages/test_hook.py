@@ -180,3 +180,29 @@ def test_file_outputs_of_an_unsaved_stage_go_to_a_temp_folder_not_the_cwd(tmp_pa
     matrix = stage.GetPrimAtPath("/usdbake/RadiosityPatches").GetAttribute("matrixFile").Get()
     assert matrix is not None and Path(matrix.resolvedPath or matrix.path).suffix == ".dds"
     assert layer is not None
+
+
+@pytest.mark.parametrize("threads", [0, -2, 1.5, "4"])
+def test_bad_thread_count_is_refused_before_any_work(threads):
+    stage = Usd.Stage.CreateInMemory()
+    with pytest.raises(ValueError, match=r"threads=.*at least 1"):
+        usdbake.bake(stage, ["ambient_occlusion"], threads=threads)
+    assert not stage.GetSessionLayer().subLayerPaths  # nothing authored
+
+
+def test_threads_reach_the_ray_core(monkeypatch):
+    """The hook's threads= is the thread count of the tracer the processors share."""
+    from usdbake.kernels import tracer as tracer_module
+
+    seen = []
+    original = tracer_module.shared_tracer
+    monkeypatch.setattr(tracer_module, "shared_tracer",
+                        lambda scene, **kwargs: seen.append(kwargs.get("threads")) or original(scene, **kwargs))
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.Cube.Define(stage, "/Box")
+    mesh = UsdGeom.Mesh.Define(stage, "/Floor")
+    mesh.CreatePointsAttr([(-2, -1, -2), (2, -1, -2), (2, -1, 2), (-2, -1, 2)])
+    mesh.CreateFaceVertexCountsAttr([4])
+    mesh.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
+    usdbake.bake(stage, ["ambient_occlusion"], {"ambient_occlusion": {"samples": 4}}, threads=2, force=True)
+    assert seen and set(seen) == {2}
