@@ -34,6 +34,10 @@ COUNT_OFFSET = 7 * WIDTH
 LEAF_COUNT_BITS = 3
 MAX_LEAF_ITEMS = (1 << LEAF_COUNT_BITS) - 1
 BINS = 32
+SMALL_NODE_BINS = 8
+"""Slabs per axis for a tree level whose nodes hold on average fewer than SMALL_NODE_PRIMITIVES (fewer
+slabs than primitives buy nothing, and the per-level cost is nodes x slabs)."""
+SMALL_NODE_PRIMITIVES = 128
 PACKET = 4
 """Triangles intersected together in one leaf packet (SIMD lanes of ``kernels.traversal``)."""
 
@@ -84,8 +88,9 @@ def build_binary(lower: np.ndarray, upper: np.ndarray, *, max_leaf: int, packet:
         box_upper = np.maximum.reduceat(item_upper, offsets)
         c_lower = np.minimum.reduceat(item_centroid, offsets)
         extent = np.maximum.reduceat(item_centroid, offsets) - c_lower
+        bins = BINS if counts.mean() >= SMALL_NODE_PRIMITIVES else SMALL_NODE_BINS
         cost, axis, split, item_bins = _best_splits(item_lower, item_upper, item_centroid, node_of, c_lower,
-                                                    extent, counts, packet)
+                                                    extent, counts, packet, bins)
         split_cost = traversal_cost + cost / np.maximum(half_area(box_lower, box_upper), 1e-30)
         leaf = (counts <= 1) | ((counts <= max_leaf) & (np.ceil(counts / packet) <= split_cost))
         # Nodes whose centroids coincide cannot be binned: split them by position, in halves.
@@ -113,8 +118,8 @@ def build_binary(lower: np.ndarray, upper: np.ndarray, *, max_leaf: int, packet:
                       order)
 
 
-def _best_splits(item_lower, item_upper, item_centroid, node_of, c_lower, extent, counts, packet):
-    """Per node, the least SAH cost over BINS slabs on each axis: (cost, axis, split bin, item bins)."""
+def _best_splits(item_lower, item_upper, item_centroid, node_of, c_lower, extent, counts, packet, bins):
+    """Per node, the least SAH cost over ``bins`` slabs on each axis: (cost, axis, split bin, item bins)."""
     nodes = len(counts)
     best_cost = np.full(nodes, np.inf)
     best_axis = np.zeros(nodes, np.int64)
@@ -122,18 +127,19 @@ def _best_splits(item_lower, item_upper, item_centroid, node_of, c_lower, extent
     item_bins = np.empty((len(node_of), 3), np.int64)
     for axis in range(3):
         width = extent[:, axis]
-        scale = np.where(width > 0, BINS / np.where(width > 0, width, 1.0), 0.0)
-        bins = np.clip(((item_centroid[:, axis] - c_lower[node_of, axis]) * scale[node_of]).astype(np.int64),
-                       0, BINS - 1)
-        item_bins[:, axis] = bins
-        key = node_of * BINS + bins
-        in_bin = np.bincount(key, minlength=nodes * BINS).reshape(nodes, BINS)
-        bin_lower = np.full((nodes * BINS, 3), np.inf, np.float32)
-        bin_upper = np.full((nodes * BINS, 3), -np.inf, np.float32)
-        np.minimum.at(bin_lower, key, item_lower)
-        np.maximum.at(bin_upper, key, item_upper)
-        bin_lower = bin_lower.reshape(nodes, BINS, 3)
-        bin_upper = bin_upper.reshape(nodes, BINS, 3)
+        scale = np.where(width > 0, bins / np.where(width > 0, width, 1.0), 0.0)
+        slab = np.clip(((item_centroid[:, axis] - c_lower[node_of, axis]) * scale[node_of]).astype(np.int64),
+                       0, bins - 1)
+        item_bins[:, axis] = slab
+        key = node_of * bins + slab
+        in_bin = np.bincount(key, minlength=nodes * bins).reshape(nodes, bins)
+        bin_lower = np.full((3, nodes * bins), np.inf, np.float32)
+        bin_upper = np.full((3, nodes * bins), -np.inf, np.float32)
+        for k in range(3):  # one component at a time: ufunc.at is fast on 1-D arrays only
+            np.minimum.at(bin_lower[k], key, item_lower[:, k])
+            np.maximum.at(bin_upper[k], key, item_upper[:, k])
+        bin_lower = bin_lower.T.reshape(nodes, bins, 3)
+        bin_upper = bin_upper.T.reshape(nodes, bins, 3)
         left_area = half_area(np.minimum.accumulate(bin_lower, axis=1), np.maximum.accumulate(bin_upper, axis=1))
         right_area = half_area(np.minimum.accumulate(bin_lower[:, ::-1], axis=1),
                                np.maximum.accumulate(bin_upper[:, ::-1], axis=1))[:, ::-1]

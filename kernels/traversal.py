@@ -83,10 +83,12 @@ _MACROS = r"""
 #ifndef USDBAKE_CTZ
 #ifdef __CUDA_ARCH__
 #define USDBAKE_CTZ(x) (__ffs(x) - 1)
+#define USDBAKE_POPCOUNT(x) __popc(x)
 #define USDBAKE_FLOAT_BITS(x) __float_as_int(x)
 #define USDBAKE_BITS_FLOAT(x) __int_as_float(x)
 #else
 #define USDBAKE_CTZ(x) __builtin_ctz(x)
+#define USDBAKE_POPCOUNT(x) __builtin_popcount(x)
 #define USDBAKE_FLOAT_BITS(x) __builtin_bit_cast(int, x)
 #define USDBAKE_BITS_FLOAT(x) __builtin_bit_cast(float, x)
 #endif
@@ -127,7 +129,7 @@ struct Ray {
   }
 };
 struct Boxes {
-  float tn[8]; unsigned mask;
+  alignas(32) float tn[8]; unsigned mask;
   // Slab test of the node's 8 child boxes (Ize 2013), children beyond the node's count masked off.
   CUDA_CALLABLE void test(const float* n, const Ray& r, float tfar) {
 #ifdef __CUDA_ARCH__
@@ -152,32 +154,51 @@ struct Boxes {
                                           __builtin_elementwise_max(__builtin_elementwise_min(tz0, tz1), zero));
     f8 far_t = __builtin_elementwise_min(__builtin_elementwise_min(__builtin_elementwise_max(tx0, tx1), __builtin_elementwise_max(ty0, ty1)),
                                          __builtin_elementwise_min(__builtin_elementwise_max(tz0, tz1), far)) * 1.00000024f;
-    mask = 0;
-    for (int c = 0; c < 8; ++c) { tn[c] = near_t[c]; mask |= (unsigned)(near_t[c] <= far_t[c]) << c; }
+    typedef bool b8 __attribute__((ext_vector_type(8)));
+    *(f8*)tn = near_t;
+    mask = (unsigned)__builtin_bit_cast(unsigned char, __builtin_convertvector(near_t <= far_t, b8));
 #endif
     mask &= (1u << ((const int*)n)[COUNT_OFFSET]) - 1u;
   }
 };
 struct Stack {
   int node[STACK_SIZE]; float t[STACK_SIZE]; int size;
-  // Visit the hit children nearest first: push all but the nearest (sorted), return the nearest.
-  CUDA_CALLABLE int push_children(const Boxes& b, const int* child, bool sorted) {
+  // Push the hit children but one and return that one, to visit them nearest first (near_first, for
+  // closest hits: the far ones are culled once a hit is found) or farthest first (any hit from a surface:
+  // the boxes around the origin hold its own surface, which it leaves; occluders lie farther out).
+  CUDA_CALLABLE int push_children(const Boxes& b, const int* child, bool near_first) {
     unsigned mask = b.mask;
     int first = USDBAKE_CTZ(mask); mask &= mask - 1;
     if (mask == 0) return child[first];
     int second = USDBAKE_CTZ(mask); mask &= mask - 1;
     if (mask == 0) {
-      if (sorted && b.tn[second] < b.tn[first]) { int s = first; first = second; second = s; }
+      if ((b.tn[second] < b.tn[first]) == near_first) { int s = first; first = second; second = s; }
       t[size] = b.tn[second]; node[size++] = child[second];
       return child[first];
     }
-    int refs[8]; float ts[8]; int count = 0;
+    // Three or more: rank each child by how many of the others are visited after it (ties by slot).
+    int refs[8]; float ts[8];
+    int count = USDBAKE_POPCOUNT(b.mask);
     mask = b.mask;
+#ifndef __CUDA_ARCH__
+    typedef float f8 __attribute__((ext_vector_type(8)));
+    typedef int i8 __attribute__((ext_vector_type(8)));
+    typedef bool b8 __attribute__((ext_vector_type(8)));
+    f8 near = *(const f8*)b.tn;
+    i8 slot = {0, 1, 2, 3, 4, 5, 6, 7};
+#endif
     while (mask) {
       int c = USDBAKE_CTZ(mask); mask &= mask - 1;
-      int j = count++;
-      while (sorted && j > 0 && ts[j - 1] < b.tn[c]) { ts[j] = ts[j - 1]; refs[j] = refs[j - 1]; --j; }
-      ts[j] = b.tn[c]; refs[j] = child[c];
+#ifndef __CUDA_ARCH__
+      unsigned later = (unsigned)__builtin_bit_cast(unsigned char, __builtin_convertvector(
+          (near_first ? near > b.tn[c] : near < b.tn[c]) | ((near == b.tn[c]) & (slot < c)), b8));
+#else
+      unsigned later = 0;
+      for (int d = 0; d < 8; ++d)
+        later |= (unsigned)((near_first ? b.tn[d] > b.tn[c] : b.tn[d] < b.tn[c]) || (b.tn[d] == b.tn[c] && d < c)) << d;
+#endif
+      int rank = USDBAKE_POPCOUNT(later & b.mask);
+      ts[rank] = b.tn[c]; refs[rank] = child[c];
     }
     for (int j = 0; j < count - 1; ++j) { t[size] = ts[j]; node[size++] = refs[j]; }
     return refs[count - 1];
