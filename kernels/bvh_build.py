@@ -223,7 +223,12 @@ class TriangleBvh:
 def build_triangle_bvh(points: np.ndarray, tri_vertices: np.ndarray) -> TriangleBvh:
     """Wide BVH of triangles; leaves hold up to two packets of PACKET triangles."""
     corners = np.asarray(points, np.float32)[np.asarray(tri_vertices, np.int64)]
-    tree = build_binary(corners.min(axis=1), corners.max(axis=1), max_leaf=2 * PACKET, packet=PACKET)
+    # Zero-area triangles are left out: the watertight test would see a sliver of rounding error in them.
+    edges = corners[:, 1:].astype(np.float64) - corners[:, :1]
+    traced = np.flatnonzero(np.abs(np.cross(edges[:, 0], edges[:, 1])).max(axis=1) > 0)
+    if len(traced) == 0:  # nothing to hit: one empty leaf
+        return TriangleBvh(_empty_nodes(), np.zeros((1, 9, PACKET), np.float32), np.full((1, PACKET), -1, np.int32))
+    tree = build_binary(corners[traced].min(axis=1), corners[traced].max(axis=1), max_leaf=2 * PACKET, packet=PACKET)
     leaves = np.flatnonzero(tree.left < 0)
     leaf_count = tree.count[leaves]
     leaf_packets = (leaf_count + PACKET - 1) // PACKET
@@ -233,12 +238,21 @@ def build_triangle_bvh(points: np.ndarray, tri_vertices: np.ndarray) -> Triangle
     # Lane of each triangle: its rank within its leaf, packet by packet.
     rank = np.arange(leaf_count.sum()) - np.repeat(np.cumsum(leaf_count) - leaf_count, leaf_count)
     packet = np.repeat(first_packet, leaf_count) + rank // PACKET
-    triangle = tree.order[np.repeat(tree.first[leaves], leaf_count) + rank]
+    triangle = traced[tree.order[np.repeat(tree.first[leaves], leaf_count) + rank]]
     packets = np.zeros((int(leaf_packets.sum()), 9, PACKET), np.float32)
     packet_triangle = np.full((len(packets), PACKET), -1, np.int32)
     packets[packet, :, rank % PACKET] = corners[triangle].reshape(-1, 9)
     packet_triangle[packet, rank % PACKET] = triangle
     return TriangleBvh(collapse(tree, refs), packets, packet_triangle)
+
+
+def _empty_nodes() -> np.ndarray:
+    """A root with one leaf of one packet (whose lanes are all empty)."""
+    nodes = np.zeros((1, NODE_FLOATS), np.float32)
+    ints = nodes.view(np.int32)
+    ints[0, CHILD_OFFSET] = leaf_ref(0, 1)
+    ints[0, COUNT_OFFSET] = 1
+    return nodes
 
 
 def build_instance_bvh(lower: np.ndarray, upper: np.ndarray, max_leaf: int = 4) -> tuple[np.ndarray, np.ndarray]:

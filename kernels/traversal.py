@@ -34,6 +34,11 @@ from .bvh_build import CHILD_OFFSET, COUNT_OFFSET, LEAF_COUNT_BITS, NODE_FLOATS,
 
 wp.set_module_options({"enable_backward": False})
 
+FAR_SCALE = "1.0000004f"
+"""The slab test's far distance is scaled by 1 + 2 gamma(3) (gamma(n) = n eps / (1 - n eps), eps = 2^-24; Ize
+2013, section 3): with distances taken as (bound - origin) / direction, rounding never culls a box the ray
+touches, however far from the world origin the scene lies."""
+
 STACK_SIZE = 256
 """Traversal stack entries: 7 pushes per level of a tree 36 levels deep."""
 
@@ -106,13 +111,13 @@ const int* FACE = (const int*)scene.instance_face;
 const int* MIRRORED = (const int*)scene.instance_mirrored;
 const int* TOP_INSTANCES = (const int*)scene.top_instances;
 struct Ray {
-  float o[3], d[3], inv[3], oi[3], Sx, Sy, Sz; int kx, ky, kz;
+  float o[3], d[3], inv[3], Sx, Sy, Sz; int kx, ky, kz;
   CUDA_CALLABLE void init(const float* org, const float* dir) {
     for (int k = 0; k < 3; ++k) {
       o[k] = org[k]; d[k] = dir[k];
       float x = dir[k];
       if (wp::abs(x) < 1e-30f) x = x < 0.0f ? -1e-30f : 1e-30f;
-      inv[k] = 1.0f / x; oi[k] = o[k] * inv[k];
+      inv[k] = 1.0f / x;
     }
     kz = 0; if (wp::abs(d[1]) > wp::abs(d[kz])) kz = 1; if (wp::abs(d[2]) > wp::abs(d[kz])) kz = 2;
     kx = kz == 2 ? 0 : kz + 1; ky = kx == 2 ? 0 : kx + 1;
@@ -135,25 +140,25 @@ struct Boxes {
 #ifdef __CUDA_ARCH__
     float tf[8];
     for (int c = 0; c < 8; ++c) {
-      float tx0 = n[c] * r.inv[0] - r.oi[0], tx1 = n[24 + c] * r.inv[0] - r.oi[0];
-      float ty0 = n[8 + c] * r.inv[1] - r.oi[1], ty1 = n[32 + c] * r.inv[1] - r.oi[1];
-      float tz0 = n[16 + c] * r.inv[2] - r.oi[2], tz1 = n[40 + c] * r.inv[2] - r.oi[2];
+      float tx0 = (n[c] - r.o[0]) * r.inv[0], tx1 = (n[24 + c] - r.o[0]) * r.inv[0];
+      float ty0 = (n[8 + c] - r.o[1]) * r.inv[1], ty1 = (n[32 + c] - r.o[1]) * r.inv[1];
+      float tz0 = (n[16 + c] - r.o[2]) * r.inv[2], tz1 = (n[40 + c] - r.o[2]) * r.inv[2];
       tn[c] = wp::max(wp::max(wp::min(tx0, tx1), wp::min(ty0, ty1)), wp::max(wp::min(tz0, tz1), 0.0f));
-      tf[c] = wp::min(wp::min(wp::max(tx0, tx1), wp::max(ty0, ty1)), wp::min(wp::max(tz0, tz1), tfar)) * 1.00000024f;
+      tf[c] = wp::min(wp::min(wp::max(tx0, tx1), wp::max(ty0, ty1)), wp::min(wp::max(tz0, tz1), tfar)) * FAR_SCALE;
     }
     mask = 0;
     for (int c = 0; c < 8; ++c) mask |= (unsigned)(tn[c] <= tf[c]) << c;
 #else
     // The same test on 8 lanes at once (clang vector extensions: AVX where the CPU has it).
     typedef float f8 __attribute__((ext_vector_type(8)));
-    f8 tx0 = *(const f8*)(n) * r.inv[0] - r.oi[0], tx1 = *(const f8*)(n + 24) * r.inv[0] - r.oi[0];
-    f8 ty0 = *(const f8*)(n + 8) * r.inv[1] - r.oi[1], ty1 = *(const f8*)(n + 32) * r.inv[1] - r.oi[1];
-    f8 tz0 = *(const f8*)(n + 16) * r.inv[2] - r.oi[2], tz1 = *(const f8*)(n + 40) * r.inv[2] - r.oi[2];
+    f8 tx0 = (*(const f8*)(n) - r.o[0]) * r.inv[0], tx1 = (*(const f8*)(n + 24) - r.o[0]) * r.inv[0];
+    f8 ty0 = (*(const f8*)(n + 8) - r.o[1]) * r.inv[1], ty1 = (*(const f8*)(n + 32) - r.o[1]) * r.inv[1];
+    f8 tz0 = (*(const f8*)(n + 16) - r.o[2]) * r.inv[2], tz1 = (*(const f8*)(n + 40) - r.o[2]) * r.inv[2];
     f8 zero = 0.0f, far = tfar;
     f8 near_t = __builtin_elementwise_max(__builtin_elementwise_max(__builtin_elementwise_min(tx0, tx1), __builtin_elementwise_min(ty0, ty1)),
                                           __builtin_elementwise_max(__builtin_elementwise_min(tz0, tz1), zero));
     f8 far_t = __builtin_elementwise_min(__builtin_elementwise_min(__builtin_elementwise_max(tx0, tx1), __builtin_elementwise_max(ty0, ty1)),
-                                         __builtin_elementwise_min(__builtin_elementwise_max(tz0, tz1), far)) * 1.00000024f;
+                                         __builtin_elementwise_min(__builtin_elementwise_max(tz0, tz1), far)) * FAR_SCALE;
     typedef bool b8 __attribute__((ext_vector_type(8)));
     *(f8*)tn = near_t;
     mask = (unsigned)__builtin_bit_cast(unsigned char, __builtin_convertvector(near_t <= far_t, b8));
@@ -259,7 +264,8 @@ struct Packet {
   }
 };
 """
-_PRELUDE = (_PRELUDE.replace("STACK_SIZE", str(STACK_SIZE)).replace("COUNT_OFFSET", str(COUNT_OFFSET)))
+_PRELUDE = (_PRELUDE.replace("STACK_SIZE", str(STACK_SIZE)).replace("COUNT_OFFSET", str(COUNT_OFFSET))
+            .replace("FAR_SCALE", FAR_SCALE))
 assert NODE_FLOATS == 64 and CHILD_OFFSET == 48 and PACKET == 4 and LEAF_COUNT_BITS == 3  # as the C++ reads them
 
 _TRACE = _PRELUDE + r"""
@@ -271,25 +277,27 @@ struct Bottom {
                                  bool any, Best& best) {
     Stack stack; stack.size = 0;
     int node = root;
+    float tfar = best.t;  // a local: stores to the stack cannot alias it, so it stays in a register
     while (true) {
       if (node >= 0) {
         const float* n = NODES + 64 * node;
-        Boxes b; b.test(n, r, best.t);
+        Boxes b; b.test(n, r, tfar);
         if (b.mask) { node = stack.push_children(b, (const int*)n + 48, !any); continue; }
       } else {
         int code = -1 - node; int first = code >> 3, count = code & 7;
         for (int p = first; p < first + count; ++p) {
-          Packet k; k.test(PACKETS + 36 * p, r, best.t);
+          Packet k; k.test(PACKETS + 36 * p, r, tfar);
           for (int l = 0; l < 4; ++l) {
-            if (k.ok[l] && k.t[l] < best.t) {
+            if (k.ok[l] && k.t[l] < tfar) {
               if (any) return true;
-              best.t = k.t[l]; best.lane = 4 * p + l; best.instance = instance; best.u = k.U[l]; best.v = k.V[l]; best.det = k.det[l];
+              tfar = k.t[l]; best.t = tfar; best.lane = 4 * p + l; best.instance = instance;
+              best.u = k.U[l]; best.v = k.V[l]; best.det = k.det[l];
             }
           }
         }
       }
       bool found = false;
-      while (stack.size > 0) { --stack.size; if (stack.t[stack.size] <= best.t) { node = stack.node[stack.size]; found = true; break; } }
+      while (stack.size > 0) { --stack.size; if (stack.t[stack.size] <= tfar) { node = stack.node[stack.size]; found = true; break; } }
       if (!found) return false;
     }
   }
@@ -331,7 +339,7 @@ float u = best.u / best.det, v = best.v / best.det;
 bool mirrored = MIRRORED[best.instance] != 0;
 if (mirrored) u = 1.0f - u - v;
 int face = FACE[best.instance] + LANES[best.lane];
-bool front = (best.det > 0.0f) != mirrored;
+bool front = best.det > 0.0f;  // a mirrored instance's re-wound triangles flip the test's sign back
 return wp::vec4(best.t, u, v, USDBAKE_BITS_FLOAT(face * 2 + (front ? 1 : 0)));
 """
 
@@ -444,6 +452,15 @@ for (int sweep = 0; sweep < 2; ++sweep) {  // a second sweep, after a move, sett
           const float* P = PACKETS + 36 * pk;
           for (int l = 0; l < 4; ++l) {
             if (LANES[4 * pk + l] < 0) continue;
+            if (!two_level) {  // the lane's box misses the query box: most lanes stop here
+              bool apart = false;
+              for (int k = 0; k < 3; ++k) {
+                float lo = wp::min(P[4 * k + l], wp::min(P[12 + 4 * k + l], P[24 + 4 * k + l]));
+                float hi = wp::max(P[4 * k + l], wp::max(P[12 + 4 * k + l], P[24 + 4 * k + l]));
+                apart = apart || lo > q[k] + reach || hi < q[k] - reach;
+              }
+              if (apart) continue;
+            }
             wp::vec3 corner[3];
             for (int v = 0; v < 3; ++v) {
               wp::vec3 x(P[12 * v + l], P[12 * v + 4 + l], P[12 * v + 8 + l]);
