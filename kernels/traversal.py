@@ -111,13 +111,15 @@ const int* FACE = (const int*)scene.instance_face;
 const int* MIRRORED = (const int*)scene.instance_mirrored;
 const int* TOP_INSTANCES = (const int*)scene.top_instances;
 struct Ray {
-  float o[3], d[3], inv[3], Sx, Sy, Sz; int kx, ky, kz;
+  float o[3], d[3], inv[3], Sx, Sy, Sz; int kx, ky, kz, near_offset[3], far_offset[3];
   CUDA_CALLABLE void init(const float* org, const float* dir) {
     for (int k = 0; k < 3; ++k) {
       o[k] = org[k]; d[k] = dir[k];
       float x = dir[k];
       if (wp::abs(x) < 1e-30f) x = x < 0.0f ? -1e-30f : 1e-30f;
       inv[k] = 1.0f / x;
+      near_offset[k] = inv[k] >= 0.0f ? 8 * k : 24 + 8 * k;  // lower bounds of axis k, or upper
+      far_offset[k] = inv[k] >= 0.0f ? 24 + 8 * k : 8 * k;
     }
     kz = 0; if (wp::abs(d[1]) > wp::abs(d[kz])) kz = 1; if (wp::abs(d[2]) > wp::abs(d[kz])) kz = 2;
     kx = kz == 2 ? 0 : kz + 1; ky = kx == 2 ? 0 : kx + 1;
@@ -140,25 +142,24 @@ struct Boxes {
 #ifdef __CUDA_ARCH__
     float tf[8];
     for (int c = 0; c < 8; ++c) {
-      float tx0 = (n[c] - r.o[0]) * r.inv[0], tx1 = (n[24 + c] - r.o[0]) * r.inv[0];
-      float ty0 = (n[8 + c] - r.o[1]) * r.inv[1], ty1 = (n[32 + c] - r.o[1]) * r.inv[1];
-      float tz0 = (n[16 + c] - r.o[2]) * r.inv[2], tz1 = (n[40 + c] - r.o[2]) * r.inv[2];
-      tn[c] = wp::max(wp::max(wp::min(tx0, tx1), wp::min(ty0, ty1)), wp::max(wp::min(tz0, tz1), 0.0f));
-      tf[c] = wp::min(wp::min(wp::max(tx0, tx1), wp::max(ty0, ty1)), wp::min(wp::max(tz0, tz1), tfar)) * FAR_SCALE;
+      float nx = (n[r.near_offset[0] + c] - r.o[0]) * r.inv[0], fx = (n[r.far_offset[0] + c] - r.o[0]) * r.inv[0];
+      float ny = (n[r.near_offset[1] + c] - r.o[1]) * r.inv[1], fy = (n[r.far_offset[1] + c] - r.o[1]) * r.inv[1];
+      float nz = (n[r.near_offset[2] + c] - r.o[2]) * r.inv[2], fz = (n[r.far_offset[2] + c] - r.o[2]) * r.inv[2];
+      tn[c] = wp::max(wp::max(nx, ny), wp::max(nz, 0.0f));
+      tf[c] = wp::min(wp::min(fx, fy), wp::min(fz, tfar)) * FAR_SCALE;
     }
     mask = 0;
     for (int c = 0; c < 8; ++c) mask |= (unsigned)(tn[c] <= tf[c]) << c;
 #else
     // The same test on 8 lanes at once (clang vector extensions: AVX where the CPU has it).
     typedef float f8 __attribute__((ext_vector_type(8)));
-    f8 tx0 = (*(const f8*)(n) - r.o[0]) * r.inv[0], tx1 = (*(const f8*)(n + 24) - r.o[0]) * r.inv[0];
-    f8 ty0 = (*(const f8*)(n + 8) - r.o[1]) * r.inv[1], ty1 = (*(const f8*)(n + 32) - r.o[1]) * r.inv[1];
-    f8 tz0 = (*(const f8*)(n + 16) - r.o[2]) * r.inv[2], tz1 = (*(const f8*)(n + 40) - r.o[2]) * r.inv[2];
+    // The near and far planes of each axis are known from the direction's sign (Ray::near_offset).
+    f8 nx = (*(const f8*)(n + r.near_offset[0]) - r.o[0]) * r.inv[0], fx = (*(const f8*)(n + r.far_offset[0]) - r.o[0]) * r.inv[0];
+    f8 ny = (*(const f8*)(n + r.near_offset[1]) - r.o[1]) * r.inv[1], fy = (*(const f8*)(n + r.far_offset[1]) - r.o[1]) * r.inv[1];
+    f8 nz = (*(const f8*)(n + r.near_offset[2]) - r.o[2]) * r.inv[2], fz = (*(const f8*)(n + r.far_offset[2]) - r.o[2]) * r.inv[2];
     f8 zero = 0.0f, far = tfar;
-    f8 near_t = __builtin_elementwise_max(__builtin_elementwise_max(__builtin_elementwise_min(tx0, tx1), __builtin_elementwise_min(ty0, ty1)),
-                                          __builtin_elementwise_max(__builtin_elementwise_min(tz0, tz1), zero));
-    f8 far_t = __builtin_elementwise_min(__builtin_elementwise_min(__builtin_elementwise_max(tx0, tx1), __builtin_elementwise_max(ty0, ty1)),
-                                         __builtin_elementwise_min(__builtin_elementwise_max(tz0, tz1), far)) * FAR_SCALE;
+    f8 near_t = __builtin_elementwise_max(__builtin_elementwise_max(nx, ny), __builtin_elementwise_max(nz, zero));
+    f8 far_t = __builtin_elementwise_min(__builtin_elementwise_min(fx, fy), __builtin_elementwise_min(fz, far)) * FAR_SCALE;
     typedef bool b8 __attribute__((ext_vector_type(8)));
     *(f8*)tn = near_t;
     mask = (unsigned)__builtin_bit_cast(unsigned char, __builtin_convertvector(near_t <= far_t, b8));
