@@ -270,22 +270,30 @@ def in_processor_rates(threads: int, quick: bool) -> dict:
                                                               tracer.array(inward, wp.vec3), origins, directions])
             origins, directions = origins.numpy(), directions.numpy()
             compute_vertex_ao(tracer, positions, normals, samples=samples, inward=inward)  # compile
-            tracer.launch = timed_launch
-            compute_vertex_ao(tracer, positions, normals, samples=samples, inward=inward)
+
+            def bake():
+                compute_vertex_ao(tracer, positions, normals, samples=samples, inward=inward)
         else:
             patches = uniform_patches(64 if quick else 256)
             origins, directions = _sky_rays(tracer, scene, patches, enu_to_world(scene.up_axis))
             compute_sky_visibility(tracer, scene, patches=uniform_patches(4), adaptive=False)  # compile
-            tracer.launch = timed_launch
-            compute_sky_visibility(tracer, scene, patches=patches, adaptive=False)
-        tracer.launch = original
+
+            def bake():
+                compute_sky_visibility(tracer, scene, patches=patches, adaptive=False)
         repeats = 1 if quick else 3
+        tracer.launch = timed_launch
+        launch_seconds = []
+        for _ in range(repeats):
+            launched["seconds"] = 0.0
+            bake()
+            launch_seconds.append(launched["seconds"])
+        tracer.launch = original
         bare = CoreRun(tracer, origins, directions)
         bare_seconds = bare.seconds("any", threads, repeats)
-        rate = len(origins) / launched["seconds"]
+        rate = len(origins) / min(launch_seconds)
         figures[f"{label}_mrays"] = round(rate / 1e6, 3)
         figures[f"{label}_same_rays_bare_mrays"] = round(len(origins) / bare_seconds / 1e6, 3)
-        figures[f"{label}_vs_bare_same_rays"] = round(bare_seconds / launched["seconds"], 3)
+        figures[f"{label}_vs_bare_same_rays"] = round(bare_seconds / min(launch_seconds), 3)
         incoherent = CoreRun(tracer, *ao_ray_arrays(tracer, scene, 200_000 if quick else 1_000_000))
         figure = incoherent.count / incoherent.seconds("any", threads, repeats)
         figures[f"{label}_bare_figure_mrays"] = round(figure / 1e6, 3)

@@ -34,6 +34,25 @@ def concentric_disk(u1: float, u2: float) -> wp.vec2:
 
 
 @wp.func
+def sin_cos(x: float) -> wp.vec2:
+    """(sin x, cos x): x reduced to r = x - k pi/2, |r| <= pi/4 (k the nearest integer; pi/2 in three parts
+    of few bits, so each k * part is exact: Cody & Waite 1980, Cephes' constants), ``sin_cos_quarter_turn``
+    of r, then turned by k quarter turns. Within 3e-7 of float64 for |x| < 100 (tested), several times
+    faster than wp.sin and wp.cos on CPU."""
+    k = wp.round(x * (2.0 / wp.pi))
+    r = ((x - k * 1.5703125) - k * 4.837512969970703125e-4) - k * 7.54978995489188216e-8
+    sc = sin_cos_quarter_turn(r)
+    q = int(k) & 3
+    if q == 0:
+        return sc
+    if q == 1:
+        return wp.vec2(sc[1], -sc[0])
+    if q == 2:
+        return wp.vec2(-sc[0], -sc[1])
+    return wp.vec2(-sc[1], sc[0])
+
+
+@wp.func
 def sin_cos_quarter_turn(x: float) -> wp.vec2:
     """(sin x, cos x) for |x| <= pi/4 by the minimax polynomials of Cephes' sinf/cosf (Moshier 1989), within
     2e-7 of libm there: 3x faster than wp.sin and wp.cos on CPU, where the ray generators spend their time."""

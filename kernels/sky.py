@@ -51,6 +51,8 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .sampling import sin_cos
+
 wp.set_module_options({"enable_backward": False})
 
 LUMINOUS_EFFICACY = 179.0
@@ -238,7 +240,8 @@ def sample_patch(bounds: wp.vec4, enu_to_world: wp.mat33, u1: float, u2: float) 
     z = bounds[0] + u1 * (bounds[1] - bounds[0])
     azimuth = bounds[2] + u2 * (bounds[3] - bounds[2])
     r = wp.sqrt(wp.max(0.0, 1.0 - z * z))
-    return enu_to_world * wp.vec3(r * wp.sin(azimuth), r * wp.cos(azimuth), z)
+    sin_cos_azimuth = sin_cos(azimuth)
+    return enu_to_world * wp.vec3(r * sin_cos_azimuth[0], r * sin_cos_azimuth[1], z)
 
 
 # ---------------------------------------------------------------------------

@@ -9,10 +9,10 @@ import warp as wp
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from tolerances import (FINITE_DIFFERENCE, FLOAT32_STORAGE, FLOAT32_WARP_MATH, FLOAT64_ROUNDING, MC_SIGMAS,
+from tolerances import (POLYNOMIAL_SIN_COS, FINITE_DIFFERENCE, FLOAT32_STORAGE, FLOAT32_WARP_MATH, FLOAT64_ROUNDING, MC_SIGMAS,
                         MIDPOINT_MOMENT_FACTOR, MIDPOINT_RIM_FACTOR)
 from kernel_twins import concentric_disk_np, cosine_hemisphere_np
-from usdbake.kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
+from usdbake.kernels.sampling import cosine_hemisphere, sin_cos, stratified_pair, tangent_frame, triangle_point
 
 wp.set_module_options({"enable_backward": False})
 
@@ -255,3 +255,23 @@ def test_triangle_point_is_uniform_on_the_triangle():
     tol = MC_SIGMAS * 0.25 / math.sqrt(len(u))  # each coordinate's std is < 0.25
     np.testing.assert_allclose(p.mean(axis=0), [1 / 3, 1 / 3], atol=tol)
     np.testing.assert_allclose([(p[:, 0] ** 2).mean(), (p[:, 0] * p[:, 1]).mean()], [1 / 6, 1 / 12], atol=tol)
+
+
+@wp.kernel
+def _sin_cos_kernel(x: wp.array(dtype=float), out: wp.array(dtype=wp.vec2)):
+    i = wp.tid()
+    out[i] = sin_cos(x[i])
+
+
+def test_polynomial_sin_cos_matches_float64_over_many_turns():
+    """sin_cos (range reduction + Cephes polynomials, used by the ray generators) against float64, on
+    |x| < 100 and at the quarter-turn boundaries where the reduction switches branch."""
+    rng = np.random.default_rng(3)  # fixed seed
+    quarter = np.pi / 2
+    x = np.concatenate([rng.uniform(-100, 100, 20000), np.arange(-64, 65) * quarter,
+                        np.arange(-64, 65) * quarter + quarter / 2, [0.0, 1e-30, -1e-30]]).astype(np.float32)
+    out = wp.zeros(len(x), dtype=wp.vec2)
+    wp.launch(_sin_cos_kernel, dim=len(x), inputs=[wp.array(x, dtype=float), out])
+    got = out.numpy()
+    exact = np.stack([np.sin(x.astype(np.float64)), np.cos(x.astype(np.float64))], axis=1)
+    assert np.abs(got - exact).max() <= POLYNOMIAL_SIN_COS
