@@ -42,6 +42,8 @@ TARGETS = [
      "<=", 1.5),
     ("Tracer: hit/miss agreement with Embree (self-hits excluded, worst scene)", "tracer", "agreement_vs_embree_min",
      ">=", 0.999),
+    ("Light probes: lookups per second, coherent points (millions)", "probe_lookup", "coherent_mlookups_per_s",
+     ">=", 2.0),
     ("sky_visibility: building.usda refinement + visibility (s)", "sky_visibility", "building_seconds", "<=", 10.0),
     ("sky_visibility: window_room.usda (s)", "sky_visibility", "window_room_seconds", "<=", 1.0),
     ("sky_visibility: uniform / adaptive triangles at equal error", "sky_visibility",

@@ -117,6 +117,7 @@ from ..core.scene import Scene
 from ..geometry import tetrahedra
 from ..kernels.lights import NO_LIGHTS, SceneLighting, has_light, scene_lighting
 from ..kernels.probe_capture import PROBE_DIRECTIONS, classify_points, compute_probe_sh
+from ..kernels.probe_lookup import ProbeLookup
 from ..kernels.sh import sh_basis_np
 
 CLOUD_PRIM = "/usdbake/LightProbes"
@@ -430,9 +431,16 @@ def cloud_from_arrays(positions, sh, tet_vertices, tet_neighbors, tet_blocked=No
 
 
 def interpolation_weights(cloud: ProbeCloud, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 4) probe indices and (N, 4) weights at points (N, 3): walk, clamp outside, leak rule."""
+    """(N, 4) probe indices and (N, 4) weights at points (N, 3): walk (the device walk of
+    ``kernels.probe_lookup``; the float64 one of ``geometry.tetrahedra`` for the points it leaves outside
+    the hull or in a flat tetrahedron of cospherical probes), clamp outside, leak rule."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
-    tet, bary, _ = tetrahedra.locate(cloud.tetra, points)
+    tet, bary, inside = ProbeLookup(cloud.tetra, threads=1 if len(points) < 4096 else None).locate(points)
+    tet, bary = tet.astype(np.int64), bary.astype(np.float64)
+    flat = cloud.tetra.tet_flat
+    redo = ~inside if flat is None else ~inside | flat[tet]
+    if redo.any():
+        tet[redo], bary[redo], _ = tetrahedra.locate(cloud.tetra, points[redo])
     weights = tetrahedra.clamp_weights(bary)
     if cloud.tet_blocked is not None and np.any(cloud.tet_blocked):
         weights = tetrahedra.leak_weights(weights, cloud.tet_blocked[tet])
