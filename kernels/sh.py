@@ -61,7 +61,21 @@ COSINE_LOBE = np.array([math.pi, 2.0 * math.pi / 3.0, 2.0 * math.pi / 3.0, 2.0 *
 BAND = np.array([0, 1, 1, 1, 2, 2, 2, 2, 2])
 """(9,) band l of each coefficient."""
 
+DERING_NON_NEGATIVE = 0.0933
+"""The smallest ``dering_window`` strength at which the L2 irradiance of one directional light is >= 0 in
+every direction (without a window it dips to -4 % of its peak 122 degrees from the light)."""
+
 vec9 = wp.types.vector(length=SH_COUNT, dtype=wp.float32)
+
+
+def dering_window(strength: float) -> np.ndarray:
+    """(9,) factors exp(-strength l (l + 1)) per coefficient: a Gaussian window on the SH bands, one of the
+    windows Sloan ("Stupid Spherical Harmonics Tricks", GDC 2008, section "Windowing") uses against the
+    ringing of a truncated expansion. Hanning (1, 0.75, 0.25) and Lanczos (1, 0.83, 0.41) windows, meant for
+    radiance, leave the negative lobe of a directional light's *irradiance* in place (-4.7 % and -3.4 % of
+    its peak against -4.0 % unwindowed); the Gaussian's l = 2 / l = 1 ratio removes it from
+    DERING_NON_NEGATIVE on. Strength 0 is no window; an array of strengths gives (..., 9)."""
+    return np.exp(-np.multiply.outer(np.asarray(strength, np.float64), BAND * (BAND + 1.0)))
 
 
 @wp.func
@@ -218,3 +232,38 @@ def fibonacci_sphere_np(count: int) -> np.ndarray:
     r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
     phi = i * math.pi * (3.0 - math.sqrt(5.0))
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+DERING_DIRECTIONS = 512
+"""Directions (``fibonacci_sphere_np``) on which ``dering`` checks a probe's irradiance for negative values."""
+DERING_STEPS = 24
+"""Bisection steps of ``dering`` (the strength to 1e-7 of its [0, 4] bracket)."""
+
+
+def dering(sh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Irradiance SH (P, 9, C) with each ringing probe windowed by the least ``dering_window`` strength that
+    makes its irradiance non-negative in every direction (of DERING_DIRECTIONS), and those strengths (P,).
+
+    The window is applied per probe, as Sloan ("Stupid Spherical Harmonics Tricks", GDC 2008) suggests,
+    so probes whose irradiance never dips below zero keep their SH bit for bit: a window everywhere blurs
+    every probe's directional light (on atrium, a fixed strength 0.1 raised the error against the
+    reference by 13 % while no probe's irradiance was negative). A probe whose constant term is not
+    positive in some channel is left as it is (no window makes it non-negative)."""
+    sh = np.asarray(sh, np.float64)
+    basis = sh_basis_np(fibonacci_sphere_np(DERING_DIRECTIONS))  # (D, 9)
+
+    def lowest(coefficients, strength):  # (N,) min over directions and channels
+        windowed = coefficients * dering_window(strength)[:, :, None]
+        return np.einsum("dk,nkc->ndc", basis, windowed).min(axis=(1, 2))
+
+    strengths = np.zeros(len(sh))
+    ringing = np.flatnonzero((lowest(sh, strengths) < 0.0) & (sh[:, 0, :].min(axis=1) > 0.0))
+    if len(ringing):
+        low, high = np.zeros(len(ringing)), np.full(len(ringing), 4.0)
+        for _ in range(DERING_STEPS):
+            middle = (low + high) / 2
+            ok = lowest(sh[ringing], middle) >= 0.0
+            high = np.where(ok, middle, high)
+            low = np.where(ok, low, middle)
+        strengths[ringing] = high
+    return sh * dering_window(strengths)[:, :, None], strengths

@@ -118,7 +118,7 @@ from ..geometry import tetrahedra
 from ..kernels.lights import NO_LIGHTS, SceneLighting, has_light, scene_lighting
 from ..kernels.probe_capture import PROBE_DIRECTIONS, classify_points, compute_probe_sh
 from ..kernels.probe_lookup import ProbeLookup
-from ..kernels.sh import sh_basis_np
+from ..kernels.sh import dering, sh_basis_np
 
 CLOUD_PRIM = "/usdbake/LightProbes"
 
@@ -483,7 +483,7 @@ def cloud_records(cloud: ProbeCloud, origin: np.ndarray) -> list:
 
 class LightProbes(Processor):
     name = "light_probes"
-    version = "1"
+    version = "2"
     summary = "Light probe cloud: placement by gradient ascent + spawn/merge, L2 SH irradiance, tetrahedra."
     facets = ("geometry", "materials", "lights")
     provides = (ProbeCloud,)
@@ -500,6 +500,8 @@ class LightProbes(Processor):
         rays: int = param(256, "capture rays per probe (rounded to a square)", low=1, high=1_000_000)
         placement_rays: int = param(64, "capture rays per probe while placing", low=1, high=1_000_000)
         leak_fix: bool = param(True, "wall probes, ray-cast tetrahedron edges, stop interpolation across blockers")
+        dering: bool = param(True, "window each ringing probe's SH by the least Gaussian exp(-s l(l+1)) that makes "
+                                   "its irradiance non-negative in every direction (probes that do not ring are kept)")
         seed: int = param(0, "random seed (identical results across thread counts)", low=0, high=2**31 - 1)
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
@@ -525,6 +527,10 @@ class LightProbes(Processor):
         ctx.progress(0.6)
         sh = compute_probe_sh(tracer, scene, placement.positions, rays=p.rays, seed=p.seed + 1_000_003,
                               lighting=lighting)
+        deringed = 0
+        if p.dering:
+            windowed, strengths = dering(sh)
+            sh, deringed = windowed.astype(np.float32), int((strengths > 0).sum())
         ctx.progress(0.9)
         try:
             cloud = build_cloud(placement.positions, sh, tracer, leak_fix=p.leak_fix)
@@ -536,6 +542,6 @@ class LightProbes(Processor):
                  "candidates": float(placement.candidates), "dropped_inside": float(placement.dropped_inside),
                  "moved": float(placement.moved), "spawned": float(placement.spawned),
                  "merged": float(placement.merged), "wall_probes": float(placement.wall_probes),
-                 "blocked_tet_edges": float(blocked_edges),
+                 "blocked_tet_edges": float(blocked_edges), "deringed_probes": float(deringed),
                  "min_spacing": float(placement.min_spacing), "rays": float(tracer.rays_cast - rays_before)}
         return Result(products={ProbeCloud: cloud}, outputs=cloud_records(cloud, scene.origin), stats=stats)

@@ -240,3 +240,45 @@ def test_fibonacci_sphere_is_unit_and_balanced():
     d = sh.fibonacci_sphere_np(1000)
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=FLOAT64_ROUNDING)
     assert np.abs(d.mean(axis=0)).max() < FIBONACCI_MEAN
+
+
+def test_dering_window_removes_the_negative_lobe_of_a_directional_light():
+    """One directional light's L2 irradiance dips below zero opposite the light; the Gaussian window from
+    DERING_NON_NEGATIVE on makes it non-negative everywhere, a weaker one does not."""
+    from usdbake.kernels.sh import DERING_NON_NEGATIVE, dering_window, evaluate_np, irradiance_sh_np, sh_basis_np
+
+    light = np.array([0.3, -0.5, 0.81])
+    light /= np.linalg.norm(light)
+    irradiance = irradiance_sh_np(sh_basis_np(light[None])[0])[:, None]  # (9, 1): a unit delta of radiance
+    directions = np.random.default_rng(4).normal(size=(200000, 3))  # fixed seed
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    peak = evaluate_np(irradiance, light[None])[0, 0]
+
+    def lowest(window):
+        return evaluate_np(irradiance * window[:, None], directions).min() / peak
+
+    assert lowest(np.ones(9)) < -0.03
+    assert lowest(dering_window(0.8 * DERING_NON_NEGATIVE)) < 0.0
+    assert lowest(dering_window(DERING_NON_NEGATIVE)) >= -1e-4
+    np.testing.assert_array_equal(dering_window(0.0), np.ones(9))
+
+
+def test_dering_windows_only_the_probes_that_ring_and_only_as_much_as_needed():
+    """A probe lit by one directional light rings and is windowed at about DERING_NON_NEGATIVE (its
+    irradiance then >= 0 everywhere); a probe under a uniform sky plus a soft gradient does not ring and
+    keeps its SH bit for bit; a black probe is left alone."""
+    from usdbake.kernels.sh import DERING_NON_NEGATIVE, dering, evaluate_np, fibonacci_sphere_np, irradiance_sh_np, sh_basis_np
+
+    light = np.array([0.0, 0.6, 0.8])
+    ringing = irradiance_sh_np(sh_basis_np(light[None])[0])[:, None].repeat(3, axis=1)
+    smooth = np.zeros((9, 3))
+    smooth[0], smooth[2] = 1.0, 0.3  # constant plus a gentle linear term: positive everywhere
+    black = np.zeros((9, 3))
+    windowed, strengths = dering(np.stack([ringing, smooth, black]))
+    assert abs(strengths[0] - DERING_NON_NEGATIVE) < 0.01
+    assert strengths[1] == 0.0 and strengths[2] == 0.0
+    np.testing.assert_array_equal(windowed[1], smooth)
+    np.testing.assert_array_equal(windowed[2], black)
+    directions = fibonacci_sphere_np(20000)
+    assert evaluate_np(ringing, directions).min() < 0.0
+    assert evaluate_np(windowed[0], directions).min() >= -1e-4
