@@ -139,11 +139,24 @@ BOUNDS_MIN_RELATIVE = 0.05
 
 
 def placement_box(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) float64: the scene bounds, each axis at least BOUNDS_MIN_RELATIVE diagonals wide."""
-    lo, hi = (np.asarray(b, np.float64) for b in scene.bounds)
+    """(lo, hi) float64: the union of the stage's probe volumes (prims with ProbeVolumeAPI), or with none the
+    scene bounds; each axis at least BOUNDS_MIN_RELATIVE diagonals wide."""
+    if len(scene.probe_volumes):
+        lo, hi = scene.probe_volumes[:, 0].min(axis=0), scene.probe_volumes[:, 1].max(axis=0)
+    else:
+        lo, hi = (np.asarray(b, np.float64) for b in scene.bounds)
     centre = 0.5 * (lo + hi)
-    half = np.maximum(0.5 * (hi - lo), 0.5 * BOUNDS_MIN_RELATIVE * scene.diagonal)
+    half = np.maximum(0.5 * (hi - lo), 0.5 * BOUNDS_MIN_RELATIVE * float(np.linalg.norm(hi - lo)))
     return centre - half, centre + half
+
+
+def in_placement_volume(scene: Scene, points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(N,) bool: inside one of the probe volumes, or with none inside the placement box [lo, hi]."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    if not len(scene.probe_volumes):
+        return ((points >= lo) & (points <= hi)).all(axis=1)
+    volumes = scene.probe_volumes
+    return ((points[:, None] >= volumes[None, :, 0]) & (points[:, None] <= volumes[None, :, 1])).all(axis=2).any(axis=1)
 
 
 def grid_spacing(lo: np.ndarray, hi: np.ndarray, count: int) -> float:
@@ -278,8 +291,7 @@ def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0,
 
     def valid(points: np.ndarray) -> np.ndarray:
         inside, nearest = classify_points(tracer, lighting, points)
-        in_box = ((points >= lo) & (points <= hi)).all(axis=1)
-        return ~inside & (nearest >= clearance) & in_box
+        return ~inside & (nearest >= clearance) & in_placement_volume(scene, points, lo, hi)
 
     keep = valid(grid)
     positions = grid[keep].astype(np.float64)
@@ -544,4 +556,10 @@ class LightProbes(Processor):
                  "merged": float(placement.merged), "wall_probes": float(placement.wall_probes),
                  "blocked_tet_edges": float(blocked_edges), "deringed_probes": float(deringed),
                  "min_spacing": float(placement.min_spacing), "rays": float(tracer.rays_cast - rays_before)}
-        return Result(products={ProbeCloud: cloud}, outputs=cloud_records(cloud, scene.origin), stats=stats)
+        messages = []
+        if len(scene.probe_volumes):
+            stats["probe_volumes"] = float(len(scene.probe_volumes))
+            messages.append(f"{len(cloud.probe_positions)} probes placed in {len(scene.probe_volumes)} probe "
+                            "volume(s) (ProbeVolumeAPI)")
+        return Result(products={ProbeCloud: cloud}, outputs=cloud_records(cloud, scene.origin), stats=stats,
+                      messages=messages)

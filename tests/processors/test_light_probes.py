@@ -460,3 +460,33 @@ def test_degenerate_triangles_do_not_produce_nan():
     result, _ = run(hostile, probes=48, rays=16, placement_rays=16)
     cloud = result.products[ProbeCloud]
     assert np.isfinite(cloud.probe_sh).all() and np.isfinite(cloud.probe_positions).all()
+
+
+def test_probes_go_where_the_probe_volume_is():
+    """A 4 x 4 x 3 m room on a 200 m ground plane, lit by a dome: with a ProbeVolumeAPI cube around the room
+    every probe lies in the room's volume (over the whole stage, the grid's cells are tens of metres and no
+    candidate keeps its clearance); the result says which volumes it used."""
+    from pxr import Gf, UsdGeom, UsdLux
+
+    from stage_builders import add_mesh, new_stage
+    from usdbake.stages.extract import extract_scene
+
+    stage = new_stage(up_axis="Z")
+    add_mesh(stage, "/World/Ground", [(-100, -100, 0), (100, -100, 0), (100, 100, 0), (-100, 100, 0)], [4],
+             [0, 1, 2, 3])
+    box = [(x, y, z) for z in (0, 3) for y in (-2, 2) for x in (-2, 2)]
+    outward = [[0, 2, 3, 1], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
+    add_mesh(stage, "/World/Room", box, [4] * 5, [i for face in outward for i in face[::-1]])  # open-top, facing in
+    UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(1.0)
+    params = {"probes": 64, "iterations": 1, "rays": 16, "placement_rays": 16}
+    cube = UsdGeom.Cube.Define(stage, "/World/RoomVolume")
+    UsdGeom.Xformable(cube).AddTranslateOp().Set(Gf.Vec3d(0, 0, 1.5))
+    UsdGeom.Xformable(cube).AddScaleOp().Set(Gf.Vec3f(2, 2, 1.5))
+    cube.GetPrim().ApplyAPI("ProbeVolumeAPI")
+    scene = extract_scene(stage)
+    result, _ = run(scene, **params)
+    world = result.products[ProbeCloud].probe_positions + scene.origin
+    assert len(world) >= 8
+    assert ((world >= [-2, -2, 0]) & (world <= [2, 2, 3])).all()
+    assert result.stats["probe_volumes"] == 1.0
+    assert any("probe volume(s)" in m for m in result.messages)
