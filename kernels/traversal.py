@@ -404,22 +404,29 @@ const int* MIRRORED = (const int*)scene.instance_mirrored;
 const int* TOP_INSTANCES = (const int*)scene.top_instances;
 float q[3], o[3], nn[3];
 for (int k = 0; k < 3; ++k) { nn[k] = n[k]; q[k] = p[k] + inward[k] * epsilon; o[k] = q[k] + nn[k] * epsilon; }
+struct Overlap {
+  // Push the children of node nd whose boxes overlap the box centre +- half.
+  CUDA_CALLABLE static void push(const float* nd, const float* centre, const float* half, int* stack, int& size) {
+    int count = ((const int*)nd)[COUNT_OFFSET];
+    for (int c = 0; c < count; ++c) {
+      bool overlap = true;
+      for (int k = 0; k < 3; ++k)
+        overlap = overlap && nd[8 * k + c] <= centre[k] + half[k] && nd[24 + 8 * k + c] >= centre[k] - half[k];
+      if (overlap && size < STACK_SIZE) stack[size++] = ((const int*)nd)[48 + c];
+    }
+  }
+};
 const float reach = 2.0f * epsilon, tolerance = 0.5f * epsilon;
 const bool two_level = scene.top_root >= 0;
 for (int sweep = 0; sweep < 2; ++sweep) {  // a second sweep, after a move, settles faces that are not perpendicular
   bool moved = false;
   int top_stack[STACK_SIZE]; int top_size = 0;
   if (two_level) top_stack[top_size++] = scene.top_root; else top_stack[top_size++] = -1 - 1;  // leaf: instance 0, 1 item
+  const float world_half[3] = {reach, reach, reach};
   while (top_size > 0) {
     int top_node = top_stack[--top_size];
     if (top_node >= 0) {
-      const float* nd = NODES + 64 * top_node;
-      int count = ((const int*)nd)[COUNT_OFFSET];
-      for (int c = 0; c < count; ++c) {
-        bool overlap = true;
-        for (int k = 0; k < 3; ++k) overlap = overlap && nd[8 * k + c] <= q[k] + reach && nd[24 + 8 * k + c] >= q[k] - reach;
-        if (overlap && top_size < STACK_SIZE) top_stack[top_size++] = ((const int*)nd)[48 + c];
-      }
+      Overlap::push(NODES + 64 * top_node, q, world_half, top_stack, top_size);
       continue;
     }
     int code = -1 - top_node;
@@ -438,14 +445,7 @@ for (int sweep = 0; sweep < 2; ++sweep) {  // a second sweep, after a move, sett
       while (size > 0) {
         int node = stack[--size];
         if (node >= 0) {
-          const float* nd = NODES + 64 * node;
-          int count = ((const int*)nd)[COUNT_OFFSET];
-          for (int c = 0; c < count; ++c) {
-            bool overlap = true;
-            for (int k = 0; k < 3; ++k)
-              overlap = overlap && nd[8 * k + c] <= center[k] + half[k] && nd[24 + 8 * k + c] >= center[k] - half[k];
-            if (overlap && size < STACK_SIZE) stack[size++] = ((const int*)nd)[48 + c];
-          }
+          Overlap::push(NODES + 64 * node, center, half, stack, size);
           continue;
         }
         int leaf = -1 - node;
