@@ -151,7 +151,8 @@ struct Boxes {
     mask = 0;
     for (int c = 0; c < 8; ++c) mask |= (unsigned)(tn[c] <= tf[c]) << c;
 #else
-    // The same test on 8 lanes at once (clang vector extensions: AVX where the CPU has it).
+    // The same test on 8 lanes at once (clang vector extensions: AVX where the CPU has it). Nodes are
+    // 256-byte records in a Warp array (64-byte aligned), so the 8-float loads are aligned.
     typedef float f8 __attribute__((ext_vector_type(8)));
     // The near and far planes of each axis are known from the direction's sign (Ray::near_offset).
     f8 nx = (*(const f8*)(n + r.near_offset[0]) - r.o[0]) * r.inv[0], fx = (*(const f8*)(n + r.far_offset[0]) - r.o[0]) * r.inv[0];
