@@ -462,22 +462,47 @@ def test_degenerate_triangles_do_not_produce_nan():
     assert np.isfinite(cloud.probe_sh).all() and np.isfinite(cloud.probe_positions).all()
 
 
-def test_probes_go_where_the_probe_volume_is():
-    """A 4 x 4 x 3 m room on a 200 m ground plane, lit by a dome: with a ProbeVolumeAPI cube around the room
-    every probe lies in the room's volume (over the whole stage, the grid's cells are tens of metres and no
-    candidate keeps its clearance); the result says which volumes it used."""
-    from pxr import Gf, UsdGeom, UsdLux
+def _room_on_a_lawn():
+    """A 4 x 4 x 3 m open-top room (walls facing in) on a 200 m ground plane, lit by a dome (Z up, metres)."""
+    from pxr import UsdLux
 
     from stage_builders import add_mesh, new_stage
-    from usdbake.stages.extract import extract_scene
 
     stage = new_stage(up_axis="Z")
     add_mesh(stage, "/World/Ground", [(-100, -100, 0), (100, -100, 0), (100, 100, 0), (-100, 100, 0)], [4],
              [0, 1, 2, 3])
     box = [(x, y, z) for z in (0, 3) for y in (-2, 2) for x in (-2, 2)]
     outward = [[0, 2, 3, 1], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
-    add_mesh(stage, "/World/Room", box, [4] * 5, [i for face in outward for i in face[::-1]])  # open-top, facing in
+    add_mesh(stage, "/World/Room", box, [4] * 5, [i for face in outward for i in face[::-1]])
     UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(1.0)
+    return stage
+
+
+def test_without_a_probe_volume_probes_surround_the_receivers_not_the_backdrop():
+    """The same room on a lawn without a probe volume: the ground plane is a backdrop (16x wider than the
+    room on two axes), so the probes go around the room (its bounds grown by RECEIVER_MARGIN of their
+    diagonal), some of them inside it, and the result names the backdrop it left out."""
+    from usdbake.stages.extract import extract_scene
+
+    scene = extract_scene(_room_on_a_lawn())
+    backdrops, others = lp.backdrop_prims(scene)
+    assert [scene.prim_paths[b] for b in backdrops] == ["/World/Ground"]
+    result, _ = run(scene, probes=64, iterations=1, rays=16, placement_rays=16)
+    world = result.products[ProbeCloud].probe_positions + scene.origin
+    margin = lp.RECEIVER_MARGIN * np.linalg.norm([4, 4, 3])
+    assert ((world >= np.array([-2, -2, 0]) - margin) & (world <= np.array([2, 2, 3]) + margin)).all()
+    assert ((world > [-2, -2, 0]) & (world < [2, 2, 3])).all(axis=1).sum() >= 4
+    assert any("/World/Ground" in m for m in result.messages)
+
+
+def test_probes_go_where_the_probe_volume_is():
+    """The room on a lawn with a ProbeVolumeAPI cube around the room: every probe lies in the room's volume;
+    the result says which volumes it used."""
+    from pxr import Gf, UsdGeom
+
+    from usdbake.stages.extract import extract_scene
+
+    stage = _room_on_a_lawn()
     params = {"probes": 64, "iterations": 1, "rays": 16, "placement_rays": 16}
     cube = UsdGeom.Cube.Define(stage, "/World/RoomVolume")
     UsdGeom.Xformable(cube).AddTranslateOp().Set(Gf.Vec3d(0, 0, 1.5))
