@@ -44,6 +44,8 @@ TARGETS = [
      ">=", 0.999),
     ("Light probes: lookups per second, coherent points (millions)", "probe_lookup", "coherent_mlookups_per_s",
      ">=", 2.0),
+    ("Light probes: leak error on a thin wall's dark side, without / with leak_fix", "light_probes",
+     "thin_wall_leak_reduction", ">=", 3.0),
     ("sky_visibility: building.usda refinement + visibility (s)", "sky_visibility", "building_seconds", "<=", 10.0),
     ("sky_visibility: window_room.usda (s)", "sky_visibility", "window_room_seconds", "<=", 1.0),
     ("sky_visibility: uniform / adaptive triangles at equal error", "sky_visibility",
