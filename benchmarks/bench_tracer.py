@@ -10,6 +10,7 @@ import numpy as np
 import warp as wp
 
 from . import harness
+from .bench_progressive_mesh import height_field, sphere
 from usdbake.kernels.occlusion import AORays, ao_direction, ao_rays
 from usdbake.kernels.sampling import stratified_pair, tangent_frame, triangle_point
 from usdbake.kernels.sky import sample_patch
@@ -98,12 +99,6 @@ def ao_ray_arrays(tracer, scene, count: int, seed: int = 7) -> tuple[np.ndarray,
     tracer.launch(ao_ray_kernel, count, [rays, tracer.array(scene.points[picks], wp.vec3),
                                          tracer.array(normals[picks], wp.vec3), origins, directions])
     return origins.numpy(), directions.numpy()
-
-
-def height_field(n: int) -> tuple[np.ndarray, np.ndarray]:
-    from .bench_progressive_mesh import height_field as bumps
-
-    return bumps(n)
 
 
 def tiled(scene, copies: int) -> tuple[np.ndarray, np.ndarray]:
@@ -331,8 +326,6 @@ def instancing(threads: int, quick: bool) -> dict:
     """1000 instances of a 2.5k-triangle prototype: two-level vs flattened memory and throughput."""
     from usdbake.kernels.bvh_build import build_triangle_bvh, two_level
 
-    from .bench_progressive_mesh import sphere
-
     proto_points, proto_tris = sphere(36, 36)
     proto_points = proto_points * (1.0 + 0.15 * np.sin(5 * proto_points[:, :1]) * np.cos(4 * proto_points[:, 1:2]))
     count = 1000
@@ -375,12 +368,10 @@ def instancing(threads: int, quick: bool) -> dict:
 
 
 def point_instancer(count: int, threads: int) -> dict:
-    """A USD PointInstancer of ``count`` instances of a 1280-triangle sphere, extracted and traced two-level."""
+    """A USD PointInstancer of ``count`` instances of a 1,216-triangle sphere, extracted and traced two-level."""
     from pxr import Usd, UsdGeom, Vt
 
     from usdbake.stages.extract import extract_scene
-
-    from .bench_progressive_mesh import sphere
 
     stage = Usd.Stage.CreateInMemory()
     points, tris = sphere(20, 32)
@@ -449,7 +440,7 @@ def run(quick: bool = False) -> dict:
     cases = [("atrium", atrium.points, atrium.tri_vertices, atrium)]
     city = harness.load_scene("city_block")
     cases.append(("city_block", city.points, city.tri_vertices, city))
-    points, tris = height_field(200)
+    points, tris = height_field(200)  # bench_progressive_mesh's bumpy grid: 79,202 triangles
     cases.append(("height_field_79k", points, tris, mesh_scene(points, tris)))
     if not quick:
         points, tris = tiled(atrium, 20)

@@ -1,6 +1,7 @@
 """Independent references the benchmarks and tests measure processors against.
 
-They share the light model (kernels/lights.py) with the processors, so they
+They share the light model (kernels/lights.py) and the ray core (kernels/traversal.py, tested on its
+own against a float64 brute force and Embree) with the processors, so they
 check the transport, not the reading of lights: a path tracer for multi-bounce
 indirect irradiance, a brute-force ray cast of one-bounce irradiance, and the
 sky view of a point (cosine-weighted rays that escape, no sky patches).

@@ -23,7 +23,7 @@ consecutive items (triangle packets, or instances for a top-level tree) from ``f
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -280,11 +280,13 @@ class TraceArrays:
     top_instances: np.ndarray
     top_root: int
 
+    def array_names(self) -> list[str]:
+        """The fields that are arrays (every one but ``top_root``), as ``TraceScene`` names them."""
+        return [f.name for f in fields(self) if f.name != "top_root"]
+
     @property
     def nbytes(self) -> int:
-        return sum(getattr(self, name).nbytes for name in ("nodes", "packets", "packet_triangle", "instance_to_object",
-                                                           "instance_to_world", "instance_root", "instance_face",
-                                                           "instance_mirrored", "top_instances"))
+        return sum(getattr(self, name).nbytes for name in self.array_names())
 
 
 def single_level(bvh: TriangleBvh) -> TraceArrays:

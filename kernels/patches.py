@@ -2,7 +2,7 @@
 
 A triangle split into m x m congruent fragments (sub-triangles) is addressed in
 barycentric grid coordinates (a, b) = (u m, v m) of the point u v0 + v v1 +
-(1 - u - v) v2 (Warp's mesh_query_ray convention): lower cells (i, j) with
+(1 - u - v) v2 (the ray core's convention, as wp.mesh_query_ray's): lower cells (i, j) with
 i + j <= m - 1 are numbered row by row (j), then the upper cells (i, j) with
 i + j <= m - 2 in the same order (geometry/patches.fragment_template builds the same
 order in numpy).
@@ -23,7 +23,7 @@ def fragment_of_hit(face: int, u: float, v: float, tri_subdivision: wp.array(dty
     """Global fragment id of barycentrics (u, v) on triangle ``face`` (the inverse of fragment_template's order).
 
     Maps a ray hit to the fragment, so the voxel-clustered patch, of Shcherbakov
-    (MSU 2017), section 5, precompute step 1. ``u``, ``v`` : Warp mesh_query_ray
+    (MSU 2017), section 5, precompute step 1. ``u``, ``v`` : trace_closest hit
     barycentrics (dimensionless, clamped to [0, 1]).
     """
     m = tri_subdivision[face]

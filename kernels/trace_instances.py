@@ -36,11 +36,10 @@ def instanced_arrays(scene, instancing: str = "auto") -> TraceArrays | None:
     runs = _instance_runs(tri_instance, len(scene.instances))
     prototypes = np.asarray(scene.instances.instance_prototype)
     transforms = np.asarray(scene.instances.instance_transforms, np.float64)
-    corners = scene.points[scene.tri_vertices]
-    diagonal = float(np.linalg.norm(scene.points.max(axis=0) - scene.points.min(axis=0))) if len(scene.points) else 0.0
-    tolerance = MATCH_TOLERANCE * max(diagonal, 1e-30)
+    tolerance = MATCH_TOLERANCE * max(scene.diagonal, 1e-30)
 
     reference: dict[int, int] = {}  # prototype -> its first instance with triangles
+    reference_corners: dict[int, np.ndarray] = {}
     traced = []  # (instance, bottom index, to_world (3, 4), mirrored)
     flat = np.ones(len(tri_instance), bool)  # triangles traced as they are, with the static ones
     linear = transforms[:, :3, :3]
@@ -52,13 +51,14 @@ def instanced_arrays(scene, instancing: str = "auto") -> TraceArrays | None:
         proto = int(prototypes[instance])
         if proto not in reference:
             reference[proto] = instance
+            reference_corners[proto] = _corners(scene, first, count)
         ref = reference[proto]
-        ref_first, ref_count = runs[ref]
+        ref_count = runs[ref][1]
         relative = np.linalg.solve(transforms[ref], transforms[instance])  # inv(T_ref) @ T_i (row vectors)
         to_world = relative.T[:3]  # column form: x_world = A x + b
         mirrored = bool(np.linalg.det(relative[:3, :3]) < 0)
-        ours = corners[first:first + count].astype(np.float64)
-        if count != ref_count or not _matches(corners[ref_first:ref_first + count], ours, to_world, mirrored, tolerance):
+        if count != ref_count or not _matches(reference_corners[proto], _corners(scene, first, count), to_world,
+                                              mirrored, tolerance):
             continue
         flat[first:first + count] = False
         traced.append((instance, proto, to_world, mirrored))
@@ -111,9 +111,15 @@ def _instance_runs(tri_instance: np.ndarray, instances: int) -> list[tuple[int, 
     return runs
 
 
+def _corners(scene, first: int, count: int) -> np.ndarray:
+    """(count, 3, 3) float64 corners of the scene's triangles first .. first + count - 1 (one instance's:
+    never the whole scene's, which for 10,000 instances would be gigabytes)."""
+    return scene.points[scene.tri_vertices[first:first + count]].astype(np.float64)
+
+
 def _matches(reference: np.ndarray, ours: np.ndarray, to_world: np.ndarray, mirrored: bool, tolerance: float) -> bool:
     """Triangles ``ours`` (n, 3, 3) are ``reference`` under ``to_world`` (winding reversed if mirrored)."""
-    moved = reference.astype(np.float64) @ to_world[:, :3].T + to_world[:, 3]
+    moved = reference @ to_world[:, :3].T + to_world[:, 3]
     if mirrored:
         moved = moved[:, ::-1]
     return bool(np.abs(moved - ours).max(initial=0.0) <= tolerance)

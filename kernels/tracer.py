@@ -1,7 +1,8 @@
-"""One Warp BVH per run, shared by every processor.
+"""One BVH per run, shared by every processor.
 
-``Tracer`` wraps a ``wp.Mesh`` built from the Scene's triangles and offers
-batched closest-hit and any-hit queries. Large CPU launches are split into
+``Tracer`` builds the Scene's triangles into the ray core (``bvh_build``, traversed by the device
+functions of ``traversal``; docs/ray_core.md) and offers batched closest-hit and any-hit queries for
+tests and tools; kernels trace through ``Tracer.scene``. Large CPU launches are split into
 chunks, one Python thread per core: Warp releases the GIL while a CPU kernel
 runs, so the chunks run in parallel.
 
@@ -231,8 +232,7 @@ class Tracer:
         """Device copies of the arrays (kept alive here) and the struct of their addresses."""
         self._device_arrays = {}
         scene = TraceScene()
-        for name in ("nodes", "packets", "packet_triangle", "instance_to_object", "instance_to_world", "instance_root",
-                     "instance_face", "instance_mirrored", "top_instances"):
+        for name in arrays.array_names():
             values = np.ascontiguousarray(getattr(arrays, name)).ravel()
             array = wp.array(values, dtype=wp.float32 if values.dtype == np.float32 else wp.int32, device=self.device)
             self._device_arrays[name] = array

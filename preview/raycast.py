@@ -119,7 +119,7 @@ def shade_kernel(
 ):
     """Barycentric interpolation of corner values, headlight cosine and polygon-edge mask per pixel.
 
-    The hit point is u * v0 + v * v1 + (1 - u - v) * v2 (wp.mesh_query_ray's convention), so
+    The hit point is u * v0 + v * v1 + (1 - u - v) * v2 (trace_closest's convention), so
     the barycentric weight of corner 0 is u, of corner 1 v, of corner 2 1 - u - v. The distance
     to the edge opposite corner k is b_k * h_k; a pixel's footprint at distance t is
     wire_world + wire_per_distance * t (orthographic: constant, perspective: proportional to t).

@@ -492,7 +492,7 @@ def interpolation_weights(cloud: ProbeCloud, points: np.ndarray) -> tuple[np.nda
     ``kernels.probe_lookup``; the float64 one of ``geometry.tetrahedra`` for the points it leaves outside
     the hull or in a flat tetrahedron of cospherical probes), clamp outside, leak rule."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
-    tet, bary, inside = ProbeLookup(cloud.tetra, threads=1 if len(points) < 4096 else None).locate(points)
+    tet, bary, inside = ProbeLookup(cloud.tetra).locate(points)
     tet, bary = tet.astype(np.int64), bary.astype(np.float64)
     flat = cloud.tetra.tet_flat
     redo = ~inside if flat is None else ~inside | flat[tet]

@@ -1,7 +1,7 @@
 """Sky visibility factors with adaptive, crack-free mesh refinement (Bosch, Besuievsky & Martin).
 
 Bosch C., Besuievsky G., Martin I., "A hardware accelerated adaptive mesh
-subdivision for interactive daylight illumination" -- here with Warp BVH ray
+subdivision for interactive daylight illumination" -- here with ray-core (BVH) ray
 casts instead of occlusion queries. The sky dome is split into patches
 (``kernels/sky.py``); the visibility factor of triangle i for patch j
 is (paper, Sec. 4.1)::
