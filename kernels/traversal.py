@@ -454,15 +454,13 @@ for (int sweep = 0; sweep < 2; ++sweep) {  // a second sweep, after a move, sett
           const float* P = PACKETS + 36 * pk;
           for (int l = 0; l < 4; ++l) {
             if (LANES[4 * pk + l] < 0) continue;
-            if (!two_level) {  // the lane's box misses the query box: most lanes stop here
-              bool apart = false;
-              for (int k = 0; k < 3; ++k) {
-                float lo = wp::min(P[4 * k + l], wp::min(P[12 + 4 * k + l], P[24 + 4 * k + l]));
-                float hi = wp::max(P[4 * k + l], wp::max(P[12 + 4 * k + l], P[24 + 4 * k + l]));
-                apart = apart || lo > q[k] + reach || hi < q[k] - reach;
-              }
-              if (apart) continue;
+            bool apart = false;  // the lane's box misses the query box (instance space): most lanes stop here
+            for (int k = 0; k < 3; ++k) {
+              float lo = wp::min(P[4 * k + l], wp::min(P[12 + 4 * k + l], P[24 + 4 * k + l]));
+              float hi = wp::max(P[4 * k + l], wp::max(P[12 + 4 * k + l], P[24 + 4 * k + l]));
+              apart = apart || lo > center[k] + half[k] || hi < center[k] - half[k];
             }
+            if (apart) continue;
             wp::vec3 corner[3];
             for (int v = 0; v < 3; ++v) {
               wp::vec3 x(P[12 * v + l], P[12 * v + 4 + l], P[12 * v + 8 + l]);
