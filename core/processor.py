@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar
 
+from .chunks import SceneChunks
 from .params import Params
 from .records import Output
 from .scene import Scene
@@ -40,7 +41,8 @@ class Context:
     """
 
     def __init__(self, scene: Scene, params: Params, tracer: Any = None, products: dict | None = None,
-                 progress: Callable[[float], None] | None = None, *, device: str = "cpu", threads: int | None = None):
+                 progress: Callable[[float], None] | None = None, *, device: str = "cpu", threads: int | None = None,
+                 chunks: SceneChunks | None = None):
         self.scene = scene
         self.device, self.threads = device, threads
         """Where kernels run, and CPU threads; for processors that build BVHs of their own."""
@@ -49,6 +51,8 @@ class Context:
         self.progress = progress or (lambda fraction: None)
         """Report progress in [0, 1] on long work."""
         self._tracer = tracer
+        self.chunks = chunks if chunks is not None else SceneChunks(lambda: self.tracer)
+        """Where work split by receivers runs (core.chunks): in process, or on a Dask cluster."""
 
     @property
     def tracer(self) -> Any:

@@ -71,28 +71,29 @@ def occlusion_at(rays: AORays, origin: wp.vec3, frame: wp.mat33, state: wp.uint3
 
 
 @wp.kernel
-def vertex_ao_kernel(start: int, rays: AORays, positions: wp.array(dtype=wp.vec3),
+def vertex_ao_kernel(start: int, rays: AORays, first: int, positions: wp.array(dtype=wp.vec3),
                      normals: wp.array(dtype=wp.vec3), inward: wp.array(dtype=wp.vec3), ao: wp.array(dtype=float)):
     """AO (dimensionless, [0, 1]) at point i around its unit normal by ``occlusion_at`` (Zhukov et al. 1998
     integral, PBRT 3rd ed. Section 13.6.3 rays) from ``surface_origin`` (``inward``: the vertex's unit
-    tangent into its own faces, ``vertex_inward``); a point without a normal gets 1."""
+    tangent into its own faces, ``vertex_inward``); a point without a normal gets 1. Point i draws its
+    rays from (seed, first + i): ``first`` is the global index of positions[0] (a chunk's start)."""
     i = start + wp.tid()
     n = normals[i]
     if wp.length(n) < 0.5:
         ao[i] = 1.0
         return
-    state = wp.rand_init(rays.seed, i)
+    state = wp.rand_init(rays.seed, first + i)
     ao[i] = occlusion_at(rays, surface_origin(rays.scene, positions[i], n, inward[i], rays.epsilon), tangent_frame(n),
                          state)
 
 
 @wp.kernel
-def face_ao_kernel(start: int, rays: AORays, points: wp.array(dtype=wp.vec3), triangles: wp.array(dtype=wp.vec3i),
-                   tri_normals: wp.array(dtype=wp.vec3), ao: wp.array(dtype=float)):
+def face_ao_kernel(start: int, rays: AORays, first: int, points: wp.array(dtype=wp.vec3),
+                   triangles: wp.array(dtype=wp.vec3i), tri_normals: wp.array(dtype=wp.vec3), ao: wp.array(dtype=float)):
     """AO (dimensionless, [0, 1]) averaged over triangle i's area and hemisphere: the estimator of
     vertex_ao_kernel (Zhukov et al. 1998 integral, PBRT 3rd ed. Section 13.6.3 rays), each ray from its
     own uniform random point on the triangle (Osada et al. 2002 square-root warp), so the mean estimates
-    (1/A) integral_A AO(x) dA."""
+    (1/A) integral_A AO(x) dA. Triangle i draws from (seed, first + i), as vertex_ao_kernel."""
     i = start + wp.tid()
     n = tri_normals[i]
     if wp.length(n) < 0.5:
@@ -103,7 +104,7 @@ def face_ao_kernel(start: int, rays: AORays, points: wp.array(dtype=wp.vec3), tr
     b = points[tri[1]]
     c = points[tri[2]]
     frame = tangent_frame(n)
-    state = wp.rand_init(rays.seed, i)
+    state = wp.rand_init(rays.seed, first + i)
     visible = int(0)
     for k in range(rays.strata * rays.strata):
         x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))  # drawn before the direction: keep the order
@@ -114,7 +115,8 @@ def face_ao_kernel(start: int, rays: AORays, points: wp.array(dtype=wp.vec3), tr
 
 
 def compute_vertex_ao(tracer, positions: np.ndarray, normals: np.ndarray, *, samples: int,
-                      max_distance: float = math.inf, seed: int = 0, inward: np.ndarray | None = None) -> np.ndarray:
+                      max_distance: float = math.inf, seed: int = 0, inward: np.ndarray | None = None,
+                      first: int = 0) -> np.ndarray:
     """AO at points with unit normals (vertex_ao_kernel: Zhukov et al. 1998 integral, estimated with
     cosine-weighted rays, PBRT 3rd ed. Sections 13.2 and 13.6.3).
 
@@ -125,6 +127,7 @@ def compute_vertex_ao(tracer, positions: np.ndarray, normals: np.ndarray, *, sam
     samples : rays per point (rounded to a square)
     max_distance : stage units; farther hits do not occlude
     inward : (N, 3) float32 unit tangents into each point's own surface (``vertex_inward``); None: zero
+    first : global index of positions[0], which seeds its rays (a chunk of a larger set, core.chunks)
 
     Returns
     -------
@@ -133,21 +136,38 @@ def compute_vertex_ao(tracer, positions: np.ndarray, normals: np.ndarray, *, sam
     positions, normals = as_points_and_normals(positions, normals)
     rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed)
     inward = np.zeros_like(positions) if inward is None else np.ascontiguousarray(inward, np.float32).reshape(-1, 3)
-    return launch_ao(tracer, vertex_ao_kernel, len(positions), rays,
-                     [tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3), tracer.array(inward, wp.vec3)])
+    return launch_ao(tracer, vertex_ao_kernel, len(positions), rays, [
+        int(first), tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3), tracer.array(inward, wp.vec3)])
 
 
 def compute_face_ao(tracer, points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.ndarray, *,
-                    samples: int, max_distance: float = math.inf, seed: int = 0) -> np.ndarray:
+                    samples: int, max_distance: float = math.inf, seed: int = 0, first: int = 0) -> np.ndarray:
     """(T,) float32 AO in [0, 1] averaged over each triangle's area and hemisphere (face_ao_kernel: the
     Zhukov et al. 1998 integral, PBRT 3rd ed. Section 13.6.3 rays).
 
-    ``points`` (P, 3) float32 stage units, ``tri_vertices`` (T, 3) int, ``tri_normals`` (T, 3) unit.
+    ``points`` (P, 3) float32 stage units, ``tri_vertices`` (T, 3) int, ``tri_normals`` (T, 3) unit;
+    ``first``: global index of triangle 0, which seeds its rays (core.chunks).
     """
     rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed)
     return launch_ao(tracer, face_ao_kernel, len(tri_vertices), rays, [
-        tracer.array(points, wp.vec3), tracer.array(tri_vertices.astype(np.int32), wp.vec3i),
+        int(first), tracer.array(points, wp.vec3), tracer.array(tri_vertices.astype(np.int32), wp.vec3i),
         tracer.array(tri_normals, wp.vec3)])
+
+
+def vertex_ao_chunk(tracer, first: int, positions: np.ndarray, normals: np.ndarray, inward: np.ndarray, *,
+                    samples: int, max_distance: float, seed: int) -> np.ndarray:
+    """``compute_vertex_ao`` of points first .. first + len(positions) - 1: one chunk (core.chunks)."""
+    return compute_vertex_ao(tracer, positions, normals, inward=inward, samples=samples, max_distance=max_distance,
+                             seed=seed, first=first)
+
+
+def face_ao_chunk(tracer, first: int, tri_corners: np.ndarray, tri_normals: np.ndarray, *, samples: int,
+                  max_distance: float, seed: int) -> np.ndarray:
+    """``compute_face_ao`` of triangles first .. first + len(tri_corners) - 1 given by their (T, 3, 3)
+    corners, so a chunk carries only its own triangles: one chunk (core.chunks)."""
+    corners = np.ascontiguousarray(tri_corners, np.float32).reshape(-1, 3)
+    return compute_face_ao(tracer, corners, np.arange(len(corners), dtype=np.int32).reshape(-1, 3), tri_normals,
+                           samples=samples, max_distance=max_distance, seed=seed, first=first)
 
 
 class AmbientOcclusion(Processor):
@@ -186,17 +206,18 @@ class AmbientOcclusion(Processor):
         ao_points = np.ones(scene.num_points, np.float32)
         ctx.progress(0.0)
         inward = vertex_inward(scene.points, scene.tri_vertices, normals)
-        ao_points[point_ids] = compute_vertex_ao(
-            ctx.tracer, scene.points[point_ids], normals[point_ids], inward=inward[point_ids],
-            samples=p.samples, max_distance=p.max_distance, seed=p.seed)
-        ctx.progress(0.5 if p.per_face else 1.0)
+        share = 0.5 if p.per_face else 1.0
+        ao_points[point_ids] = ctx.chunks.map(
+            vertex_ao_chunk, (scene.points[point_ids], normals[point_ids], inward[point_ids]),
+            progress=lambda f: ctx.progress(share * f), samples=p.samples, max_distance=p.max_distance, seed=p.seed)
+        ctx.progress(share)
 
         result = Result(products={AmbientOcclusionProduct: AmbientOcclusionProduct(ao_points)})
         for prim in receivers:
             result.outputs.append(Primvar(scene.prim_paths[prim], "bake:ao", ao_points[scene.prim_points(prim)],
                                           "float", "vertex"))
         if p.per_face:
-            self._per_face(scene, p, ctx.tracer, receivers, result)
+            self._per_face(scene, p, ctx, receivers, result)
             ctx.progress(1.0)
         if p.connect_occlusion:
             result.outputs.extend(occlusion_network(scene, receivers))
@@ -227,10 +248,11 @@ class AmbientOcclusion(Processor):
                                    f"primvars:bake:ao (one value per instance)")
 
     @staticmethod
-    def _per_face(scene: Scene, p, tracer, receivers: np.ndarray, result: Result) -> None:
+    def _per_face(scene: Scene, p, ctx: Context, receivers: np.ndarray, result: Result) -> None:
         tris = np.flatnonzero(np.isin(scene.tri_prim, receivers))
-        tri_ao = compute_face_ao(tracer, scene.points, scene.tri_vertices[tris], scene.tri_normals[tris],
-                                 samples=p.samples, max_distance=p.max_distance, seed=p.seed)
+        tri_ao = ctx.chunks.map(face_ao_chunk, (scene.points[scene.tri_vertices[tris]], scene.tri_normals[tris]),
+                                progress=lambda f: ctx.progress(0.5 + 0.5 * f), samples=p.samples,
+                                max_distance=p.max_distance, seed=p.seed)
         for prim in receivers:
             mine = scene.tri_prim[tris] == prim
             values = face_means(tri_ao[mine], scene.tri_areas[tris][mine], scene.tri_face[tris][mine],

@@ -69,6 +69,7 @@ import numpy as np
 import warp as wp
 
 from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
+from ..core.chunks import SceneChunks
 from ..core.products import RefinedScene, SkyVisibilityProduct
 from ..core.scene import Scene
 from ..geometry.mesh import missing_receivers, receiver_prims
@@ -213,9 +214,42 @@ def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, p
         ])
         visible[lo:hi] = vis_wp.numpy().reshape(hi - lo, n_patch)
         partial[lo:hi] = part_wp.numpy().reshape(hi - lo, n_patch)
-    above = int((normals.astype(np.float64) @ centers.T >= horizon[None, :]).sum())  # pairs that are traced
-    tracer.rays_cast += above * strata * strata  # (samples below a face's horizon inside a traced patch included)
+    tracer.rays_cast += traced_rays(normals, patches, to_world, samples)
     return visible, partial
+
+
+def traced_rays(normals: np.ndarray, patches: SkyPatches, to_world: np.ndarray, samples: int) -> int:
+    """Rays ``patch_visibility_kernel`` casts for triangles with these (T, 3) normals: strata^2 per pair
+    whose patch is not wholly below the triangle's horizon (samples below the horizon inside such a
+    patch included)."""
+    centers = patches.patch_directions @ np.asarray(to_world, np.float64).T
+    horizon = -np.sin(np.minimum(patches.patch_radius, np.pi / 2))
+    above = int((np.asarray(normals, np.float64) @ centers.T >= horizon[None, :]).sum())
+    return above * strata_for(samples) ** 2
+
+
+def visibility_pass_chunk(tracer, first: int, corners: np.ndarray, normals: np.ndarray, tri_ids: np.ndarray, *,
+                          patches: SkyPatches, to_world: np.ndarray, samples: int, seed: int, criterion: str
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One chunk of a refinement pass (core.chunks): ``compute_patch_visibility`` of the triangles,
+    reduced per triangle to what the pass keeps, so a chunk returns ~N bytes a triangle, not 8 N.
+
+    ``tri_ids`` seed the triangles, so the result does not depend on where the chunk starts.
+    Returns V quantized ((T, N) uint8, V * QUANT_LEVELS rounded), exposure sum_j V_ij dw_j / pi and
+    its quantization error ((T,) float64 each), and the refinement score ((T,) float64; module docstring).
+    """
+    v, part = compute_patch_visibility(tracer, corners, normals, patches, to_world, samples=samples, seed=seed,
+                                       tri_ids=tri_ids, criterion="any" if criterion == "paper" else criterion)
+    solid = patches.patch_solid_angles.astype(np.float64)
+    quantized = np.clip(np.rint(v * QUANT_LEVELS), 0, QUANT_LEVELS).astype(np.uint8)
+    exposure = v.astype(np.float64) @ solid / np.pi
+    quant_error = np.abs((quantized / QUANT_LEVELS - v) @ solid / np.pi)
+    if criterion == "paper":  # the largest projected-area factor over the partly visible patches
+        cosines = np.asarray(normals, np.float64) @ (patches.patch_directions @ np.asarray(to_world, np.float64).T).T
+        score = np.where(part > 0, np.maximum(cosines, 0.0), 0.0).max(axis=1, initial=0.0)
+    else:
+        score = (2.0 if criterion == "share" else 1.0) / np.pi * (part.astype(np.float64) @ solid)
+    return quantized, exposure, quant_error, score
 
 
 def _areas_normals(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -232,7 +266,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
                            max_face_area: float = 0.0,
                            max_triangles: int = 500_000, seed: int = 0, adaptive: bool = True,
                            prims: np.ndarray | None = None, criterion: str = "share", uniform: bool = False,
-                           progress=lambda f: None) -> tuple[SkyVisibilityProduct, dict]:
+                           progress=lambda f: None, chunks=None) -> tuple[SkyVisibilityProduct, dict]:
     """Refine the receiver prims adaptively and compute their visibility factors.
 
     The precompute of Bosch, Besuievsky & Martin, Sec. 3 (Fig. 2) and 4: visibility
@@ -245,8 +279,10 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
 
     ``adaptive=False`` traces the input mesh only; ``uniform=True`` splits every face ``max_level`` times
     instead (the uniform subdivision the adaptive one is compared with).
+    ``chunks`` (core.chunks; default: in process on ``tracer``) runs each pass's visibility factors.
     Returns the product and a dict of figures (triangles in/out, iterations, rays).
     """
+    chunks = chunks if chunks is not None else SceneChunks(tracer)
     prims = receiver_prims(scene) if prims is None else np.asarray(prims, np.int32)
     to_world = enu_to_world(scene.up_axis)
     n_patch = len(patches)
@@ -266,9 +302,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     score = np.zeros(len(tris), np.float64)
     pending = np.ones(len(tris), bool)
     area_floor = float(min_area) * scene.diagonal ** 2
-    solid = patches.patch_solid_angles.astype(np.float64)
-    centers = patches.patch_directions @ to_world.T  # patch centres in the scene frame
-    rays_before = tracer.rays_cast
+    rays = 0
     next_id = 0
     ids = np.zeros(len(tris), np.int64)
     iterations = 0
@@ -307,19 +341,14 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
         batch = max(1, PAIRS_PER_BATCH // max(n_patch, 1))
         for lo in range(0, len(todo), batch):  # batches bound the float32 temporaries
             part_todo = todo[lo:lo + batch]
-            v, part = compute_patch_visibility(
-                tracer, points[triangles[part_todo]], scene.tri_normals[source[part_todo]], patches, to_world,
-                samples=samples, seed=seed, tri_ids=ids[part_todo] % (2 ** 31 - 1),
-                criterion="any" if criterion == "paper" else criterion)
-            q = np.clip(np.rint(v * QUANT_LEVELS), 0, QUANT_LEVELS).astype(np.uint8)
+            normals = scene.tri_normals[source[part_todo]]
+            seeds = (ids[part_todo] % (2 ** 31 - 1)).astype(np.int32)
+            q, exposure[part_todo], q_error, score[part_todo] = chunks.map(
+                visibility_pass_chunk, (points[triangles[part_todo]].astype(np.float32), normals, seeds),
+                patches=patches, to_world=to_world, samples=samples, seed=seed, criterion=criterion)
             quantized[part_todo] = q
-            exposure[part_todo] = v.astype(np.float64) @ solid / np.pi
-            quant_error = max(quant_error, float(np.abs((q / QUANT_LEVELS - v) @ solid / np.pi).max(initial=0.0)))
-            if criterion == "paper":  # the largest projected-area factor over the partly visible patches
-                cosines = scene.tri_normals[source[part_todo]].astype(np.float64) @ centers.T
-                score[part_todo] = np.where(part > 0, np.maximum(cosines, 0.0), 0.0).max(axis=1, initial=0.0)
-            else:
-                score[part_todo] = (2.0 if criterion == "share" else 1.0) / np.pi * (part.astype(np.float64) @ solid)
+            quant_error = max(quant_error, float(q_error.max(initial=0.0)))
+            rays += traced_rays(normals, patches, to_world, samples)
         pending[:] = False
         iterations += 1
         progress(min(0.95, 0.1 * iterations))
@@ -356,7 +385,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     )
     stats = {
         "triangles_in": float(len(tris)), "triangles_out": float(len(triangles)),
-        "iterations": float(iterations), "rays": float(tracer.rays_cast - rays_before),
+        "iterations": float(iterations), "rays": float(rays),
         "quantization_error_max": quant_error,
         "visibility_mb": quantized.nbytes / 2 ** 20,
     }
@@ -436,7 +465,7 @@ class SkyVisibility(Processor):
             ctx.tracer, scene, patches=patches, samples=p.samples, tolerance=p.tolerance,
             min_area=p.min_area, max_level=p.max_level, max_face_area=p.max_face_area,
             max_triangles=p.max_triangles, seed=p.seed,
-            criterion=p.criterion, progress=ctx.progress)
+            criterion=p.criterion, progress=ctx.progress, chunks=ctx.chunks)
         refined, meshes = refine_scene(scene, product.face_points, product.point_source, product.face_vertices,
                                        product.face_source, product.face_corner_weights)
         result = Result(products={SkyVisibilityProduct: product,

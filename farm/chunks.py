@@ -1,0 +1,129 @@
+"""A large scene's receiver work as Dask tasks (the cluster side of core.chunks).
+
+The scene is scattered once per run to every worker (``Client.scatter(broadcast=True)``), so a task
+carries only its own items (a range of points or faces) and the chunk's settings. On the worker the
+scene is one object held by Dask, and ``kernels.tracer.shared_tracer`` keys its BVH by that object:
+each worker builds the BVH once per scene, whatever the number of tasks it runs. Chunk functions
+seed their random numbers from global item indices (core.chunks), so results are bit-identical to
+an in-process bake for any chunk size and any number of workers; Dask re-runs the tasks of a worker
+that dies, which changes nothing in the output for the same reason.
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+import weakref
+from typing import Callable
+
+import numpy as np
+
+from ..core.chunks import chunk_bounds, concatenate_parts
+from .cluster import worker_count
+
+TASKS_PER_WORKER = 4
+"""Default chunks per worker and map: enough to balance uneven chunks, few enough to keep per-task
+overhead (~1 ms scheduling, the items' transfer) small against the work."""
+MIN_CHUNK_ITEMS = 64
+"""The smallest default chunk: below this a task's overhead outweighs its rays."""
+
+
+def run_chunk(fn: Callable, scene, device: str, first: int, items: tuple, static: dict):
+    """On a worker: ``fn`` over one chunk with the worker's BVH of ``scene`` (built on its first task)."""
+    from ..kernels.tracer import shared_tracer
+    from .cluster import start_warp_quietly
+
+    start_warp_quietly(device)
+    tracer = shared_tracer(scene, device=device, threads=_worker_threads())
+    return fn(tracer, first, *items, **static)
+
+
+def _worker_threads() -> int | None:
+    """The Dask worker's thread count, so 2 workers x 1 thread on 2 cores do not run 4 ray threads."""
+    try:
+        from distributed import get_worker
+
+        return get_worker().state.nthreads
+    except (ImportError, ValueError, AttributeError):
+        return None
+
+
+class DaskChunks:
+    """Receiver work on a Dask cluster: chunks of ``chunk_size`` items (default: TASKS_PER_WORKER
+    chunks per worker, at least MIN_CHUNK_ITEMS items)."""
+
+    def __init__(self, client, *, chunk_size: int | None = None):
+        if chunk_size is not None and chunk_size < 1:
+            raise ValueError(f"chunk_size={chunk_size!r}: at least 1 item")
+        self.client = client
+        self.chunk_size = chunk_size
+        self._scattered: dict[int, object] = {}
+        self.stats = {"tasks": 0, "item_bytes": 0, "result_bytes": 0, "scene_bytes": 0, "scatters": 0}
+        """Totals over every map: tasks sent, bytes of items sent and results received, scene bytes
+        scattered (once per scene, to every worker)."""
+
+    @property
+    def description(self) -> str:
+        return f"Dask scheduler {self.client.scheduler.address} ({worker_count(self.client)} workers)"
+
+    def for_scene(self, scene, tracer, *, device: str = "cpu", threads: int | None = None) -> "DaskSceneChunks":
+        return DaskSceneChunks(self, scene, device)
+
+    def scene_future(self, scene):
+        """The scene scattered to every worker, once per scene object (dropped with the scene)."""
+        key = id(scene)
+        if key not in self._scattered:
+            self._scattered[key] = self.client.scatter(scene, broadcast=True, hash=False)
+            weakref.finalize(scene, self._scattered.pop, key, None)
+            self.stats["scene_bytes"] += scene_nbytes(scene)
+            self.stats["scatters"] += 1
+        return self._scattered[key]
+
+
+class DaskSceneChunks:
+    """``map`` for one scene on a DaskChunks cluster (see core.chunks.SceneChunks)."""
+
+    def __init__(self, runner: DaskChunks, scene, device: str):
+        self.runner, self.scene, self.device = runner, scene, device
+        self.stats = runner.stats
+
+    def map(self, fn: Callable, items: tuple[np.ndarray, ...], *, progress: Callable[[float], None] | None = None,
+            **static):
+        """``fn`` over the items in chunks, one Dask task each; results joined in item order."""
+        from distributed import as_completed
+
+        client = self.runner.client
+        count = len(items[0])
+        size = self.runner.chunk_size or max(MIN_CHUNK_ITEMS,
+                                             math.ceil(count / (TASKS_PER_WORKER * worker_count(client))))
+        bounds = chunk_bounds(count, size) or [(0, 0)]  # no items: one empty chunk gives the empty result's shape
+        scene = self.runner.scene_future(self.scene)
+        token = uuid.uuid4().hex[:8]
+        futures = []
+        for lo, hi in bounds:
+            part = tuple(np.ascontiguousarray(a[lo:hi]) for a in items)
+            self.stats["item_bytes"] += sum(a.nbytes for a in part)
+            futures.append(client.submit(run_chunk, fn, scene, self.device, lo, part, static, pure=False,
+                                         key=f"usdbake-{fn.__name__}-{token}-{lo}"))
+        self.stats["tasks"] += len(futures)
+        for done, _ in enumerate(as_completed(futures), start=1):
+            if progress:
+                progress(done / len(futures))
+        parts = client.gather(futures)  # in submission order: item order
+        self.stats["result_bytes"] += sum(sum(a.nbytes for a in p) if isinstance(p, tuple) else p.nbytes
+                                          for p in parts)
+        return concatenate_parts(parts)
+
+
+def scene_nbytes(scene) -> int:
+    """Bytes of the scene's arrays (what one scatter sends to each worker, near enough)."""
+    from dataclasses import fields, is_dataclass
+
+    total, pending = 0, [scene]
+    while pending:
+        value = pending.pop()
+        if isinstance(value, np.ndarray):
+            total += value.nbytes
+        elif is_dataclass(value):
+            pending.extend(getattr(value, f.name) for f in fields(value))
+    return total
