@@ -31,6 +31,14 @@ def bake(stage, processors=None, params=None, **options):
     return _bake(stage, processors=processors, params=params, **options)
 
 
+def bake_many(paths, output_dir=None, **options):
+    """Bake many stage files, one task per stage, locally or on a Dask cluster; see usdbake.farm.batch.bake_many."""
+    from .farm.batch import bake_many as _bake_many
+
+    init_warp(options.get("device", "cpu"))
+    return _bake_many(paths, output_dir, **options)
+
+
 CUDA_DRIVER_NOTICE = "Could not find or load the NVIDIA CUDA driver"
 """The line Warp's native library prints at init on a machine without the CUDA driver."""
 
@@ -103,4 +111,4 @@ def _native_stderr_without(text: str):
                 sys.stderr.flush()
 
 
-__all__ = ["bake", "init_warp", "__version__"]
+__all__ = ["bake", "bake_many", "init_warp", "__version__"]

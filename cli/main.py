@@ -19,7 +19,6 @@ import os
 import signal
 import sys
 import threading
-import time
 import tomllib
 from contextlib import contextmanager
 from pathlib import Path
@@ -34,7 +33,6 @@ from ..core import registry
 from ..core.errors import UsageError
 from ..core.params import TABLE_COLUMNS
 from ..core.pipeline import DEFAULT_PROCESSORS, Pipeline, ProcessorFailed
-from ..core.records import Prim
 from ..stages.inputs import open_source
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -49,8 +47,12 @@ def make_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="usdbake", description="Precomputed lighting for OpenUSD stages.")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    def stage_options(sub):
-        sub.add_argument("input", help="input stage (.usd, .usda, .usdc); a usdbake output bakes its source")
+    def stage_options(sub, many=False):
+        if many:
+            sub.add_argument("input", nargs="*", help="input stages (.usd, .usda, .usdc; glob patterns too); a "
+                             "usdbake output bakes its source; several stages bake as a batch, one task each")
+        else:
+            sub.add_argument("input", help="input stage (.usd, .usda, .usdc); a usdbake output bakes its source")
         sub.add_argument("-p", "--processor", action="append", dest="processors", metavar="NAME",
                          help=f"processor to run (repeatable; default: {', '.join(DEFAULT_PROCESSORS)})")
         sub.add_argument("--set", action="append", default=[], metavar="NAME.param=value",
@@ -71,8 +73,19 @@ def make_parser() -> argparse.ArgumentParser:
                               "instanceable = false on their instances)")
 
     bake = commands.add_parser("bake", help="bake lighting into a new layer over the input")
-    stage_options(bake)
-    bake.add_argument("-o", "--output", help="output layer (default: IN.baked.usdc beside the input)")
+    stage_options(bake, many=True)
+    bake.add_argument("-o", "--output", help="output layer (default: IN.baked.usdc beside the input); for several "
+                      "stages a folder (OUTDIR/ gets <stem>.baked.usdc each)")
+    bake.add_argument("--list", metavar="FILE", dest="list_file",
+                      help="stages to bake, one path or glob pattern per line (relative to FILE's folder)")
+    bake.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                      help="Dask scheduler (default: $DASK_SCHEDULER_ADDRESS): several stages run one task each "
+                           "there; one stage runs its receiver work there in chunks")
+    bake.add_argument("--workers", type=_thread_count, default=None, metavar="N",
+                      help="processes baking stages at once without --scheduler (default: one per core)")
+    bake.add_argument("--chunk-size", type=_thread_count, default=None, metavar="N",
+                      help="receivers (points, faces) per Dask task for one stage on --scheduler "
+                           "(default: 4 tasks per worker)")
     plan = commands.add_parser("plan", help="show what would run, what would skip and why")
     stage_options(plan)
     bench = commands.add_parser("bench", help="run time-against-error benchmarks (from a source checkout)")
@@ -331,7 +344,7 @@ def cmd_plan(args, console: Console) -> int:
     if args.json:
         print(json.dumps([step.report() for step in steps], indent=2, default=str))
     else:
-        console.print(_summary_table(steps, planned=True))
+        console.print(_summary_table([step.report() for step in steps], planned=True))
         if all(step.action == "skip" for step in steps):
             console.print("nothing to bake: every processor would be skipped; bake would write no output",
                           highlight=False)
@@ -339,70 +352,137 @@ def cmd_plan(args, console: Console) -> int:
 
 
 def cmd_bake(args, console: Console) -> int:
-    from ..stages.bake_layer import save_atomically
-    from ..stages.inputs import check_output, empty_bake_message
-    from ..stages.composition import check_composition, quiet_composition_warnings
-    from ..stages.extract import extract_scene
-    from ..stages.refined_mesh import complete_outputs, refinement_guard
+    from ..farm.batch import expand_inputs
+    from ..farm.cluster import scheduler_address
 
+    if not args.input and not args.list_file:
+        raise UsageError("bake: give a stage to bake (or --list FILE)")
+    inputs = expand_inputs(args.input, args.list_file)
+    scheduler = scheduler_address(args.scheduler)
+    into_folder = bool(args.output) and args.output.endswith(("/", os.sep))  # -o OUTDIR/ (a bare folder name
+    # for one stage stays the "is a folder" error: a typo must not turn into a batch)
+    if len(inputs) > 1 or args.list_file or into_folder:
+        return _bake_batch(args, inputs, scheduler, console)
+    if args.workers is not None:
+        raise UsageError("--workers is for several stages; one stage uses --threads")
+    return _bake_one(args, inputs[0], scheduler, console)
+
+
+def _bake_one(args, input_path: str, scheduler: str | None, console: Console) -> int:
+    """One stage, here; with a scheduler its receiver work runs there in chunks (usdbake.farm.chunks)."""
+    from ..farm.chunks import DaskChunks
+    from ..farm.cluster import connect
+    from ..stages.bake_file import bake_file
+
+    if args.chunk_size is not None and not scheduler:
+        raise UsageError("--chunk-size is for --scheduler (receiver work in Dask tasks)")
+    names, params = resolve_options(args)
+    client = connect(scheduler) if scheduler else None  # an unreachable scheduler: one line, before any work
+    try:
+        chunks = DaskChunks(client, chunk_size=args.chunk_size) if client else None
+        pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force,
+                                  threads=args.threads, chunks=chunks)
+        check_run_options(args, pipeline, console)
+        progress = Progress(TextColumn("{task.description:<22}"), BarColumn(), TextColumn("{task.percentage:>5.1f}%"),
+                            TimeElapsedColumn(), console=console, transient=False, disable=args.json)
+        tasks: dict = {}
+
+        def on_progress(name: str, fraction: float) -> None:
+            if name not in tasks:  # a bar per phase and processor, from its first report
+                tasks[name] = progress.add_task(name, total=1.0)
+            progress.update(tasks[name], completed=fraction)
+
+        try:
+            report = bake_file(input_path, args.output, pipeline, time_code=args.time,
+                               allow_missing=args.allow_missing, deinstance=args.deinstance,
+                               on_progress=on_progress, before_compute=progress.start)
+        finally:
+            progress.stop()
+        where = chunks.description if chunks else ""
+    finally:
+        if client is not None:
+            client.close()
+    _print_bake(args, report, where, console)
+    return EXIT_OK
+
+
+def _print_bake(args, report, where: str, console: Console) -> None:
+    """The bake's warnings, then its summary table and messages (or --json)."""
+    for warning in report.warnings:
+        console.print(f"[yellow]warning:[/yellow] {escape(warning)}", highlight=False)
+    if args.json:
+        print(json.dumps({"output": report.output, "seconds": round(report.seconds, 3), "steps": report.steps,
+                          **({"distributed": report.distributed} if report.distributed else {})},
+                         indent=2, default=str))
+        return
+    console.print(_summary_table(report.steps))
+    for message in report.messages:
+        console.print(message, highlight=False)
+    if report.deinstanced:
+        console.print(f"de-instanced {report.deinstanced} native instances (instanceable = false in the bake layer) "
+                      f"to hold per-vertex results", highlight=False)
+    if report.distributed:
+        sent = report.distributed
+        console.print(f"on {where}: {sent['tasks']} tasks, {sent['item_bytes'] / 2**20:.1f} MB of receivers sent, "
+                      f"{sent['result_bytes'] / 2**20:.1f} MB of results back, scene "
+                      f"{sent['scene_bytes'] / 2**20:.1f} MB to each worker", highlight=False)
+    console.print(f"wrote {report.output} in {report.seconds:.2f} s", highlight=False)
+
+
+def _bake_batch(args, inputs: list[str], scheduler: str | None, console: Console) -> int:
+    """Several stages, one task each (usdbake.farm.batch); exit 1 when some failed."""
+    from ..farm.batch import bake_many, batch_outputs
+    from ..farm.cluster import connect
+
+    if args.output and Path(args.output).exists() and not Path(args.output).is_dir():
+        raise UsageError(f"-o {args.output}: several stages bake into a folder, and this is a file")
+    if args.chunk_size is not None:
+        raise UsageError("--chunk-size is for one stage; a batch runs one task per stage")
     names, params = resolve_options(args)
     pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force,
                               threads=args.threads)
     check_run_options(args, pipeline, console)
-    with quiet_composition_warnings():  # extract_scene reports each missing asset in one line
-        source, stage = open_source(args.input)
-    check_composition(stage, allow_missing=args.allow_missing)  # a missing asset fails before any progress bar
-    output = args.output or _default_output(args.input, source)
-    check_output(output, source, stage.GetUsedLayers())  # extension, folder, writable, not an input layer
-    started = time.perf_counter()
-    with Progress(TextColumn("{task.description:<22}"), BarColumn(), TextColumn("{task.percentage:>5.1f}%"),
+    batch_outputs(inputs, args.output)  # two stages writing one output: refused before any work
+    if scheduler:
+        connect(scheduler).close()  # an unreachable scheduler: one line, before any work
+    where = f"Dask scheduler {scheduler}" if scheduler else \
+        f"{max(1, min(args.workers or os.cpu_count() or 1, len(inputs)))} local processes"
+    if not args.json:
+        console.print(f"baking {len(inputs)} stages on {where}", highlight=False)
+    with Progress(TextColumn("{task.description:<22}"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f}"),
                   TimeElapsedColumn(), console=console, transient=False, disable=args.json) as progress:
-        reading = progress.add_task("reading stage", total=1.0)
-        scene = extract_scene(stage, time=args.time, allow_missing=args.allow_missing, deinstance=args.deinstance)
-        progress.update(reading, completed=1.0)
-        tasks: dict = {}
+        overall = progress.add_task(f"{len(inputs)} stages", total=len(inputs))
 
-        def on_progress(name: str, fraction: float) -> None:
-            if name not in tasks:  # a bar per processor, from its first report
-                tasks[name] = progress.add_task(name, total=1.0)
-            progress.update(tasks[name], completed=fraction)
+        def on_outcome(outcome) -> None:
+            progress.advance(overall)
+            colour = "red" if outcome.status == "failed" else "green"
+            finished = f" -> {escape(outcome.output)} ({outcome.seconds:.2f} s)" if outcome.report else ""
+            progress.console.print(f"[{colour}]{outcome.status}[/{colour}] {escape(outcome.input)}{finished}",
+                                   highlight=False)
 
-        pipeline.run(scene, on_progress=on_progress, before_compute=refinement_guard(stage, scene))
-        outputs = complete_outputs(stage, pipeline.outputs())
-        if not outputs:  # every processor skipped: an empty layer would only hide that
-            raise UsageError(empty_bake_message(pipeline.steps))
-        writing = progress.add_task("writing layer", total=1.0)
-        save_atomically(output, source, outputs,
-                        pipeline.provenance({"source": os.path.relpath(source, Path(output).resolve().parent)}))
-        progress.update(writing, completed=1.0)
-    total = time.perf_counter() - started
-    for warning in scene.warnings:
-        console.print(f"[yellow]warning:[/yellow] {escape(warning)}", highlight=False)
+        results = bake_many(inputs, args.output, processors=names, params=params, device=args.device,
+                            cache_dir=args.cache, force=args.force, threads=args.threads, time=args.time,
+                            allow_missing=args.allow_missing, deinstance=args.deinstance, scheduler=scheduler,
+                            workers=args.workers, on_outcome=None if args.json else on_outcome)
+    failed = [outcome for outcome in results if outcome.status == "failed"]
     if args.json:
-        print(json.dumps({"output": output, "seconds": round(total, 3),
-                          "steps": [step.report() for step in pipeline.steps]}, indent=2, default=str))
-    else:
-        console.print(_summary_table(pipeline.steps))
-        for step in pipeline.steps:
-            for message in (step.result.messages if step.result else []):
-                console.print(f"{step.name}: {message}", highlight=False)
-        roots = [r for r in outputs if isinstance(r, Prim) and r.instanceable is False]
-        if roots:
-            console.print(f"de-instanced {len(roots)} native instances (instanceable = false in the bake layer) "
-                          f"to hold per-vertex results", highlight=False)
-        console.print(f"wrote {output} in {total:.2f} s", highlight=False)
-    return EXIT_OK
+        print(json.dumps([{"input": o.input, "output": o.output, "status": o.status, "error": o.error,
+                           "seconds": round(o.seconds, 3), "steps": o.report.steps if o.report else []}
+                          for o in results], indent=2, default=str))
+        return EXIT_FAILED if failed else EXIT_OK
+    table = Table(title="batch summary")
+    for column in ("stage", "status", "time (s)", "output or error"):
+        table.add_column(column, overflow="fold", justify="right" if column == "time (s)" else "left")
+    for o in results:
+        table.add_row(o.input, o.status, f"{o.seconds:.2f}" if o.report else "", o.output if o.report else o.error)
+    console.print(table)
+    console.print(f"{len(results) - len(failed)} of {len(results)} stages baked"
+                  + (f", {len(failed)} failed" if failed else ""), highlight=False)
+    return EXIT_FAILED if failed else EXIT_OK
 
 
-def _default_output(input_path: str, source: str) -> str:
-    if Path(input_path).resolve() != Path(source).resolve():
-        return input_path  # re-baking a usdbake output replaces it
-    path = Path(source)
-    return str(path.with_name(f"{path.stem}.baked.usdc"))
-
-
-def _summary_table(steps, *, planned: bool = False) -> Table:
-    """Processor, action and reason; after a bake also time and ray throughput."""
+def _summary_table(steps: list[dict], *, planned: bool = False) -> Table:
+    """Processor, action and reason (``Step.report()`` rows); after a bake also time and ray throughput."""
     table = Table(title="plan" if planned else "bake summary")
     columns = ("processor", "action", "reason") if planned else \
         ("processor", "action", "reason", "time (s)", "Mrays/s")
@@ -410,9 +490,9 @@ def _summary_table(steps, *, planned: bool = False) -> Table:
         table.add_column(column, justify="right" if column in ("time (s)", "Mrays/s") else "left")
     labels = {"run": "will run" if planned else "ran", "cached": "up to date", "skip": "skipped"}
     for step in steps:
-        row = [step.name, labels[step.action], step.reason]
+        row = [step["processor"], labels[step["action"]], step["reason"]]
         if not planned:
-            row += [f"{step.seconds:.2f}", f"{step.mrays_per_second:.2f}" if step.mrays_per_second else ""]
+            row += [f"{step['seconds']:.2f}", f"{step['mrays_per_s']:.2f}" if step["mrays_per_s"] else ""]
         table.add_row(*row)
     return table
 

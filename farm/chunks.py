@@ -106,7 +106,7 @@ class DaskSceneChunks:
             futures.append(client.submit(run_chunk, fn, scene, self.device, lo, part, static, pure=False,
                                          key=f"usdbake-{fn.__name__}-{token}-{lo}"))
         self.stats["tasks"] += len(futures)
-        for done, _ in enumerate(as_completed(futures), start=1):
+        for done, _ in enumerate(as_completed(futures, loop=client.loop), start=1):
             if progress:
                 progress(done / len(futures))
         parts = client.gather(futures)  # in submission order: item order
