@@ -228,8 +228,7 @@ class Pipeline:
                 step.action, step.reason = "skip", f"requires {', '.join(blocked)} (skipped)"
             elif not applies:
                 step.action, step.reason = "skip", f"not applicable: {why}"
-            elif not self.force and self.cache.path(step.name, step.key) and \
-                    self.cache.path(step.name, step.key).exists():
+            elif not self.force and self.cache.has(step.name, step.key):
                 step.action, step.reason = "cached", "up to date: fingerprint unchanged"
             else:
                 step.action, step.reason = "run", "forced" if self.force else why

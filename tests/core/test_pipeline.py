@@ -13,6 +13,7 @@ import pytest
 import fake_processors as fakes
 from usdbake import core
 from usdbake.processors.ambient_occlusion import AmbientOcclusion
+from usdbake.core.cache import CacheWarning
 from usdbake.core.pipeline import GraphError, Pipeline, ProcessorFailed, build_steps, step_key
 
 
@@ -173,8 +174,9 @@ def test_force_reruns_everything(register, tmp_path):
 def test_unreadable_cache_entry_is_recomputed(register, tmp_path):
     register(fakes.FakeA)
     first = run(["fake_a"], tmp_path)
-    (tmp_path / "cache" / f"fake_a-{first[0].key}.pkl").write_bytes(b"not a pickle")
-    steps = run(["fake_a"], tmp_path)
+    (tmp_path / "cache" / f"fake_a-{first[0].key}.json").write_bytes(b"not a manifest")
+    with pytest.warns(CacheWarning, match="not a JSON manifest"):
+        steps = run(["fake_a"], tmp_path)
     assert actions(steps) == {"fake_a": "run"}
     assert fakes.CALLS == {"fake_a": 2}
 
