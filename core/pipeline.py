@@ -17,6 +17,7 @@ from graphlib import CycleError, TopologicalSorter
 from typing import Callable
 
 from .cache import ResultCache, step_key
+from .chunks import InProcess
 from .errors import UsageError
 from .params import ParamError, Params
 from .processor import Context, Processor, Result
@@ -189,6 +190,8 @@ class Pipeline:
     cache: ResultCache = field(default_factory=lambda: ResultCache(None))
     force: bool = False
     threads: int | None = None
+    chunks: object = field(default_factory=InProcess)
+    """Where work split by receivers runs: InProcess, or usdbake.farm.chunks.DaskChunks."""
 
     def tracer_for(self, scene: Scene) -> Callable[[], object]:
         """A factory of the scene's one shared BVH: built on first use by applies() or run()."""
@@ -199,14 +202,16 @@ class Pipeline:
         return build
 
     def context(self, step: Step, scene: Scene, products: dict | None = None, progress=None) -> Context:
-        return Context(scene=scene, params=step.params, tracer=self.tracer_for(scene), products=products,
-                       progress=progress, device=self.device, threads=self.threads)
+        tracer = self.tracer_for(scene)
+        return Context(scene=scene, params=step.params, tracer=tracer, products=products,
+                       progress=progress, device=self.device, threads=self.threads,
+                       chunks=self.chunks.for_scene(scene, tracer, device=self.device, threads=self.threads))
 
     @classmethod
     def build(cls, names=None, params=None, *, device="cpu", cache_dir=None, force=False, threads=None,
-              allow_conflicts=False):
+              allow_conflicts=False, chunks=None):
         return cls(build_steps(names, params, allow_conflicts=allow_conflicts), device=device,
-                   cache=ResultCache(cache_dir), force=force, threads=threads)
+                   cache=ResultCache(cache_dir), force=force, threads=threads, chunks=chunks or InProcess())
 
     def conflicts(self) -> list[str]:
         """The pairs of its steps that would author one property (see Processor.writes)."""

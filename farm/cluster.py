@@ -25,13 +25,14 @@ def require_dask(what: str) -> None:
         raise UsageError(f"{what} needs Dask, which is not installed: {INSTALL_HINT}") from None
 
 
-def connect(address: str, *, timeout: float = CONNECT_TIMEOUT):
-    """A ``distributed.Client`` connected to ``address``; UsageError in one line if it cannot be."""
+def connect(address: str, *, timeout: float | None = None):
+    """A ``distributed.Client`` connected to ``address`` (waiting ``timeout`` s, default CONNECT_TIMEOUT);
+    UsageError in one line if it cannot be."""
     require_dask(f"--scheduler {address}")
     from distributed import Client
 
     try:
-        return Client(address, timeout=timeout, set_as_default=False)
+        return Client(address, timeout=timeout or CONNECT_TIMEOUT, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as error:
         reason = " ".join(str(error).split()) or type(error).__name__
         if len(reason) > 160:

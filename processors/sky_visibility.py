@@ -242,14 +242,29 @@ def visibility_pass_chunk(tracer, first: int, corners: np.ndarray, normals: np.n
                                        tri_ids=tri_ids, criterion="any" if criterion == "paper" else criterion)
     solid = patches.patch_solid_angles.astype(np.float64)
     quantized = np.clip(np.rint(v * QUANT_LEVELS), 0, QUANT_LEVELS).astype(np.uint8)
-    exposure = v.astype(np.float64) @ solid / np.pi
-    quant_error = np.abs((quantized / QUANT_LEVELS - v) @ solid / np.pi)
+    exposure = row_sums(v, solid) / np.pi
+    quant_error = np.abs(row_sums(quantized / QUANT_LEVELS - v, solid) / np.pi)
     if criterion == "paper":  # the largest projected-area factor over the partly visible patches
-        cosines = np.asarray(normals, np.float64) @ (patches.patch_directions @ np.asarray(to_world, np.float64).T).T
+        centers = patches.patch_directions @ np.asarray(to_world, np.float64).T
+        cosines = row_sums(np.asarray(normals, np.float64)[:, :, None], centers.T)  # (T, N): n_i . c_j
         score = np.where(part > 0, np.maximum(cosines, 0.0), 0.0).max(axis=1, initial=0.0)
     else:
-        score = (2.0 if criterion == "share" else 1.0) / np.pi * (part.astype(np.float64) @ solid)
+        score = (2.0 if criterion == "share" else 1.0) / np.pi * row_sums(part, solid)
     return quantized, exposure, quant_error, score
+
+
+def row_sums(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """sum_j values[:, j] * weights[j] in float64, accumulated column by column in a fixed order.
+
+    A BLAS product (``values @ weights``) may round a row differently with the number of rows around
+    it (its kernels block and vectorize by size), so a chunk of faces would not reproduce the whole
+    pass bit for bit; elementwise sums in one order do. ``values`` (T, N) or (T, K, ...) with
+    ``weights`` (N,) or (K, ...) broadcasting against ``values[:, j]``.
+    """
+    total = np.zeros((len(values), *np.shape(weights)[1:]), np.float64)
+    for j in range(values.shape[1]):
+        total += values[:, j].astype(np.float64) * weights[j]
+    return total
 
 
 def _areas_normals(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

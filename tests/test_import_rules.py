@@ -20,7 +20,7 @@ from pathlib import Path
 
 ROOT = REPO
 PACKAGE = "usdbake"
-FOLDERS = ("core", "kernels", "geometry", "formats", "processors", "stages", "schemas", "preview", "cli")
+FOLDERS = ("core", "kernels", "geometry", "formats", "processors", "stages", "schemas", "preview", "farm", "cli")
 
 MAY_IMPORT = {
     "core": (),
@@ -31,15 +31,17 @@ MAY_IMPORT = {
     "schemas": (),
     "stages": ("core", "schemas"),
     "preview": ("core", "kernels", "geometry", "stages", "formats"),
-    "cli": ("core", "stages", "preview", "benchmarks"),
+    "farm": ("core", "stages"),
+    "cli": ("core", "stages", "preview", "farm", "benchmarks"),
 }
 """Folder -> the other folders of the package it may import."""
 
 LAZY_EXCEPTIONS = {("core/pipeline.py", "usdbake.kernels.tracer"), ("stages/sky_dome.py", "usdbake.kernels.sky"),
-                   ("stages/sky_dome.py", "usdbake.kernels.solar"), ("stages/sky_dome.py", "usdbake.formats.weather")}
+                   ("stages/sky_dome.py", "usdbake.kernels.solar"), ("stages/sky_dome.py", "usdbake.formats.weather"),
+                   ("farm/chunks.py", "usdbake.kernels.tracer")}
 """The runner's factory of the shared BVH imports the tracer when a processor first asks for it; ``usdbake
 sky`` evaluates the sky models and the sun position (numpy) when it writes a sky as UsdLux lights, and
-reads a weather file's hour when asked for one."""
+reads a weather file's hour when asked for one; a Dask worker builds its BVH of a scene on its first chunk."""
 
 PXR_ALLOWED = ("schemas", "stages")
 """Folders that may import pxr."""
