@@ -26,6 +26,9 @@ TASKS_PER_WORKER = 4
 overhead (~1 ms scheduling, the items' transfer) small against the work."""
 MIN_CHUNK_ITEMS = 64
 """The smallest default chunk: below this a task's overhead outweighs its rays."""
+SCATTER_BYTES = 1 << 20
+"""A shared setting of a map (``static``) larger than this (form factors' patches, a scene's normals)
+goes to every worker once per map, not once per task."""
 
 
 def run_chunk(fn: Callable, scene, device: str, first: int, items: tuple, static: dict):
@@ -58,9 +61,10 @@ class DaskChunks:
         self.client = client
         self.chunk_size = chunk_size
         self._scattered: dict[int, object] = {}
-        self.stats = {"tasks": 0, "item_bytes": 0, "result_bytes": 0, "scene_bytes": 0, "scatters": 0}
+        self.stats = {"tasks": 0, "item_bytes": 0, "result_bytes": 0, "scene_bytes": 0, "static_bytes": 0,
+                      "scatters": 0}
         """Totals over every map: tasks sent, bytes of items sent and results received, scene bytes
-        scattered (once per scene, to every worker)."""
+        scattered (once per scene, to every worker) and large shared settings scattered (once per map)."""
 
     @property
     def description(self) -> str:
@@ -75,7 +79,7 @@ class DaskChunks:
         if key not in self._scattered:
             self._scattered[key] = self.client.scatter(scene, broadcast=True, hash=False)
             weakref.finalize(scene, self._scattered.pop, key, None)
-            self.stats["scene_bytes"] += scene_nbytes(scene)
+            self.stats["scene_bytes"] += array_nbytes(scene)
             self.stats["scatters"] += 1
         return self._scattered[key]
 
@@ -98,6 +102,7 @@ class DaskSceneChunks:
                                              math.ceil(count / (TASKS_PER_WORKER * worker_count(client))))
         bounds = chunk_bounds(count, size) or [(0, 0)]  # no items: one empty chunk gives the empty result's shape
         scene = self.runner.scene_future(self.scene)
+        static = {name: self._shared(value) for name, value in static.items()}
         token = uuid.uuid4().hex[:8]
         futures = []
         for lo, hi in bounds:
@@ -114,12 +119,23 @@ class DaskSceneChunks:
                                           for p in parts)
         return concatenate_parts(parts)
 
+    def _shared(self, value):
+        """``value``; the scene's future for the scene itself (sent once per run); a future of ``value`` on
+        every worker when it is larger than SCATTER_BYTES."""
+        if value is self.scene:
+            return self.runner.scene_future(self.scene)
+        size = array_nbytes(value)
+        if size <= SCATTER_BYTES:
+            return value
+        self.stats["static_bytes"] += size
+        return self.runner.client.scatter(value, broadcast=True, hash=False)
 
-def scene_nbytes(scene) -> int:
-    """Bytes of the scene's arrays (what one scatter sends to each worker, near enough)."""
+
+def array_nbytes(value) -> int:
+    """Bytes of the numpy arrays in a value and the dataclasses it nests (what a scatter sends, near enough)."""
     from dataclasses import fields, is_dataclass
 
-    total, pending = 0, [scene]
+    total, pending = 0, [value]
     while pending:
         value = pending.pop()
         if isinstance(value, np.ndarray):

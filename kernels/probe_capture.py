@@ -58,18 +58,20 @@ def capture_kernel(
     probe_positions: wp.array(dtype=wp.vec3),
     strata: int,
     seed: int,
+    first: int,
     epsilon: float,
     directions: wp.array(dtype=wp.vec3),
     radiance: wp.array(dtype=wp.vec3),
 ):
     """Ray i = probe * strata^2 + k: incident radiance L(w) at the probe from stratified direction k
     (escaped rays see the dome; hits return emission + one bounce of direct light, ``hit_radiance``);
-    the Monte Carlo input of the SH projection, Sukys section 2.3 / Ramamoorthi & Hanrahan eq. 7."""
+    the Monte Carlo input of the SH projection, Sukys section 2.3 / Ramamoorthi & Hanrahan eq. 7.
+    ``first``: global index of probe 0 (a chunk's start), which with i seeds the ray."""
     i = start + wp.tid()
     samples = strata * strata
     probe = i // samples
     k = i - probe * samples
-    state = wp.rand_init(seed, i)
+    state = wp.rand_init(seed, first * samples + i)
     u = stratified_pair(k, strata, state)
     d = uniform_sphere(u[0], u[1])
     directions[i] = d
@@ -89,13 +91,14 @@ def probe_lights_kernel(
     probe_positions: wp.array(dtype=wp.vec3),
     strata: int,
     seed: int,
+    first: int,
     out: wp.array2d(dtype=float),
 ):
     """Radiance SH of the non-dome lights seen from probe i: L_k += L weight V Y_k(w) / count over
     ``light_sample_at`` samples (a small light is too concentrated for the uniform capture rays)."""
     i = start + wp.tid()
     p = probe_positions[i]
-    state = wp.rand_init(seed, i)
+    state = wp.rand_init(seed, first + i)
     for l in range(lights.light_kind.shape[0]):
         for k in range(light_sample_count(lights, l, strata)):
             s = visible_light_sample(scene, lights, l, p, k, strata, state)
@@ -139,11 +142,12 @@ def inside_kernel(
 
 
 def compute_probe_sh(tracer, scene: Scene, positions: np.ndarray, *, rays: int, seed: int = 0,
-                     lighting: SceneLighting | None = None) -> np.ndarray:
+                     lighting: SceneLighting | None = None, first: int = 0) -> np.ndarray:
     """Irradiance SH (P, 9, 3) float32 (W/m^2) at probe positions (P, 3) in the scene frame.
 
     Radiance by one-bounce ray casting (module docstring), projected on L2 SH, plus the
-    non-geometric lights as visible point sources, convolved with the clamped cosine.
+    non-geometric lights as visible point sources, convolved with the clamped cosine. ``first``:
+    the global index of positions[0], which seeds its rays (a chunk of a larger set, core.chunks).
     """
     positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
     count = len(positions)
@@ -156,14 +160,14 @@ def compute_probe_sh(tracer, scene: Scene, positions: np.ndarray, *, rays: int, 
     directions = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
     radiance = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
     tracer.launch(capture_kernel, count * samples, [
-        tracer.scene, lighting.surfaces, lighting.lights, probes_wp, strata, int(seed), tracer.epsilon,
+        tracer.scene, lighting.surfaces, lighting.lights, probes_wp, strata, int(seed), int(first), tracer.epsilon,
         directions, radiance,
     ])
     coefficients = wp.zeros((count, 27), dtype=float, device=tracer.device)
     tracer.launch(project_kernel, count, [directions, radiance, samples, coefficients])
     light_strata = strata_for(LIGHT_SAMPLES)
     tracer.launch(probe_lights_kernel, count, [tracer.scene, lighting.lights, probes_wp, light_strata,
-                                               int(seed) + 1, coefficients])
+                                               int(seed) + 1, int(first), coefficients])
     tracer.rays_cast += count * samples * (1 + lighting.shadow_rays) + count * len(scene.lights) * LIGHT_SAMPLES
     radiance_sh = np.nan_to_num(coefficients.numpy().reshape(count, 9, 3).astype(np.float64),
                                 nan=0.0, posinf=0.0, neginf=0.0)
@@ -182,3 +186,8 @@ def classify_points(tracer, lighting: SceneLighting, positions: np.ndarray) -> t
                                          nearest])
         tracer.rays_cast += n * len(PROBE_DIRECTIONS)
     return votes.numpy() > 0, nearest.numpy()
+
+
+def probe_sh_chunk(tracer, first: int, positions: np.ndarray, *, scene: Scene, rays: int, seed: int) -> np.ndarray:
+    """``compute_probe_sh`` of probes first .. first + len(positions) - 1: one chunk (core.chunks)."""
+    return compute_probe_sh(tracer, scene, positions, rays=rays, seed=seed, first=first)

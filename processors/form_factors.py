@@ -80,6 +80,7 @@ import numpy as np
 import warp as wp
 
 from ..core import Attribute, Context, File, Params, Prim, Processor, Result, param
+from ..core.chunks import SceneChunks
 from ..core.products import FormFactorProduct, Patches
 from ..core.scene import Scene
 from ..formats import dds
@@ -191,9 +192,9 @@ def rays_square(rays: int) -> tuple[int, int]:
 
 
 def compute_form_factors(tracer, patches: Patches, tri_normals: np.ndarray, *, rays: int, seed: int = 0,
-                         progress=None) -> np.ndarray:
+                         progress=None, rows: tuple[int, int] | None = None) -> np.ndarray:
     """Dense (n, n) float32 form factors F_ij (dimensionless): the share of patch i's cosine-weighted rays
-    that first land on the front of patch j.
+    that first land on the front of patch j; with ``rows=(lo, hi)`` only rows lo .. hi - 1, (hi - lo, n).
 
     Malley's method (Cohen & Wallace 1993, ch. 4) for the form factors of
     Shcherbakov (MSU 2017), section 3.5 and section 5, precompute step 2;
@@ -207,7 +208,8 @@ def compute_form_factors(tracer, patches: Patches, tri_normals: np.ndarray, *, r
     patches : core.products.Patches from geometry.patches.build_patches
     tri_normals : (T, 3) float32 unit triangle normals
     rays : rays per patch, rounded to a square (``rays_square``)
-    seed : random seed; results do not depend on thread counts
+    seed : random seed; ray k of patch i draws from (seed, i * rays + k), so results depend neither on
+        thread counts nor on which rows a call computes (core.chunks)
 
     Patches are processed in batches so the per-ray buffer stays below ~64 MB.
     """
@@ -223,23 +225,31 @@ def compute_form_factors(tracer, patches: Patches, tri_normals: np.ndarray, *, r
         tracer.array(patches.tri_subdivision, wp.int32), tracer.array(patches.tri_fragment_start, wp.int32),
         tracer.array(patches.fragment_patch, wp.int32),
     ]
-    counts = np.zeros(n * n, np.float64)
+    first, last = rows if rows is not None else (0, n)
+    counts = np.zeros((last - first) * n, np.float64)
     batch = max(1, (16 << 20) // rays)
-    for lo in range(0, n, batch):
-        hi = min(n, lo + batch)
+    for lo in range(first, last, batch):
+        hi = min(last, lo + batch)
         total = (hi - lo) * rays
         hit = wp.empty(total, dtype=int, device=device)
         launch_chunked(form_factor_kernel, total,
                        [tracer.scene, rays, strata, stride, *arrays, tracer.epsilon, seed, lo * rays, hit],
                        device=tracer.device, threads=tracer.threads, offset=lo * rays)
         hits = hit.numpy()
-        source = np.repeat(np.arange(lo, hi, dtype=np.int64), rays)
+        source = np.repeat(np.arange(lo - first, hi - first, dtype=np.int64), rays)
         ok = hits >= 0
-        counts += np.bincount(source[ok] * n + hits[ok], minlength=n * n)
+        counts += np.bincount(source[ok] * n + hits[ok], minlength=len(counts))
         tracer.rays_cast += total
         if progress:
-            progress(hi / n)
-    return (counts / rays).reshape(n, n).astype(np.float32)
+            progress((hi - first) / max(1, last - first))
+    return (counts / rays).reshape(last - first, n).astype(np.float32)
+
+
+def form_factor_rows_chunk(tracer, first: int, patch_ids: np.ndarray, *, patches: Patches, tri_normals: np.ndarray,
+                           rays: int, seed: int) -> np.ndarray:
+    """Rows first .. first + len(patch_ids) - 1 of ``compute_form_factors``: one chunk (core.chunks)."""
+    return compute_form_factors(tracer, patches, tri_normals, rays=rays, seed=seed,
+                                rows=(first, first + len(patch_ids)))
 
 
 def form_factor_checks(form: np.ndarray, areas: np.ndarray) -> dict[str, float]:
@@ -299,15 +309,18 @@ def multibounce_operator(form: np.ndarray, albedo: np.ndarray, *, bounces: int =
 # Processor
 
 
-def precompute(tracer, scene: Scene, p, progress=lambda f: None) -> tuple[FormFactorProduct, dict]:
-    """Patches -> form factors -> multi-bounce operator -> compression (pure; used by run and benchmarks)."""
+def precompute(tracer, scene: Scene, p, progress=lambda f: None, chunks=None) -> tuple[FormFactorProduct, dict]:
+    """Patches -> form factors -> multi-bounce operator -> compression (pure; used by run and benchmarks).
+    ``chunks`` (core.chunks; default: in process on ``tracer``) computes the form factors by rows."""
     voxel = p.voxel_size or choose_voxel_size(scene.points, scene.tri_vertices, scene.tri_normals,
                                               scene.tri_areas, p.target_patches, scene.tri_prim)
     patches = build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
                             scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=scene.tri_prim)
     progress(0.05)
-    form = compute_form_factors(tracer, patches, scene.tri_normals, rays=p.rays, seed=p.seed,
-                                progress=lambda f: progress(0.05 + 0.6 * f))
+    chunks = chunks if chunks is not None else SceneChunks(tracer)
+    form = chunks.map(form_factor_rows_chunk, (np.arange(patches.count),), patches=patches,
+                      tri_normals=scene.tri_normals, rays=p.rays, seed=p.seed,
+                      progress=lambda f: progress(0.05 + 0.6 * f))
     checks = form_factor_checks(form, patches.patch_areas)
     operator = multibounce_operator(form, patches.patch_albedo, bounces=p.bounces, infinite=p.infinite)
     progress(0.75)
@@ -353,7 +366,7 @@ class FormFactors(Processor):
         scene, p = ctx.scene, ctx.params
         if p.infinite and float(scene.tri_albedo.max(initial=0.0)) >= 1.0:
             raise ValueError("form_factors: infinite=true needs every albedo < 1 (the bounce series diverges)")
-        product, _ = precompute(ctx.tracer, scene, p, ctx.progress)
+        product, _ = precompute(ctx.tracer, scene, p, ctx.progress, chunks=ctx.chunks)
         patches, op = product.patches, product.operator
         dds_bytes = dds.dds_bc1_bytes(op.blocks, op.padded, op.padded)
         sparse_bytes = sparse_file_bytes(op)

@@ -120,6 +120,7 @@ import numpy as np
 import warp as wp
 
 from ..core import Attribute, Context, File, Params, Prim, Primvar, Processor, Result, param
+from ..core.chunks import SceneChunks
 from ..core.products import IrradianceGridProduct
 from ..core.scene import Scene
 from ..formats import streaming
@@ -191,6 +192,7 @@ def irradiance_vectors_kernel(
     positions: wp.array(dtype=wp.vec3),
     strata: int,
     seed: int,
+    first: int,
     epsilon: float,
     include_direct: int,
     see_emission: int,
@@ -204,10 +206,11 @@ def irradiance_vectors_kernel(
     hemisphere, rows = RGB channels, by strata^2 stratified uniform sphere rays (weight 4 pi / N) whose
     hits return ``hit_radiance``, plus the small lights sampled directly (``light_sample_at``). With
     ``use_bounce`` a hit y also reflects rho(y) / pi E_ind(y), E_ind read from the previous pass's
-    indirect grid ``bounce`` at y moved ``bounce_offset`` along its normal (``grid_irradiance``)."""
+    indirect grid ``bounce`` at y moved ``bounce_offset`` along its normal (``grid_irradiance``).
+    Vertex i draws from (seed, first + i): ``first`` is the global index of positions[0] (a chunk's start)."""
     i = start + wp.tid()
     p = positions[i]
-    state = wp.rand_init(seed, i)
+    state = wp.rand_init(seed, first + i)
     samples = strata * strata
     weight = 4.0 * wp.pi / float(samples)
     base = i * 6
@@ -317,10 +320,11 @@ def see_emission(scene: Scene, include_direct: bool) -> int:
 
 def compute_irradiance_vectors(tracer, scene: Scene, positions: np.ndarray, *, rays: int, seed: int = 0,
                                include_direct: bool = True, lighting: SceneLighting | None = None,
-                               bounce: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+                               bounce: tuple | None = None, first: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Irradiance vectors at points (module docstring, paper eq. 1).
 
     bounce : (layout, vectors) of an indirect-only grid whose light the hits reflect once more (``bounces``).
+    first : global index of positions[0], which seeds its rays (a chunk of a larger set, core.chunks)
 
     Parameters
     ----------
@@ -347,12 +351,20 @@ def compute_irradiance_vectors(tracer, scene: Scene, positions: np.ndarray, *, r
         offset = BOUNCE_OFFSET * float(np.min(layout.cell_size))
     tracer.launch(irradiance_vectors_kernel, count, [
         tracer.scene, lighting.surfaces, lighting.lights, tracer.array(positions, wp.vec3), strata, int(seed),
-        tracer.epsilon, int(bool(include_direct)), see_emission(scene, include_direct), previous,
+        int(first), tracer.epsilon, int(bool(include_direct)), see_emission(scene, include_direct), previous,
         int(bounce is not None), offset, vectors, back,
     ])
     tracer.rays_cast += count * strata * strata * (1 + lighting.shadow_rays + len(scene.lights))
     out = np.nan_to_num(vectors.numpy().reshape(count, 6, 3, 3), nan=0.0, posinf=0.0, neginf=0.0)
     return out.astype(np.float32), (back.numpy() / float(strata * strata)).astype(np.float32)
+
+
+def irradiance_vectors_chunk(tracer, first: int, positions: np.ndarray, *, scene: Scene, rays: int, seed: int,
+                             include_direct: bool, bounce: tuple | None) -> tuple[np.ndarray, np.ndarray]:
+    """``compute_irradiance_vectors`` of grid vertices first .. first + len(positions) - 1: one chunk
+    (core.chunks)."""
+    return compute_irradiance_vectors(tracer, scene, positions, rays=rays, seed=seed, include_direct=include_direct,
+                                      bounce=bounce, first=first)
 
 
 def quantize_vectors(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -381,18 +393,19 @@ def fill_invalid(vectors: np.ndarray, resolution, valid: np.ndarray, *, smooth: 
 
 
 def bake_grid(tracer, scene: Scene, layout: GridLayout, *, rays: int, seed: int = 0, include_direct: bool = True,
-              smooth: bool = True, bounces: int = 1, progress=lambda f: None) -> IrradianceGridProduct:
+              smooth: bool = True, bounces: int = 1, progress=lambda f: None, chunks=None) -> IrradianceGridProduct:
     """Compute, fill and quantize the grid (module docstring); ``bounces`` - 1 indirect-only passes first,
-    each reflected once more by the next."""
+    each reflected once more by the next. ``chunks`` (core.chunks; default: in process on ``tracer``)
+    computes each pass's vectors by vertex ranges."""
+    chunks = chunks if chunks is not None else SceneChunks(tracer)
     bounce = None
     for step in range(bounces - 1):
-        indirect, back = compute_irradiance_vectors(tracer, scene, layout.positions(), rays=rays,
-                                                    seed=seed + 1000 * (step + 1), include_direct=False,
-                                                    bounce=bounce)
+        indirect, back = chunks.map(irradiance_vectors_chunk, (layout.positions(),), scene=scene, rays=rays,
+                                    seed=seed + 1000 * (step + 1), include_direct=False, bounce=bounce)
         bounce = (layout, fill_invalid(indirect, layout.resolution, back <= INSIDE_BACK_FRACTION, smooth=smooth))
         progress(0.8 * (step + 1) / bounces)
-    vectors, back = compute_irradiance_vectors(tracer, scene, layout.positions(), rays=rays, seed=seed,
-                                               include_direct=include_direct, bounce=bounce)
+    vectors, back = chunks.map(irradiance_vectors_chunk, (layout.positions(),), scene=scene, rays=rays, seed=seed,
+                               include_direct=include_direct, bounce=bounce)
     progress(0.8)
     valid = back <= INSIDE_BACK_FRACTION
     # Fill from the dequantized valid vertices, as a client completing the full stream does.
@@ -544,8 +557,7 @@ class IrradianceGrid(Processor):
         layout = grid_layout(lo, hi, cell_size=p.cell_size, vertices=p.vertices)
         ctx.progress(0.0)
         grid = bake_grid(ctx.tracer, scene, layout, rays=p.rays, seed=p.seed, include_direct=p.include_direct,
-                         bounces=p.bounces,
-                         smooth=p.smooth, progress=ctx.progress)
+                         bounces=p.bounces, smooth=p.smooth, progress=ctx.progress, chunks=ctx.chunks)
         data = stream_bytes(grid, scene.origin)
         stream_file = f"usdbake_irradiance_grid_{hashlib.sha256(data).hexdigest()[:10]}.bin"
         outputs = [*grid_records(grid, scene.origin, stream_file, rays=strata_for(p.rays) ** 2, bounces=p.bounces,

@@ -117,7 +117,7 @@ from ..core.scene import Scene
 from ..geometry import tetrahedra
 from ..geometry.mesh import receiver_prims
 from ..kernels.lights import NO_LIGHTS, SceneLighting, has_light, scene_lighting
-from ..kernels.probe_capture import PROBE_DIRECTIONS, classify_points, compute_probe_sh
+from ..kernels.probe_capture import PROBE_DIRECTIONS, classify_points, compute_probe_sh, probe_sh_chunk
 from ..kernels.probe_lookup import ProbeLookup
 from ..kernels.sh import dering, sh_basis_np
 
@@ -582,8 +582,7 @@ class LightProbes(Processor):
                              f"({placement.dropped_inside} of {placement.candidates} candidates were inside or "
                              "next to geometry); raise probes or lower min_spacing")
         ctx.progress(0.6)
-        sh = compute_probe_sh(tracer, scene, placement.positions, rays=p.rays, seed=p.seed + 1_000_003,
-                              lighting=lighting)
+        sh = ctx.chunks.map(probe_sh_chunk, (placement.positions,), scene=scene, rays=p.rays, seed=p.seed + 1_000_003)
         deringed = 0
         if p.dering:
             windowed, strengths = dering(sh)

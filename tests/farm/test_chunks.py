@@ -86,6 +86,22 @@ def test_chunked_bake_equals_the_local_bake(cluster, city_block, local_outputs, 
         assert chunks.stats["tasks"] >= city_block.num_points // chunk_size
 
 
+@pytest.mark.parametrize("processor, params, chunk_size", [
+    ("form_factors", {"target_patches": 300, "rays": 64}, 37),  # rows of F
+    ("irradiance_grid", {"vertices": 600, "rays": 16, "bounces": 2}, 71),  # grid vertices, both passes
+    ("light_probes", {"probes": 64, "rays": 16, "placement_rays": 16, "iterations": 1}, 9),  # final capture
+])
+def test_capture_work_on_the_cluster_equals_the_local_work(cluster, processor, params, chunk_size):
+    """Form-factor rows and probe and grid captures by point ranges: each ray is seeded by its global
+    index, whichever task computes it."""
+    scene = extract_scene(Usd.Stage.Open(str(SAMPLES / "cornell_box.usda")))
+    expected = bake_outputs(scene, processors=[processor], params={processor: params})
+    scale_to(*cluster, 2)
+    chunks = DaskChunks(cluster[1], chunk_size=chunk_size)
+    assert_same_outputs(expected, bake_outputs(scene, chunks, processors=[processor], params={processor: params}))
+    assert chunks.stats["tasks"] >= 4
+
+
 def test_chunk_size_must_be_positive():
     with pytest.raises(ValueError, match="chunk_size=0"):
         DaskChunks(None, chunk_size=0)
