@@ -392,12 +392,19 @@ def _bake_one(args, input_path: str, scheduler: str | None, console: Console) ->
                 tasks[name] = progress.add_task(name, total=1.0)
             progress.update(tasks[name], completed=fraction)
 
+        started: list[bool] = []
+
+        def start_progress() -> None:  # once the input is checked: a bad input prints its one line alone
+            progress.start()
+            started.append(True)
+
         try:
             report = bake_file(input_path, args.output, pipeline, time_code=args.time,
                                allow_missing=args.allow_missing, deinstance=args.deinstance,
-                               on_progress=on_progress, before_compute=progress.start)
+                               on_progress=on_progress, before_compute=start_progress)
         finally:
-            progress.stop()
+            if started:
+                progress.stop()
         where = chunks.description if chunks else ""
     finally:
         if client is not None:
