@@ -1,4 +1,4 @@
-"""BC1 (DXT1) block compression: a vectorized numpy encoder, a numpy decoder and a Warp decoder.
+"""BC1 (DXT1) block compression: a vectorized numpy encoder and decoder.
 
 A BC1 block codes 4x4 RGB texels in 8 bytes: two RGB565 endpoints (little-endian
 uint16 ``color0``, ``color1``) and 16 two-bit palette indices (texel ``k = 4*y + x``
@@ -9,7 +9,8 @@ bits as round(v * 255 / 31) (or / 63) and the interpolated colours round to
 the nearest byte, round((2 a + b) / 3) and round((a + b) / 2) -- the
 convention OpenImageIO's DDS reader uses, so both decode to identical bytes
 (tests check it). The decoder returns exact bytes and a 256-entry table can map
-bytes to values (used by the radiosity relight kernel).
+bytes to values (``kernels.operator_relight`` decodes each block's palette once,
+at load, and its kernel reads the texel codes).
 
 The encoder is a range fit along the principal axis of each block's colours,
 followed by one least-squares refinement of the two endpoints given the
@@ -25,9 +26,6 @@ Microsoft, "Block Compression (Direct3D 10)", BC1 format.
 from __future__ import annotations
 
 import numpy as np
-import warp as wp
-
-wp.set_module_options({"enable_backward": False})
 
 BLOCK_BYTES = 8
 CHUNK_BLOCKS = 1 << 16
@@ -180,82 +178,3 @@ def decode_bc1_texels(blocks: np.ndarray) -> np.ndarray:
 def decode_bc1(blocks: np.ndarray, height: int, width: int) -> np.ndarray:
     """(H/4 * W/4, 8) uint8 blocks -> (H, W, 3) uint8 image."""
     return blocks_to_image(decode_bc1_texels(blocks), height, width)
-
-
-# ---------------------------------------------------------------------------
-# Warp: per-block palette decode (blocks as pairs of little-endian uint32 words)
-
-
-@wp.func
-def expand565(color: int) -> wp.vec3i:
-    """RGB565 (low 16 bits of ``color``) -> 8-bit channels, round(v * 255 / 31) and round(v * 255 / 63).
-
-    The BC1 endpoint expansion (Microsoft, "Block Compression (Direct3D 10)",
-    BC1: 5 bits red, 6 green, 5 blue, the layout Shcherbakov (MSU 2017),
-    section 4.2, step 3 describes). Values are byte codes 0..255.
-    """
-    r = (color >> 11) & 31
-    g = (color >> 5) & 63
-    b = color & 31
-    return wp.vec3i((r * 510 + 31) // 62, (g * 510 + 63) // 126, (b * 510 + 31) // 62)
-
-
-@wp.struct
-class BC1Palette:
-    """The 4 byte-code colours a BC1 block's 2-bit texel codes choose from."""
-
-    c0: wp.vec3i
-    c1: wp.vec3i
-    c2: wp.vec3i
-    c3: wp.vec3i
-
-
-@wp.func
-def bc1_third(a: wp.vec3i, b: wp.vec3i) -> wp.vec3i:
-    """round((2 a + b) / 3) per channel: the first interpolated colour of the 4-colour mode.
-
-    Microsoft, "Block Compression (Direct3D 10)", BC1 (color_2 = 2/3 color_0 +
-    1/3 color_1); byte codes 0..255.
-    """
-    return wp.vec3i((4 * a[0] + 2 * b[0] + 3) // 6, (4 * a[1] + 2 * b[1] + 3) // 6, (4 * a[2] + 2 * b[2] + 3) // 6)
-
-
-@wp.func
-def bc1_palette(word0: int) -> BC1Palette:
-    """The palette of a block whose first word is ``word0`` (color0 in its low 16 bits, color1 in its high).
-
-    Microsoft, "Block Compression (Direct3D 10)", BC1: with color0 > color1,
-    {c0, c1, (2 c0 + c1) / 3, (c0 + 2 c1) / 3}, else {c0, c1, (c0 + c1) / 2,
-    black}, rounded to the nearest byte as OpenImageIO does. The radiosity
-    relight reads the operator's byte codes through it (Shcherbakov, MSU 2017,
-    section 4.2). Values are byte codes 0..255.
-    """
-    color0 = word0 & 0xFFFF
-    color1 = (word0 >> 16) & 0xFFFF
-    palette = BC1Palette()
-    palette.c0 = expand565(color0)
-    palette.c1 = expand565(color1)
-    palette.c3 = wp.vec3i(0, 0, 0)
-    a = palette.c0
-    b = palette.c1
-    if color0 > color1:
-        palette.c2 = bc1_third(a, b)
-        palette.c3 = bc1_third(b, a)
-    else:
-        palette.c2 = wp.vec3i((a[0] + b[0] + 1) // 2, (a[1] + b[1] + 1) // 2, (a[2] + b[2] + 1) // 2)
-    return palette
-
-
-@wp.func
-def bc1_index(word1: int, texel: int) -> int:
-    """Palette code of texel ``texel`` (0..15, row-major) from the block's second word.
-
-    Two bits per texel, texel k in bits 2k..2k+1 (Microsoft, "Block Compression
-    (Direct3D 10)", BC1; Shcherbakov, MSU 2017, section 4.2, step 4).
-    """
-    return (word1 >> (2 * texel)) & 3
-
-
-def block_words(blocks: np.ndarray) -> np.ndarray:
-    """(N, 8) uint8 blocks -> (2 N,) int64 words (uint32 values, non-negative) for the Warp functions."""
-    return np.ascontiguousarray(blocks, np.uint8).reshape(-1, 8).view(np.uint32).reshape(-1).astype(np.int64)

@@ -1,31 +1,55 @@
-"""Relight by matrix-vector products with the compressed multi-bounce operator, decoding BC1 on the fly.
+"""Relight by matrix-vector products with the multi-bounce operator, in the fastest form that fits.
 
 Shcherbakov (MSU 2017), section 3.5 steps 2-4 with the operator of section 4.1:
 indirect irradiance E_ind = M E0 with M = sum_h (F^C)^h the k-bounce operator
-that ``form_factors`` compressed (section 4.2: top values exact
-in a sparse part, the rest as log-quantized codes in BC1 blocks, rows and
-columns reordered). The kernels decode each block's two endpoints into a
-4-entry palette of codes, look the codes up in a 256-entry table and never
-materialize the float matrix; they work in the stored (permuted) order.
+that ``form_factors`` compressed (section 4.2: top values exact in a sparse
+part, the rest as log-quantized codes in BC1 blocks, rows and columns
+reordered). The compressed operator is the stored and transferred form (the
+.dds and the sparse .npz); a ``Relighter`` decodes it once, at load, into one
+of two run-time forms:
+
+- ``dense``: the float32 operator (12 n^2 bytes) multiplied by BLAS (numpy),
+  when it fits the memory budget on a CPU; the fastest product there is.
+- ``compressed``: each BC1 block's endpoints decoded once into its palette of
+  byte codes (4 per channel, the same bytes as ``kernels.bc1.bc1_palette``), so a
+  block is 16 bytes (2-bit texel codes + 12 palette codes, 1 byte an entry
+  against the dense 12) and the kernel does no integer arithmetic beyond
+  shifts and masks: 12 table lookups per block, then per texel three indexed
+  loads and three multiply-adds. It never forms the float matrix and needs no
+  scratch beyond x and y. Used when the dense form does not fit, and on CUDA.
+
+Both work in the stored (permuted) order and give the same values to float
+rounding (the sum order differs).
 """
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import warp as wp
 
-from .bc1 import bc1_palette, block_words
+from .bc1 import bc1_palette_np, blocks_to_image, decode_bc1_texels
 from .tracer import launch_chunked
 
 wp.set_module_options({"enable_backward": False})
+
+DENSE, COMPRESSED = "dense", "compressed"
+BUDGET_FRACTION = 0.25
+"""Default memory budget of the run-time operator: this share of the machine's physical memory (not
+of the memory free now, which changes from run to run: the two forms differ in float rounding, and a
+bake should not depend on what else the machine was doing)."""
+DECODE_ROWS = 256
+"""Rows decoded at a time into the dense form (bounds the decode's temporaries to ~12 * 256 * n bytes)."""
 
 
 @wp.struct
 class CompressedRows:
     """The compressed operator on the device, in stored (permuted) order."""
 
-    words: wp.array(dtype=wp.int64)
-    """Two words per BC1 block (endpoints, then 16 two-bit codes), block rows of ``blocks_per_row``."""
+    blocks: wp.array2d(dtype=wp.uint32)
+    """(B, 4) per BC1 block: its 16 two-bit texel codes (texel k in bits 2k..2k+1), then per channel its
+    4 palette byte codes (entry p in bits 8p..8p+7); block rows of ``blocks_per_row``."""
     blocks_per_row: int
     lut: wp.array(dtype=float)
     """(256,) code -> operator value (section 4.2: v = exp(code * scale + offset), 0 for code 0)."""
@@ -40,43 +64,36 @@ class CompressedRows:
 
 @wp.struct
 class BlockPalette:
-    """The 4 operator values (RGB) one BC1 block's 2-bit codes choose from."""
+    """The 4 operator values a block's 2-bit codes choose from, one vec4 per channel (entry p of ``red``
+    is palette colour p's red value), so a texel's value is three indexed loads, not selects."""
 
-    p0: wp.vec3
-    p1: wp.vec3
-    p2: wp.vec3
-    p3: wp.vec3
-
-
-@wp.func
-def lut_color(lut: wp.array(dtype=float), code: wp.vec3i) -> wp.vec3:
-    """Operator value per channel of an 8-bit log code (section 4.2: v = exp(code * scale + offset))."""
-    return wp.vec3(lut[code[0]], lut[code[1]], lut[code[2]])
+    red: wp.vec4
+    green: wp.vec4
+    blue: wp.vec4
 
 
 @wp.func
-def block_palette(lut: wp.array(dtype=float), word0: int) -> BlockPalette:
-    """The operator values of a block's BC1 palette (``bc1_palette``), looked up in the code table."""
-    codes = bc1_palette(word0)
-    palette = BlockPalette()
-    palette.p0 = lut_color(lut, codes.c0)
-    palette.p1 = lut_color(lut, codes.c1)
-    palette.p2 = lut_color(lut, codes.c2)
-    palette.p3 = lut_color(lut, codes.c3)
-    return palette
+def channel_values(lut: wp.array(dtype=float), codes: int) -> wp.vec4:
+    """The 4 byte codes packed in ``codes`` (entry p in bits 8p..8p+7) through the code table (section
+    4.2: v = exp(code * scale + offset))."""
+    return wp.vec4(lut[codes & 255], lut[(codes >> 8) & 255], lut[(codes >> 16) & 255], lut[(codes >> 24) & 255])
 
 
 @wp.func
-def row_product(bits: int, palette: BlockPalette, x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, x3: wp.vec3) -> wp.vec3:
-    """Sum over the 4 texels of one block row (8 bits of codes) of palette[code] * x (per channel)."""
-    acc = wp.vec3(0.0, 0.0, 0.0)
-    for c in range(4):
-        code = (bits >> (2 * c)) & 3
-        value = wp.where(code >= 2, wp.where(code == 3, palette.p3, palette.p2),
-                         wp.where(code == 1, palette.p1, palette.p0))
-        xc = wp.where(c >= 2, wp.where(c == 3, x3, x2), wp.where(c == 1, x1, x0))
-        acc += wp.cw_mul(value, xc)
-    return acc
+def block_row_product(bits: int, palette: BlockPalette, x0: wp.vec3, x1: wp.vec3, x2: wp.vec3,
+                      x3: wp.vec3) -> wp.vec3:
+    """Sum over the 4 texels of one block row (8 bits of codes, texel c in bits 2c..2c+1) of
+    palette[code] * x_c per channel."""
+    c0 = bits & 3
+    c1 = (bits >> 2) & 3
+    c2 = (bits >> 4) & 3
+    c3 = (bits >> 6) & 3
+    r = palette.red
+    g = palette.green
+    b = palette.blue
+    return wp.vec3(r[c0] * x0[0] + r[c1] * x1[0] + r[c2] * x2[0] + r[c3] * x3[0],
+                   g[c0] * x0[1] + g[c1] * x1[1] + g[c2] * x2[1] + g[c3] * x3[1],
+                   b[c0] * x0[2] + b[c1] * x1[2] + b[c2] * x2[2] + b[c3] * x3[2])
 
 
 @wp.func
@@ -95,11 +112,11 @@ def finish_block_row(op: CompressedRows, br: int, y0: wp.vec3, y1: wp.vec3, y2: 
 
 
 @wp.kernel
-def relight_bc1_kernel(start: int, op: CompressedRows, x: wp.array(dtype=wp.vec3), y: wp.array(dtype=wp.vec3)):
+def relight_blocks_kernel(start: int, op: CompressedRows, x: wp.array(dtype=wp.vec3), y: wp.array(dtype=wp.vec3)):
     """y = M x for the 4 stored rows of block row ``start + tid`` (stored order, x padded to 4).
 
-    Per block: decode the two endpoints into a 4-entry palette (12 table lookups), then 16
-    texel codes pick palette entries; the float matrix is never formed.
+    Per block: its palette's 12 byte codes through the code table, then each of the 16 texels adds
+    palette[code] * x_j; the float matrix is never formed.
     """
     br = start + wp.tid()
     y0 = wp.vec3(0.0, 0.0, 0.0)
@@ -108,75 +125,75 @@ def relight_bc1_kernel(start: int, op: CompressedRows, x: wp.array(dtype=wp.vec3
     y3 = wp.vec3(0.0, 0.0, 0.0)
     base = br * op.blocks_per_row
     for bx in range(op.blocks_per_row):
-        palette = block_palette(op.lut, int(op.words[2 * (base + bx)]))
-        word1 = int(op.words[2 * (base + bx) + 1])
+        k = base + bx
+        palette = BlockPalette()
+        palette.red = channel_values(op.lut, int(op.blocks[k, 1]))
+        palette.green = channel_values(op.lut, int(op.blocks[k, 2]))
+        palette.blue = channel_values(op.lut, int(op.blocks[k, 3]))
+        bits = int(op.blocks[k, 0])
         j = 4 * bx
         x0 = x[j]
         x1 = x[j + 1]
         x2 = x[j + 2]
         x3 = x[j + 3]
-        y0 += row_product(word1 & 255, palette, x0, x1, x2, x3)
-        y1 += row_product((word1 >> 8) & 255, palette, x0, x1, x2, x3)
-        y2 += row_product((word1 >> 16) & 255, palette, x0, x1, x2, x3)
-        y3 += row_product((word1 >> 24) & 255, palette, x0, x1, x2, x3)
+        y0 += block_row_product(bits & 255, palette, x0, x1, x2, x3)
+        y1 += block_row_product((bits >> 8) & 255, palette, x0, x1, x2, x3)
+        y2 += block_row_product((bits >> 16) & 255, palette, x0, x1, x2, x3)
+        y3 += block_row_product((bits >> 24) & 255, palette, x0, x1, x2, x3)
     finish_block_row(op, br, y0, y1, y2, y3, x, y)
 
 
-@wp.kernel
-def code_sums_kernel(start: int, x: wp.array(dtype=wp.vec3), sums: wp.array2d(dtype=wp.vec3)):
-    """Per block column bx and row byte b (4 two-bit codes): sums[bx * 256 + b, p] = sum of the x_j
-    of that block row whose code is p. Built once per relight (n/4 * 256 items, 1/16 of the texels)."""
-    item = start + wp.tid()
-    bx = item // 256
-    byte = item % 256
-    s0 = wp.vec3(0.0, 0.0, 0.0)
-    s1 = wp.vec3(0.0, 0.0, 0.0)
-    s2 = wp.vec3(0.0, 0.0, 0.0)
-    s3 = wp.vec3(0.0, 0.0, 0.0)
-    for c in range(4):
-        code = (byte >> (2 * c)) & 3
-        xc = x[4 * bx + c]
-        if code == 0:
-            s0 += xc
-        elif code == 1:
-            s1 += xc
-        elif code == 2:
-            s2 += xc
-        else:
-            s3 += xc
-    sums[item, 0] = s0
-    sums[item, 1] = s1
-    sums[item, 2] = s2
-    sums[item, 3] = s3
+def palette_blocks(blocks: np.ndarray) -> np.ndarray:
+    """(B, 8) uint8 BC1 blocks -> (B, 4) uint32 run-time blocks: texel codes, then the red, green and blue
+    palette byte codes (``bc1_palette_np``: Microsoft, "Block Compression (Direct3D 10)", BC1, rounded
+    as OpenImageIO does), 4 to a word."""
+    words = np.ascontiguousarray(blocks, np.uint8).reshape(-1, 8).view(np.uint32).reshape(-1, 2)
+    palette = bc1_palette_np((words[:, 0] & 0xFFFF).astype(np.uint16), (words[:, 0] >> 16).astype(np.uint16))
+    out = np.empty((len(words), 4), np.uint32)
+    out[:, 0] = words[:, 1]
+    for channel in range(3):
+        codes = palette[:, :, channel].astype(np.uint32)
+        out[:, 1 + channel] = codes[:, 0] | (codes[:, 1] << 8) | (codes[:, 2] << 16) | (codes[:, 3] << 24)
+    return out
 
 
-@wp.func
-def row_from_sums(sums: wp.array2d(dtype=wp.vec3), t: int, palette: BlockPalette) -> wp.vec3:
-    """Sum over the 4 palette entries p of palette[p] * (the x_j whose code is p), for table row t."""
-    return (wp.cw_mul(palette.p0, sums[t, 0]) + wp.cw_mul(palette.p1, sums[t, 1])
-            + wp.cw_mul(palette.p2, sums[t, 2]) + wp.cw_mul(palette.p3, sums[t, 3]))
+def dense_stored(compressed) -> np.ndarray:
+    """(3, n, n) float32 operator in stored order (the BC1 part with its row correction, plus the exact
+    sparse part), decoded DECODE_ROWS rows at a time so the temporaries stay small."""
+    n, n4 = compressed.size, compressed.padded
+    blocks = np.ascontiguousarray(compressed.blocks, np.uint8).reshape(n4 // 4, n4 // 4, 8)
+    out = np.empty((3, n, n), np.float32)
+    for lo in range(0, n, DECODE_ROWS):  # DECODE_ROWS is a multiple of 4: a strip is whole block rows
+        hi = min(n, lo + DECODE_ROWS)
+        strip = blocks[lo // 4:(hi + 3) // 4]
+        codes = blocks_to_image(decode_bc1_texels(strip.reshape(-1, 8)), 4 * len(strip), n4)[:hi - lo, :n]
+        values = compressed.lut[codes] * compressed.row_scale[lo:hi, None, :]
+        out[:, lo:hi] = np.moveaxis(values, -1, 0)
+    rows = np.repeat(np.arange(n), np.diff(compressed.sparse_indptr))
+    out[:, rows, compressed.sparse_indices] += compressed.sparse_values.T
+    return out
 
 
-@wp.kernel
-def relight_bc1_sums_kernel(start: int, op: CompressedRows, x: wp.array(dtype=wp.vec3),
-                            sums: wp.array2d(dtype=wp.vec3), y: wp.array(dtype=wp.vec3)):
-    """relight_bc1_kernel with the texel loop replaced by code_sums lookups: per block row of 4
-    texels, y += sum_p palette[p] * sums[bx, codes, p] (4 products instead of 4 selects + 4)."""
-    br = start + wp.tid()
-    y0 = wp.vec3(0.0, 0.0, 0.0)
-    y1 = wp.vec3(0.0, 0.0, 0.0)
-    y2 = wp.vec3(0.0, 0.0, 0.0)
-    y3 = wp.vec3(0.0, 0.0, 0.0)
-    base = br * op.blocks_per_row
-    for bx in range(op.blocks_per_row):
-        palette = block_palette(op.lut, int(op.words[2 * (base + bx)]))
-        word1 = int(op.words[2 * (base + bx) + 1])
-        t = bx * 256
-        y0 += row_from_sums(sums, t + (word1 & 255), palette)
-        y1 += row_from_sums(sums, t + ((word1 >> 8) & 255), palette)
-        y2 += row_from_sums(sums, t + ((word1 >> 16) & 255), palette)
-        y3 += row_from_sums(sums, t + ((word1 >> 24) & 255), palette)
-    finish_block_row(op, br, y0, y1, y2, y3, x, y)
+def physical_memory() -> int:
+    """Bytes of physical memory (Linux/macOS sysconf); 0 where it cannot be read."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def dense_nbytes(size: int) -> int:
+    """Bytes of the dense float32 RGB operator of ``size`` patches."""
+    return 12 * size * size
+
+
+def relight_form(size: int, device, memory_budget: int | None = None) -> str:
+    """DENSE when the float32 operator fits ``memory_budget`` bytes (default: BUDGET_FRACTION of the
+    physical memory) on a CPU, else COMPRESSED (always on CUDA: the in-kernel decode)."""
+    if wp.get_device(device).is_cuda:
+        return COMPRESSED
+    budget = int(BUDGET_FRACTION * physical_memory()) if memory_budget is None else int(memory_budget)
+    return DENSE if dense_nbytes(size) <= budget else COMPRESSED
 
 
 def launch_rows(kernel, dim: int, inputs: list, device, threads: int) -> None:
@@ -185,16 +202,27 @@ def launch_rows(kernel, dim: int, inputs: list, device, threads: int) -> None:
 
 
 class Relighter:
-    """The compressed operator uploaded once; ``apply(E0)`` -> indirect irradiance, per relight."""
+    """The operator decoded once into its run-time form (``form``: DENSE or COMPRESSED, see the module
+    docstring; ``relight_form`` picks by the memory budget); ``apply(E0)`` -> indirect irradiance."""
 
-    def __init__(self, compressed, *, device="cpu", threads: int = 1):
+    def __init__(self, compressed, *, device="cpu", threads: int = 1, memory_budget: int | None = None,
+                 form: str | None = None):
         self.size = compressed.size
         self.padded = compressed.padded
         self.device = wp.get_device(device)
         self.threads = threads
         self.permutation = np.asarray(compressed.permutation, np.int64)
+        self.form = form or relight_form(self.size, self.device, memory_budget)
+        if self.form not in (DENSE, COMPRESSED):
+            raise ValueError(f"form={self.form!r}: expected {DENSE!r} or {COMPRESSED!r}")
+        if self.form == DENSE and self.device.is_cuda:
+            raise ValueError("the dense relight runs on the CPU (numpy BLAS); use form='compressed' on CUDA")
+        if self.form == DENSE:
+            self.matrix = dense_stored(compressed)
+            self.x = np.zeros((3, self.size, 1), np.float32)  # channel-major: one batched BLAS call
+            return
         self.op = CompressedRows()
-        self.op.words = wp.array(block_words(compressed.blocks), dtype=wp.int64, device=self.device)
+        self.op.blocks = wp.array(palette_blocks(compressed.blocks), dtype=wp.uint32, device=self.device)
         self.op.blocks_per_row = self.padded // 4
         self.op.lut = wp.array(compressed.lut, dtype=float, device=self.device)
         self.op.row_scale = wp.array(compressed.row_scale, dtype=wp.vec3, device=self.device)
@@ -204,32 +232,40 @@ class Relighter:
         self.op.size = self.size
         self.x = wp.zeros(self.padded, dtype=wp.vec3, device=self.device)
         self.y = wp.zeros(self.padded, dtype=wp.vec3, device=self.device)
-        self.sums = wp.zeros((self.padded // 4 * 256, 4), dtype=wp.vec3, device=self.device)
 
-    def apply_stored(self, *, texel_loop: bool = False) -> None:
-        """y = M x on the device buffers (stored order); what the relight timing measures.
+    @property
+    def nbytes(self) -> int:
+        """Memory the run-time form holds: operator, sparse part, tables and the x and y buffers."""
+        if self.form == DENSE:
+            return int(self.matrix.nbytes + self.x.nbytes + self.permutation.nbytes)
+        arrays = (self.op.blocks, self.op.lut, self.op.row_scale, self.op.indptr, self.op.indices, self.op.values,
+                  self.x, self.y)
+        return int(sum(a.capacity for a in arrays) + self.permutation.nbytes)
 
-        Default: code sums per block column (code_sums_kernel), then 4 palette products per block
-        row; ``texel_loop`` runs the plain per-texel decode instead (same result to rounding).
-        """
-        if texel_loop:
-            launch_rows(relight_bc1_kernel, self.padded // 4, [self.op, self.x, self.y], self.device, self.threads)
-            return
-        launch_rows(code_sums_kernel, self.padded // 4 * 256, [self.x, self.sums], self.device, self.threads)
-        launch_rows(relight_bc1_sums_kernel, self.padded // 4, [self.op, self.x, self.sums, self.y], self.device,
-                    self.threads)
+    def apply_stored(self):
+        """y = M x in stored order on the buffers of the run-time form; what the relight timing measures."""
+        if self.form == DENSE:
+            return np.matmul(self.matrix, self.x)[:, :, 0].T
+        launch_rows(relight_blocks_kernel, self.padded // 4, [self.op, self.x, self.y], self.device, self.threads)
+        return None
 
     def apply(self, irradiance: np.ndarray) -> np.ndarray:
         """(n, 3) direct irradiance per patch (patch order) -> (n, 3) indirect irradiance."""
+        stored = np.asarray(irradiance, np.float32)[self.permutation]
+        out = np.empty((self.size, 3), np.float32)
+        if self.form == DENSE:
+            self.x[:, :, 0] = stored.T
+            out[self.permutation] = self.apply_stored()
+            return out
         x = np.zeros((self.padded, 3), np.float32)
-        x[:self.size] = np.asarray(irradiance, np.float32)[self.permutation]
+        x[:self.size] = stored
         self.x.assign(x)
         self.apply_stored()
-        out = np.empty((self.size, 3), np.float32)
         out[self.permutation] = self.y.numpy()[:self.size]
         return out
 
 
-def relight(compressed, irradiance: np.ndarray, *, device="cpu", threads: int = 1) -> np.ndarray:
-    """Indirect irradiance (n, 3) = M E0 with the compressed operator (see Relighter)."""
-    return Relighter(compressed, device=device, threads=threads).apply(irradiance)
+def relight(compressed, irradiance: np.ndarray, *, device="cpu", threads: int = 1,
+            memory_budget: int | None = None) -> np.ndarray:
+    """Indirect irradiance (n, 3) = M E0 with the operator in its fastest run-time form (see Relighter)."""
+    return Relighter(compressed, device=device, threads=threads, memory_budget=memory_budget).apply(irradiance)

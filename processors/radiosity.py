@@ -64,7 +64,7 @@ from ..core.products import FormFactorProduct, RadiosityProduct
 from ..core.scene import Scene
 from ..geometry.mesh import missing_receivers, receiver_prims, vertex_normals
 from ..kernels.lights import NO_LIGHTS, Lights, direct_irradiance, has_light, light_bundle, shadow_rays_per_point
-from ..kernels.operator_relight import relight
+from ..kernels.operator_relight import Relighter
 from ..kernels.patches import fragment_of_hit
 from ..kernels.sampling import cosine_hemisphere, strata_for, tangent_frame
 from ..kernels.tracer import FAR, surface_origin
@@ -328,7 +328,7 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
     indirect light (``final_gather``: the gather adds one reflection, k + 1 in all, as a probe or any
     point looking at the patches sees), with direct light evaluated at near hits; with 0 the patches'
     k-bounce indirect light interpolated (``transfer_to_vertices``: no rays, smooth, blurred in corners).
-    ``apply_operator(E0) -> E_ind`` replaces the compressed relight (benchmarks: the dense operator).
+    ``apply_operator(E0) -> E_ind`` replaces the relight (run: a Relighter for the step's memory budget; benchmarks: the dense operator).
     """
     patches, op = product.patches, product.operator
     points, fragment = _patch_points(patches, p.patch_points, p.seed)
@@ -338,7 +338,7 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
     e0_patch = e0_patch.reshape(patches.count, p.patch_points, 3).mean(axis=1)
     progress(0.3)
     if apply_operator is None:
-        e_ind_patch = relight(op, e0_patch, device=tracer.device, threads=tracer.threads)
+        e_ind_patch = relighter_for(tracer, op, p).apply(e0_patch)
     else:
         e_ind_patch = np.asarray(apply_operator(e0_patch), np.float32)
     normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)[point_ids]
@@ -362,6 +362,12 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
     progress(0.9)
     return {"patch_direct": e0_patch.astype(np.float32), "patch_indirect": e_ind_patch,
             "vertex_direct": e0_vertex, "vertex_indirect": np.maximum(e_ind_vertex, 0.0).astype(np.float32)}
+
+
+def relighter_for(tracer, op, p) -> Relighter:
+    """The operator in its run-time form for ``p.relight_memory_mb`` (0: the default budget)."""
+    budget = int(p.relight_memory_mb * 2**20) if p.relight_memory_mb > 0 else None
+    return Relighter(op, device=tracer.device, threads=tracer.threads, memory_budget=budget)
 
 
 class Radiosity(Processor):
@@ -391,6 +397,9 @@ class Radiosity(Processor):
                                   "(gather_rays = 0)", low=-1.0, high=1.0)
         emissive_lights: str = param("auto", "emissive triangles as area lights: auto (only without UsdLux "
                                      "lights), on, off", choices=("auto", "on", "off"))
+        relight_memory_mb: float = param(0.0, "memory budget (MB) of the relight operator: the dense float32 "
+                                         "operator (BLAS) when it fits, else the compressed kernel; 0 = a "
+                                         "quarter of the physical memory", low=0.0)
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
@@ -405,7 +414,9 @@ class Radiosity(Processor):
         rays_before = ctx.tracer.rays_cast
         receivers = receiver_prims(scene)
         point_ids = np.flatnonzero(np.isin(scene.point_prim, receivers))
-        solved = solve(ctx.tracer, scene, ctx.products[FormFactorProduct], p, point_ids, progress=ctx.progress)
+        relighter = relighter_for(ctx.tracer, ctx.products[FormFactorProduct].operator, p)
+        solved = solve(ctx.tracer, scene, ctx.products[FormFactorProduct], p, point_ids, progress=ctx.progress,
+                       apply_operator=relighter.apply)
         e0_vertex = np.zeros((scene.num_points, 3), np.float32)
         e_ind_vertex = np.zeros((scene.num_points, 3), np.float32)
         e0_vertex[point_ids] = solved["vertex_direct"]
@@ -427,6 +438,8 @@ class Radiosity(Processor):
                                           "color3f", "vertex"))
         result.stats["rays"] = float(ctx.tracer.rays_cast - rays_before)
         result.stats["patches"] = float(patches.count)
+        result.messages.append(f"indirect light relit with the {relighter.form} operator "
+                               f"({relighter.nbytes / 2**20:.1f} MB)")
         skipped = int((~scene.prim_writable).sum())
         if skipped:
             result.messages.append(f"{skipped} instanced prims occlude and bounce light but get no primvars")
