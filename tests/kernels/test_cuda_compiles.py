@@ -1,4 +1,5 @@
-"""Every kernel that traces rays compiles for CUDA (sm_86 PTX through Warp's NVRTC), without a GPU.
+"""Every kernel that traces rays, and the radiosity relight (its CUDA form), compiles for CUDA (sm_86 PTX
+through Warp's NVRTC), without a GPU.
 
 The ray core's native traversal has a scalar branch for CUDA (``#ifdef __CUDA_ARCH__``) that a CPU run
 never compiles; ``--device cuda:0`` would meet an error there only on a machine with a GPU. Warp
@@ -13,7 +14,7 @@ import warp as wp
 
 FAST = ["usdbake.kernels.tracer", "usdbake.kernels.sun_visibility", "usdbake.processors.ambient_occlusion",
         "usdbake.processors.sky_visibility", "usdbake.processors.form_factors",
-        "usdbake.processors.displacement_fields", "usdbake.preview.raycast"]
+        "usdbake.processors.displacement_fields", "usdbake.preview.raycast", "usdbake.kernels.operator_relight"]
 """Modules of a few seconds each (measured 0.7-2 s)."""
 HEAVY = ["usdbake.processors.radiosity", "usdbake.processors.irradiance_grid", "usdbake.processors.instance_ao",
          "usdbake.kernels.probe_capture"]
