@@ -82,11 +82,11 @@ def blocks_to_image(texels: np.ndarray, height: int, width: int) -> np.ndarray:
     return texels.reshape(height // 4, width // 4, 4, 4, c).transpose(0, 2, 1, 3, 4).reshape(height, width, c)
 
 
-def _best_indices(texels: np.ndarray, palette: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest palette entry per texel: (N, 16) indices and (N,) summed squared error."""
+def _best_indices(texels: np.ndarray, palette: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest palette entry per texel: (N, 16) indices and (N,) weighted summed squared error."""
     d = ((texels[:, :, None, :] - palette[:, None, :, :].astype(np.float32)) ** 2).sum(-1)  # (N, 16, 4)
     index = d.argmin(-1)
-    return index, np.take_along_axis(d, index[..., None], -1)[..., 0].sum(-1)
+    return index, (np.take_along_axis(d, index[..., None], -1)[..., 0] * weights).sum(-1)
 
 
 def _pack(color0: np.ndarray, color1: np.ndarray, index: np.ndarray) -> np.ndarray:
@@ -97,46 +97,49 @@ def _pack(color0: np.ndarray, color1: np.ndarray, index: np.ndarray) -> np.ndarr
     return out.view(np.uint8).reshape(-1, BLOCK_BYTES)
 
 
-def _endpoints_to_blocks(texels: np.ndarray, e0: np.ndarray, e1: np.ndarray):
+def _endpoints_to_blocks(texels: np.ndarray, weights: np.ndarray, e0: np.ndarray, e1: np.ndarray):
     """Quantize float endpoints, order them for 4-colour mode, pick indices: (color0, color1, index, sse)."""
     c0 = _quantize565(e0)
     c1 = _quantize565(e1)
     swap = c0 < c1
     c0, c1 = np.where(swap, c1, c0), np.where(swap, c0, c1)
     palette = bc1_palette_np(c0, c1)
-    index, sse = _best_indices(texels, palette)
+    index, sse = _best_indices(texels, palette, weights)
     # c0 == c1 is the 3-colour mode: a constant block, index 0 everywhere is exact for it.
     index = np.where((c0 == c1)[:, None], 0, index)
     return c0, c1, index, sse
 
 
-def _encode_chunk(texels: np.ndarray) -> np.ndarray:
-    """(N, 16, 3) float32 in [0, 255] -> (N, 8) uint8 blocks."""
-    mean = texels.mean(axis=1, keepdims=True)
+def _encode_chunk(texels: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(N, 16, 3) float32 in [0, 255] and (N, 16) texel weights (each block's sum 1 or 0) -> (N, 8) uint8
+    blocks. The fit minimizes the weighted squared error; a texel of weight 0 is free (any colour)."""
+    mean = np.einsum("nk,nkc->nc", weights, texels)[:, None, :]
     centred = texels - mean
-    cov = np.einsum("nki,nkj->nij", centred, centred)
+    cov = np.einsum("nk,nki,nkj->nij", weights, centred, centred)
     # Principal axis: the eigenvector of the largest eigenvalue of each block's 3x3 covariance (a
     # power iteration started from grey misses colours that vary at right angles to grey, such as a
     # red-green ramp). Flat blocks get some unit axis and t = 0, so both endpoints are the mean.
     axis = np.linalg.eigh(cov.astype(np.float64))[1][:, :, -1].astype(np.float32)
     t = np.einsum("nki,ni->nk", centred, axis)
-    e0 = mean[:, 0] + axis * t.max(axis=1, keepdims=True)
-    e1 = mean[:, 0] + axis * t.min(axis=1, keepdims=True)
-    c0, c1, index, sse = _endpoints_to_blocks(texels, e0, e1)
+    counted = weights > 0  # the range spans the texels that count (all of them in a block of zero weight)
+    counted |= ~counted.any(axis=1, keepdims=True)
+    e0 = mean[:, 0] + axis * np.where(counted, t, -np.inf).max(axis=1, keepdims=True)
+    e1 = mean[:, 0] + axis * np.where(counted, t, np.inf).min(axis=1, keepdims=True)
+    c0, c1, index, sse = _endpoints_to_blocks(texels, weights, e0, e1)
 
-    # One least-squares refit of the endpoints given the indices: texel ~ w a + (1 - w) b.
+    # One weighted least-squares refit of the endpoints given the indices: texel ~ w a + (1 - w) b.
     weight = np.array([1.0, 0.0, 2.0 / 3.0, 1.0 / 3.0], np.float32)[index]  # (N, 16)
-    aa = (weight * weight).sum(1)
-    bb = ((1 - weight) ** 2).sum(1)
-    ab = (weight * (1 - weight)).sum(1)
-    ax = np.einsum("nk,nkc->nc", weight, texels)
-    bx = np.einsum("nk,nkc->nc", 1 - weight, texels)
+    aa = (weights * weight * weight).sum(1)
+    bb = (weights * (1 - weight) ** 2).sum(1)
+    ab = (weights * weight * (1 - weight)).sum(1)
+    ax = np.einsum("nk,nkc->nc", weights * weight, texels)
+    bx = np.einsum("nk,nkc->nc", weights * (1 - weight), texels)
     det = aa * bb - ab * ab
     ok = np.abs(det) > 1e-6
     safe = np.where(ok, det, 1.0)[:, None]
     fa = np.where(ok[:, None], (bb[:, None] * ax - ab[:, None] * bx) / safe, e0)
     fb = np.where(ok[:, None], (aa[:, None] * bx - ab[:, None] * ax) / safe, e1)
-    r0, r1, rindex, rsse = _endpoints_to_blocks(texels, fa, fb)
+    r0, r1, rindex, rsse = _endpoints_to_blocks(texels, weights, fa, fb)
     better = rsse < sse
     c0 = np.where(better, r0, c0)
     c1 = np.where(better, r1, c1)
@@ -144,12 +147,14 @@ def _encode_chunk(texels: np.ndarray) -> np.ndarray:
     return _pack(c0, c1, index)
 
 
-def encode_bc1(image: np.ndarray) -> np.ndarray:
+def encode_bc1(image: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Encode an RGB image to BC1 blocks.
 
     Parameters
     ----------
     image : (H, W, 3) float or uint8, values in [0, 255]; H and W multiples of 4.
+    weights : (H, W) non-negative texel weights of the squared error the fit minimizes (default: all
+        equal); a texel of weight 0 may decode to anything (a value stored elsewhere).
 
     Returns
     -------
@@ -159,9 +164,18 @@ def encode_bc1(image: np.ndarray) -> np.ndarray:
     if image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"expected an (H, W, 3) image, got {image.shape}")
     texels = image_to_blocks(np.nan_to_num(image.astype(np.float32), nan=0.0))
+    if weights is None:
+        weights = np.ones(image.shape[:2], np.float32)
+    if weights.shape != image.shape[:2]:
+        raise ValueError(f"weights {weights.shape} do not match the image {image.shape[:2]}")
+    texel_weights = image_to_blocks(np.nan_to_num(np.asarray(weights, np.float32), nan=0.0)[..., None])[..., 0]
+    texel_weights = np.maximum(texel_weights, 0.0)
+    totals = texel_weights.sum(axis=1, keepdims=True)
+    texel_weights = np.where(totals > 0, texel_weights / np.where(totals > 0, totals, 1.0), 0.0)
     out = np.empty((len(texels), BLOCK_BYTES), np.uint8)
     for lo in range(0, len(texels), CHUNK_BLOCKS):
-        out[lo:lo + CHUNK_BLOCKS] = _encode_chunk(np.clip(texels[lo:lo + CHUNK_BLOCKS], 0.0, 255.0))
+        out[lo:lo + CHUNK_BLOCKS] = _encode_chunk(np.clip(texels[lo:lo + CHUNK_BLOCKS], 0.0, 255.0),
+                                                  texel_weights[lo:lo + CHUNK_BLOCKS].astype(np.float32))
     return out
 
 

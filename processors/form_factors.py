@@ -86,7 +86,7 @@ from ..core.scene import Scene
 from ..formats import dds
 from ..formats.sparse_operator import sparse_file_bytes
 from ..geometry.patches import MAX_PATCHES, build_patches, choose_voxel_size
-from ..kernels.operator_codec import compress_operator
+from ..kernels.operator_codec import MAX_ERROR, compress_operator
 from ..kernels.patches import fragment_of_hit
 from ..kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
 from ..kernels.tracer import FAR, launch_chunked, triangle_origin
@@ -326,14 +326,14 @@ def precompute(tracer, scene: Scene, p, progress=lambda f: None, chunks=None) ->
     progress(0.75)
     compressed = compress_operator(operator, exact_fraction=p.exact_fraction, log_floor=p.log_floor,
                                    reorder_passes=p.reorder_passes, row_correction=p.row_correction,
-                                   quantization=p.quantization)
+                                   quantization=p.quantization, max_error=p.max_error)
     progress(1.0)
     return FormFactorProduct(patches, compressed, p.bounces, p.infinite, checks), {"form": form, "operator": operator}
 
 
 class FormFactors(Processor):
     name = "form_factors"
-    version = "3"
+    version = "4"
     summary = "Radiosity precompute: voxel patches, ray-cast form factors, compressed multi-bounce matrix (BC1)."
     facets = ("geometry", "materials")
     provides = (FormFactorProduct,)
@@ -354,6 +354,8 @@ class FormFactors(Processor):
         quantization: str = param("log", "code mapping before BC1: 'log' (thesis) or 'linear'",
                                   choices=("log", "linear"))
         row_correction: bool = param(True, "rescale decoded BC1 rows to their exact row sums ((n, 3) floats)")
+        max_error: float = param(MAX_ERROR, "a coded entry decoding further than this share of the largest "
+                                 "coded value from its value joins the exact part", low=0.0, high=1.0)
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
