@@ -45,14 +45,17 @@ a writer replacing its arrays file and its manifest, so a concurrent writer's fi
 def code_fingerprint(cls: type) -> str:
     """Hash of the code a processor runs: its own module and every module of its package or of
     usdbake that it imports, followed transitively; an edited kernel never serves a stale cached
-    result, and an edit elsewhere (the preview renderer, the CLI) invalidates nothing."""
-    files = library_modules(cls.__module__)
-    return _digest_files(tuple((str(f), f.stat().st_mtime_ns, f.stat().st_size) for f in files))
+    result, and an edit elsewhere (the preview renderer, the CLI) invalidates nothing. Modules are
+    named by their import name, not their path: two installs of the same code in different folders
+    (farm workers) share their cache entries."""
+    modules = library_modules(cls.__module__)
+    return _digest_files(tuple((name, str(path), path.stat().st_mtime_ns, path.stat().st_size)
+                               for name, path in modules))
 
 
-def library_modules(module_name: str) -> list[Path]:
-    """Source files of ``module_name`` and of the modules it imports from its own top-level package
-    or from usdbake (read from the import statements), transitively, sorted."""
+def library_modules(module_name: str) -> list[tuple[str, Path]]:
+    """(import name, source file) of ``module_name`` and of the modules it imports from its own
+    top-level package or from usdbake (read from the import statements), transitively, by name."""
     roots = {__name__.split(".")[0], module_name.split(".")[0]}
     found: dict[str, Path] = {}
     pending = [module_name]
@@ -68,7 +71,7 @@ def library_modules(module_name: str) -> list[Path]:
         package = module.__package__ or ""
         for node in ast.walk(ast.parse(Path(source).read_text())):
             pending.extend(_imported_modules(node, package, roots))
-    return sorted(found.values())
+    return sorted(found.items())
 
 
 def _imported_modules(node: ast.AST, package: str, roots: set[str]) -> list[str]:
@@ -97,9 +100,10 @@ def _is_module(name: str) -> bool:
 
 @functools.lru_cache(maxsize=64)
 def _digest_files(stamped: tuple) -> str:
+    """sha256 over (import name, source bytes) of each module; the path and stamp only key this memo."""
     digest = hashlib.sha256()
-    for path, _, _ in stamped:
-        digest.update(path.encode())
+    for name, path, _, _ in stamped:
+        digest.update(name.encode())
         digest.update(Path(path).read_bytes())
     return digest.hexdigest()
 

@@ -185,7 +185,8 @@ def _pool_pass(jobs, options, workers: int, threads: int, done: dict, report) ->
     context = get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_set_worker_threads,
                              initargs=(threads,)) as pool:
-        futures = {pool.submit(bake_stage, source, output, options): (source, output) for source, output in jobs}
+        futures = {pool.submit(bake_stage, source, output, options): (source, output)
+                   for source, output in largest_first(jobs)}
         for future in as_completed(futures):
             job = futures[future]
             try:
@@ -196,6 +197,17 @@ def _pool_pass(jobs, options, workers: int, threads: int, done: dict, report) ->
             done[job] = outcome
             report(outcome)
     return broken
+
+
+def largest_first(jobs: list[tuple[str, str]]) -> list[tuple[str, str]]:
+    """Stages in the order to start them: the largest files first (a cheap stand-in for the longest
+    bakes), so the long ones do not end up last on one worker while the others wait."""
+    def size(job):
+        try:
+            return os.path.getsize(job[0])
+        except OSError:
+            return 0
+    return sorted(jobs, key=size, reverse=True)
 
 
 def _set_worker_threads(threads: int) -> None:
@@ -210,7 +222,7 @@ def _run_on_dask(client, jobs: list[tuple[str, str]], options: BatchOptions,
 
     futures = {client.submit(bake_stage, source, output, options, pure=False,
                              key=f"usdbake-stage-{index}-{Path(source).stem}"): (source, output)
-               for index, (source, output) in enumerate(jobs)}
+               for index, (source, output) in enumerate(largest_first(jobs))}
     done: dict = {}
     for future in dask_completed(list(futures), loop=client.loop):
         job = futures[future]

@@ -494,3 +494,37 @@ def test_only_dataclass_types_of_trusted_modules_are_resolved(name):
     with pytest.raises(ValueError):
         plain_data.resolve(name)
     assert plain_data.resolve("usdbake.core.products:RefinedScene") is RefinedScene
+
+
+PLUGIN = '''
+from usdbake.core import Processor, Result
+
+
+class Shared(Processor):
+    name = "shared_plugin"
+
+    def run(self, ctx):
+        return Result()
+'''
+
+
+def test_code_fingerprint_is_the_same_wherever_the_code_is_installed(tmp_path):
+    """Farm workers install usdbake (and plugins) in different folders; they must share cache entries."""
+    import subprocess
+    import sys
+
+    keys = []
+    for folder in ("install_a", "somewhere/else/install_b"):
+        root = tmp_path / folder
+        (root / "shared_plugin").mkdir(parents=True)
+        (root / "shared_plugin" / "__init__.py").write_text(PLUGIN)
+        code = ("from usdbake.core.cache import code_fingerprint; from shared_plugin import Shared; "
+                "print(code_fingerprint(Shared))")
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))}
+        done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+        keys.append(done.stdout.strip())
+    assert len(keys[0]) == 64 and keys[0] == keys[1]
+    (tmp_path / "install_a" / "shared_plugin" / "__init__.py").write_text(PLUGIN + "\n# edited\n")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path / "install_a")}
+    edited = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert edited.stdout.strip() != keys[0]  # the code itself still counts
