@@ -360,7 +360,7 @@ class TimedSceneChunks:
     """core.chunks.SceneChunks that times its maps, the BVH build kept apart (the in-process run)."""
 
     def __init__(self, inner, clock: dict):
-        self.inner, self.clock, self.stats = inner, clock, inner.stats
+        self.inner, self.clock = inner, clock
 
     def map(self, fn, items, *, progress=None, **static):
         started = time.perf_counter()
@@ -375,8 +375,6 @@ class TimedSceneChunks:
 
 class TimedInProcess:
     """The default runner (core.chunks.InProcess) with its maps timed."""
-
-    description = "in process (timed)"
 
     def __init__(self):
         self.clock = {"maps": 0.0, "map_calls": 0, "bvh_in_map": 0.0}

@@ -39,8 +39,6 @@ class SceneChunks:
 
     def __init__(self, tracer: Callable[[], object] | object):
         self._tracer = tracer
-        self.stats: dict[str, float] = {}
-        """Figures of the work sent out (tasks, bytes); empty in process."""
 
     @property
     def tracer(self):
@@ -59,8 +57,6 @@ class SceneChunks:
 
 class InProcess:
     """The default runner: every chunk here, on the scene's shared tracer."""
-
-    description = "in process"
 
     def for_scene(self, scene, tracer, *, device: str = "cpu", threads: int | None = None) -> SceneChunks:
         return SceneChunks(tracer)

@@ -22,7 +22,7 @@ from typing import Callable
 from ..core.errors import UsageError
 from ..core.pipeline import Pipeline, ProcessorFailed
 from ..stages.bake_file import BakeReport, bake_file
-from .cluster import connect, start_warp_quietly
+from .cluster import WORKER_THREADS_VARIABLE, connect, start_warp_quietly, worker_threads
 
 BAKED, UP_TO_DATE, FAILED = "baked", "up to date", "failed"
 WORKER_DIED = ("the worker process died while baking it (out of memory, or a crash in native code); "
@@ -114,20 +114,13 @@ def bake_stage(input_path: str, output: str, options: BatchOptions) -> StageOutc
     """Bake one stage in a worker; a failure is returned as the outcome, never raised."""
     start_warp_quietly(options.device)
     try:
-        report = bake_file(input_path, output, options.pipeline(_worker_threads()), time_code=options.time_code,
+        report = bake_file(input_path, output, options.pipeline(worker_threads()), time_code=options.time_code,
                            allow_missing=options.allow_missing, deinstance=options.deinstance)
     except (UsageError, ProcessorFailed) as error:
         return StageOutcome(input_path, output, FAILED, error=str(error))
     except Exception as error:  # any fault of this stage is this stage's failure, not the batch's
         return StageOutcome(input_path, output, FAILED, error=f"{type(error).__name__}: {error}")
     return StageOutcome(input_path, output, UP_TO_DATE if report.up_to_date else BAKED, report=report)
-
-
-def _worker_threads() -> int | None:
-    """Ray threads for a stage: the Dask worker's threads, or a pool worker's share of the cores."""
-    from .chunks import _worker_threads as dask_threads
-
-    return dask_threads() or int(os.environ.get("USDBAKE_WORKER_THREADS", "0")) or None
 
 
 def bake_many(paths: list[str], output_dir: str | None = None, *, processors=None, params=None,
@@ -211,8 +204,8 @@ def largest_first(jobs: list[tuple[str, str]]) -> list[tuple[str, str]]:
 
 
 def _set_worker_threads(threads: int) -> None:
-    """Pool worker initializer: its share of the cores (read by _worker_threads)."""
-    os.environ["USDBAKE_WORKER_THREADS"] = str(threads)
+    """Pool worker initializer: its share of the cores (read by cluster.worker_threads)."""
+    os.environ[WORKER_THREADS_VARIABLE] = str(threads)
 
 
 def _run_on_dask(client, jobs: list[tuple[str, str]], options: BatchOptions,

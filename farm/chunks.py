@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 
 from ..core.chunks import chunk_bounds, concatenate_parts
-from .cluster import worker_count
+from .cluster import start_warp_quietly, worker_count, worker_threads
 
 TASKS_PER_WORKER = 4
 """Default chunks per worker and map: enough to balance uneven chunks, few enough to keep per-task
@@ -34,21 +34,10 @@ goes to every worker once per map, not once per task."""
 def run_chunk(fn: Callable, scene, device: str, first: int, items: tuple, static: dict):
     """On a worker: ``fn`` over one chunk with the worker's BVH of ``scene`` (built on its first task)."""
     from ..kernels.tracer import shared_tracer
-    from .cluster import start_warp_quietly
 
     start_warp_quietly(device)
-    tracer = shared_tracer(scene, device=device, threads=_worker_threads())
+    tracer = shared_tracer(scene, device=device, threads=worker_threads())
     return fn(tracer, first, *items, **static)
-
-
-def _worker_threads() -> int | None:
-    """The Dask worker's thread count, so 2 workers x 1 thread on 2 cores do not run 4 ray threads."""
-    try:
-        from distributed import get_worker
-
-        return get_worker().state.nthreads
-    except (ImportError, ValueError, AttributeError):
-        return None
 
 
 class DaskChunks:
@@ -89,7 +78,6 @@ class DaskSceneChunks:
 
     def __init__(self, runner: DaskChunks, scene, device: str):
         self.runner, self.scene, self.device = runner, scene, device
-        self.stats = runner.stats
 
     def map(self, fn: Callable, items: tuple[np.ndarray, ...], *, progress: Callable[[float], None] | None = None,
             **static):
@@ -103,19 +91,20 @@ class DaskSceneChunks:
         bounds = chunk_bounds(count, size) or [(0, 0)]  # no items: one empty chunk gives the empty result's shape
         scene = self.runner.scene_future(self.scene)
         static = {name: self._shared(value) for name, value in static.items()}
+        stats = self.runner.stats
         token = uuid.uuid4().hex[:8]
         futures = []
         for lo, hi in bounds:
             part = tuple(np.ascontiguousarray(a[lo:hi]) for a in items)
-            self.stats["item_bytes"] += sum(a.nbytes for a in part)
+            stats["item_bytes"] += sum(a.nbytes for a in part)
             futures.append(client.submit(run_chunk, fn, scene, self.device, lo, part, static, pure=False,
                                          key=f"usdbake-{fn.__name__}-{token}-{lo}"))
-        self.stats["tasks"] += len(futures)
+        stats["tasks"] += len(futures)
         for done, _ in enumerate(as_completed(futures, loop=client.loop), start=1):
             if progress:
                 progress(done / len(futures))
         parts = client.gather(futures)  # in submission order: item order
-        self.stats["result_bytes"] += sum(sum(a.nbytes for a in p) if isinstance(p, tuple) else p.nbytes
+        stats["result_bytes"] += sum(sum(a.nbytes for a in p) if isinstance(p, tuple) else p.nbytes
                                           for p in parts)
         return concatenate_parts(parts)
 
@@ -127,7 +116,7 @@ class DaskSceneChunks:
         size = array_nbytes(value)
         if size <= SCATTER_BYTES:
             return value
-        self.stats["static_bytes"] += size
+        self.runner.stats["static_bytes"] += size
         return self.runner.client.scatter(value, broadcast=True, hash=False)
 
 

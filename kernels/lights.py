@@ -37,6 +37,7 @@ the UsdLux schema for each light's quantities.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -450,9 +451,20 @@ class SceneLighting:
     """Shadow rays of one ``direct_irradiance`` call with one sample per light."""
 
 
+_LIGHTING: dict[tuple[int, str, str], SceneLighting] = {}
+
+
 def scene_lighting(scene: Scene, device, *, emissive: str = "auto") -> SceneLighting:
-    return SceneLighting(surface_bundle(scene, device), light_bundle(scene, device, emissive=emissive),
-                         shadow_rays_per_point(scene, emissive=emissive))
+    """The scene's lighting on ``device``: built on first use, then shared by every processor, pass and
+    chunk of the scene (as ``tracer.shared_tracer`` shares its BVH), and dropped with the scene."""
+    key = (id(scene), str(wp.get_device(device)), emissive)
+    lighting = _LIGHTING.get(key)
+    if lighting is None:
+        lighting = SceneLighting(surface_bundle(scene, device), light_bundle(scene, device, emissive=emissive),
+                                 shadow_rays_per_point(scene, emissive=emissive))
+        _LIGHTING[key] = lighting
+        weakref.finalize(scene, _LIGHTING.pop, key, None)
+    return lighting
 
 
 def shadow_rays_per_point(scene: Scene, *, strata: int = 1, sky_strata: int = 1, emissive: str = "auto") -> int:

@@ -53,6 +53,8 @@ the exact part (measured: 0.6 % of cornell_box's entries at 2k patches; 0.8 of t
 before, by texels of another hue than their block's colour line)."""
 ROW_SCALE_LIMIT = 4.0
 """Bound on the row-sum correction factor (a row whose decoded sum is off by more is left clipped)."""
+DECODE_ROWS = 256
+"""Rows ``stored_operator`` decodes at a time (bounds its temporaries to ~12 * 256 * n bytes)."""
 SIGNATURE_DIMS = 256
 """Reordering compares rows by L1 distance over at most this many column groups (means), keeping
 the greedy pass O(n^2 * 256) instead of O(n^3)."""
@@ -218,7 +220,7 @@ def compress_operator(operator: np.ndarray, *, exact_fraction: float = 0.04, log
         sparse_values=np.zeros((0, 3), np.float32), lut=lut, log_scale=scale, log_offset=offset,
         quantization=quantization, row_scale=np.ones((n, 3), np.float32))
     residual_stored = residual[:, perm][:, :, perm]
-    raw = decoded_residual(compressed)  # (3, n, n) stored order, row_scale 1
+    raw = stored_operator(compressed)  # (3, n, n) the BC1 part in stored order (no sparse part yet, scale 1)
     coded = ~exact_p
     for _ in range(2):  # promote by the error after the row correction the remaining entries get
         row_scale = _row_scale(raw, residual_stored, coded) if row_correction else compressed.row_scale
@@ -262,13 +264,6 @@ def _row_scale(decoded: np.ndarray, residual_stored: np.ndarray, coded: np.ndarr
     return np.clip(ratio, 1.0 / ROW_SCALE_LIMIT, ROW_SCALE_LIMIT).T.astype(np.float32).copy()
 
 
-def decoded_residual(compressed: CompressedOperator) -> np.ndarray:
-    """(3, n, n) float32 BC1 part decoded in stored order, row_scale applied (tests and figures only)."""
-    n, n4 = compressed.size, compressed.padded
-    codes = blocks_to_image(decode_bc1_texels(compressed.blocks), n4, n4)[:n, :n]
-    return np.moveaxis(compressed.lut[codes] * compressed.row_scale[:, None, :], -1, 0)
-
-
 def compression_errors(decoded: np.ndarray, residual_stored: np.ndarray, vmax: float, coded: np.ndarray) -> dict:
     """Thesis-style errors of the BC1 part over its coded entries, normalized by the largest residual value.
 
@@ -282,12 +277,26 @@ def compression_errors(decoded: np.ndarray, residual_stored: np.ndarray, vmax: f
             "error_sum": float(err.sum(dtype=np.float64))}
 
 
-def decompress_operator(compressed: CompressedOperator) -> np.ndarray:
-    """(3, n, n) float32 operator in patch order, decoded (reference for tests; relight never does this)."""
-    stored = decoded_residual(compressed)
-    n = compressed.size
+def stored_operator(compressed: CompressedOperator) -> np.ndarray:
+    """(3, n, n) float32 operator in stored order (the BC1 part with its row correction, plus the exact
+    sparse part), decoded DECODE_ROWS rows at a time so the temporaries stay small."""
+    n, n4 = compressed.size, compressed.padded
+    blocks = np.ascontiguousarray(compressed.blocks, np.uint8).reshape(n4 // 4, n4 // 4, 8)
+    out = np.empty((3, n, n), np.float32)
+    for lo in range(0, n, DECODE_ROWS):  # DECODE_ROWS is a multiple of 4: a strip is whole block rows
+        hi = min(n, lo + DECODE_ROWS)
+        strip = blocks[lo // 4:(hi + 3) // 4]
+        codes = blocks_to_image(decode_bc1_texels(strip.reshape(-1, 8)), 4 * len(strip), n4)[:hi - lo, :n]
+        values = compressed.lut[codes] * compressed.row_scale[lo:hi, None, :]
+        out[:, lo:hi] = np.moveaxis(values, -1, 0)
     rows = np.repeat(np.arange(n), np.diff(compressed.sparse_indptr))
-    stored[:, rows, compressed.sparse_indices] += compressed.sparse_values.T
+    out[:, rows, compressed.sparse_indices] += compressed.sparse_values.T
+    return out
+
+
+def decompress_operator(compressed: CompressedOperator) -> np.ndarray:
+    """(3, n, n) float32 operator in patch order, decoded (``stored_operator`` permuted back)."""
+    stored = stored_operator(compressed)
     out = np.empty_like(stored)
     perm = compressed.permutation
     out[:, perm[:, None], perm[None, :]] = stored

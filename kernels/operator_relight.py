@@ -29,7 +29,8 @@ import os
 import numpy as np
 import warp as wp
 
-from .bc1 import bc1_palette_np, blocks_to_image, decode_bc1_texels
+from .bc1 import bc1_palette_np
+from .operator_codec import stored_operator
 from .tracer import launch_chunked
 
 wp.set_module_options({"enable_backward": False})
@@ -39,8 +40,6 @@ BUDGET_FRACTION = 0.25
 """Default memory budget of the run-time operator: this share of the machine's physical memory (not
 of the memory free now, which changes from run to run: the two forms differ in float rounding, and a
 bake should not depend on what else the machine was doing)."""
-DECODE_ROWS = 256
-"""Rows decoded at a time into the dense form (bounds the decode's temporaries to ~12 * 256 * n bytes)."""
 
 
 @wp.struct
@@ -157,23 +156,6 @@ def palette_blocks(blocks: np.ndarray) -> np.ndarray:
     return out
 
 
-def dense_stored(compressed) -> np.ndarray:
-    """(3, n, n) float32 operator in stored order (the BC1 part with its row correction, plus the exact
-    sparse part), decoded DECODE_ROWS rows at a time so the temporaries stay small."""
-    n, n4 = compressed.size, compressed.padded
-    blocks = np.ascontiguousarray(compressed.blocks, np.uint8).reshape(n4 // 4, n4 // 4, 8)
-    out = np.empty((3, n, n), np.float32)
-    for lo in range(0, n, DECODE_ROWS):  # DECODE_ROWS is a multiple of 4: a strip is whole block rows
-        hi = min(n, lo + DECODE_ROWS)
-        strip = blocks[lo // 4:(hi + 3) // 4]
-        codes = blocks_to_image(decode_bc1_texels(strip.reshape(-1, 8)), 4 * len(strip), n4)[:hi - lo, :n]
-        values = compressed.lut[codes] * compressed.row_scale[lo:hi, None, :]
-        out[:, lo:hi] = np.moveaxis(values, -1, 0)
-    rows = np.repeat(np.arange(n), np.diff(compressed.sparse_indptr))
-    out[:, rows, compressed.sparse_indices] += compressed.sparse_values.T
-    return out
-
-
 def physical_memory() -> int:
     """Bytes of physical memory (Linux/macOS sysconf); 0 where it cannot be read."""
     try:
@@ -218,7 +200,7 @@ class Relighter:
         if self.form == DENSE and self.device.is_cuda:
             raise ValueError("the dense relight runs on the CPU (numpy BLAS); use form='compressed' on CUDA")
         if self.form == DENSE:
-            self.matrix = dense_stored(compressed)
+            self.matrix = stored_operator(compressed)
             self.x = np.zeros((3, self.size, 1), np.float32)  # channel-major: one batched BLAS call
             return
         self.op = CompressedRows()

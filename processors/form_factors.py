@@ -245,10 +245,11 @@ def compute_form_factors(tracer, patches: Patches, tri_normals: np.ndarray, *, r
     return (counts / rays).reshape(last - first, n).astype(np.float32)
 
 
-def form_factor_rows_chunk(tracer, first: int, patch_ids: np.ndarray, *, patches: Patches, tri_normals: np.ndarray,
-                           rays: int, seed: int) -> np.ndarray:
-    """Rows first .. first + len(patch_ids) - 1 of ``compute_form_factors``: one chunk (core.chunks)."""
-    return compute_form_factors(tracer, patches, tri_normals, rays=rays, seed=seed,
+def form_factor_rows_chunk(tracer, first: int, patch_ids: np.ndarray, *, scene: Scene, patches: Patches, rays: int,
+                           seed: int) -> np.ndarray:
+    """Rows first .. first + len(patch_ids) - 1 of ``compute_form_factors``: one chunk (core.chunks). The
+    scene's triangle normals come with the scene, which a cluster worker already holds."""
+    return compute_form_factors(tracer, patches, scene.tri_normals, rays=rays, seed=seed,
                                 rows=(first, first + len(patch_ids)))
 
 
@@ -318,8 +319,8 @@ def precompute(tracer, scene: Scene, p, progress=lambda f: None, chunks=None) ->
                             scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=scene.tri_prim)
     progress(0.05)
     chunks = chunks if chunks is not None else SceneChunks(tracer)
-    form = chunks.map(form_factor_rows_chunk, (np.arange(patches.count),), patches=patches,
-                      tri_normals=scene.tri_normals, rays=p.rays, seed=p.seed,
+    form = chunks.map(form_factor_rows_chunk, (np.arange(patches.count),), scene=scene, patches=patches,
+                      rays=p.rays, seed=p.seed,
                       progress=lambda f: progress(0.05 + 0.6 * f))
     checks = form_factor_checks(form, patches.patch_areas)
     operator = multibounce_operator(form, patches.patch_albedo, bounces=p.bounces, infinite=p.infinite)
