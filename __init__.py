@@ -64,6 +64,9 @@ def init_warp(device: str = "cpu") -> None:
     with banner_off:
         if str(device).startswith("cuda"):
             wp.init()
+            # A failed launch (too many registers for the block, out of memory) otherwise passes silently and
+            # leaves its outputs unwritten; usdbake synchronizes after its launches anyway.
+            wp.config.verify_cuda = True
             return
         with _native_stderr_without(CUDA_DRIVER_NOTICE):
             wp.init()

@@ -36,6 +36,9 @@ from .tracer import launch_chunked
 wp.set_module_options({"enable_backward": False})
 
 DENSE, COMPRESSED = "dense", "compressed"
+CUDA_LANES = 32
+"""Work items per block row on CUDA (one warp): a block row is too little work for a GPU thread, and
+one item per row leaves most of the GPU idle below ~10^5 patches."""
 BUDGET_FRACTION = 0.25
 """Default memory budget of the run-time operator: this share of the machine's physical memory (not
 of the memory free now, which changes from run to run: the two forms differ in float rounding, and a
@@ -95,51 +98,94 @@ def block_row_product(bits: int, palette: BlockPalette, x0: wp.vec3, x1: wp.vec3
                    b[c0] * x0[2] + b[c1] * x1[2] + b[c2] * x2[2] + b[c3] * x3[2])
 
 
+@wp.struct
+class BlockRowSums:
+    """Partial sums of the 4 stored rows of one block row."""
+
+    y0: wp.vec3
+    y1: wp.vec3
+    y2: wp.vec3
+    y3: wp.vec3
+
+
 @wp.func
-def finish_block_row(op: CompressedRows, br: int, y0: wp.vec3, y1: wp.vec3, y2: wp.vec3, y3: wp.vec3,
-                     x: wp.array(dtype=wp.vec3), y: wp.array(dtype=wp.vec3)):
-    """Rows 4 br .. 4 br + 3 of y: the decoded BC1 part times the row-sum correction, plus the exact sparse
-    part (section 4.2: the top values are kept exact, the rest log-quantized in BC1 blocks)."""
-    for r in range(4):
-        row = 4 * br + r
-        if row < op.size:
-            acc = wp.where(r >= 2, wp.where(r == 3, y3, y2), wp.where(r == 1, y1, y0))
-            acc = wp.cw_mul(acc, op.row_scale[row])
-            for e in range(op.indptr[row], op.indptr[row + 1]):
-                acc += wp.cw_mul(op.values[e], x[op.indices[e]])
-            y[row] = acc
+def add_block(op: CompressedRows, k: int, bx: int, x: wp.array(dtype=wp.vec3), sums: BlockRowSums) -> BlockRowSums:
+    """``sums`` plus block ``k`` (block column ``bx``) times x: its palette's 12 byte codes through the code
+    table, then each of the 16 texels adds palette[code] * x_j; the float matrix is never formed."""
+    palette = BlockPalette()
+    palette.red = channel_values(op.lut, int(op.blocks[k, 1]))
+    palette.green = channel_values(op.lut, int(op.blocks[k, 2]))
+    palette.blue = channel_values(op.lut, int(op.blocks[k, 3]))
+    bits = int(op.blocks[k, 0])
+    j = 4 * bx
+    x0 = x[j]
+    x1 = x[j + 1]
+    x2 = x[j + 2]
+    x3 = x[j + 3]
+    out = BlockRowSums()
+    out.y0 = sums.y0 + block_row_product(bits & 255, palette, x0, x1, x2, x3)
+    out.y1 = sums.y1 + block_row_product((bits >> 8) & 255, palette, x0, x1, x2, x3)
+    out.y2 = sums.y2 + block_row_product((bits >> 16) & 255, palette, x0, x1, x2, x3)
+    out.y3 = sums.y3 + block_row_product((bits >> 24) & 255, palette, x0, x1, x2, x3)
+    return out
+
+
+@wp.func
+def zero_sums() -> BlockRowSums:
+    sums = BlockRowSums()
+    sums.y0 = wp.vec3(0.0, 0.0, 0.0)
+    sums.y1 = wp.vec3(0.0, 0.0, 0.0)
+    sums.y2 = wp.vec3(0.0, 0.0, 0.0)
+    sums.y3 = wp.vec3(0.0, 0.0, 0.0)
+    return sums
+
+
+@wp.func
+def row_total(op: CompressedRows, row: int, sums: BlockRowSums, r: int, exact: bool,
+              x: wp.array(dtype=wp.vec3)) -> wp.vec3:
+    """Row ``row`` (the block row's r-th) of the product: the decoded BC1 part times the row-sum
+    correction, plus, with ``exact``, the exact sparse part (section 4.2: the top values are kept exact,
+    the rest log-quantized in BC1 blocks)."""
+    acc = wp.where(r >= 2, wp.where(r == 3, sums.y3, sums.y2), wp.where(r == 1, sums.y1, sums.y0))
+    acc = wp.cw_mul(acc, op.row_scale[row])
+    if exact:
+        for e in range(op.indptr[row], op.indptr[row + 1]):
+            acc += wp.cw_mul(op.values[e], x[op.indices[e]])
+    return acc
 
 
 @wp.kernel
 def relight_blocks_kernel(start: int, op: CompressedRows, x: wp.array(dtype=wp.vec3), y: wp.array(dtype=wp.vec3)):
-    """y = M x for the 4 stored rows of block row ``start + tid`` (stored order, x padded to 4).
-
-    Per block: its palette's 12 byte codes through the code table, then each of the 16 texels adds
-    palette[code] * x_j; the float matrix is never formed.
-    """
+    """y = M x for the 4 stored rows of block row ``start + tid`` (stored order, x padded to 4): one
+    work item a block row, summed in a fixed order (the CPU form: as many items as threads suffice)."""
     br = start + wp.tid()
-    y0 = wp.vec3(0.0, 0.0, 0.0)
-    y1 = wp.vec3(0.0, 0.0, 0.0)
-    y2 = wp.vec3(0.0, 0.0, 0.0)
-    y3 = wp.vec3(0.0, 0.0, 0.0)
+    sums = zero_sums()
     base = br * op.blocks_per_row
     for bx in range(op.blocks_per_row):
-        k = base + bx
-        palette = BlockPalette()
-        palette.red = channel_values(op.lut, int(op.blocks[k, 1]))
-        palette.green = channel_values(op.lut, int(op.blocks[k, 2]))
-        palette.blue = channel_values(op.lut, int(op.blocks[k, 3]))
-        bits = int(op.blocks[k, 0])
-        j = 4 * bx
-        x0 = x[j]
-        x1 = x[j + 1]
-        x2 = x[j + 2]
-        x3 = x[j + 3]
-        y0 += block_row_product(bits & 255, palette, x0, x1, x2, x3)
-        y1 += block_row_product((bits >> 8) & 255, palette, x0, x1, x2, x3)
-        y2 += block_row_product((bits >> 16) & 255, palette, x0, x1, x2, x3)
-        y3 += block_row_product((bits >> 24) & 255, palette, x0, x1, x2, x3)
-    finish_block_row(op, br, y0, y1, y2, y3, x, y)
+        sums = add_block(op, base + bx, bx, x, sums)
+    for r in range(4):
+        row = 4 * br + r
+        if row < op.size:
+            y[row] = row_total(op, row, sums, r, True, x)
+
+
+@wp.kernel
+def relight_lanes_kernel(start: int, op: CompressedRows, lanes: int, x: wp.array(dtype=wp.vec3),
+                         y: wp.array(dtype=wp.vec3)):
+    """y += M x with ``lanes`` work items per block row (the GPU form; y zeroed before): item (br, lane)
+    sums the block columns lane, lane + lanes, ..., so neighbouring items read neighbouring 16-byte blocks
+    (coalesced), and adds its 4 partial rows atomically; lane 0 adds the exact sparse part."""
+    item = start + wp.tid()
+    br = item // lanes
+    lane = item % lanes
+    sums = zero_sums()
+    base = br * op.blocks_per_row
+    for bx in range(lane, op.blocks_per_row, lanes):
+        sums = add_block(op, base + bx, bx, x, sums)
+    for r in range(4):
+        row = 4 * br + r
+        if row < op.size:
+            wp.atomic_add(y, row, row_total(op, row, sums, r, lane == 0, x))
 
 
 def palette_blocks(blocks: np.ndarray) -> np.ndarray:
@@ -188,7 +234,7 @@ class Relighter:
     docstring; ``relight_form`` picks by the memory budget); ``apply(E0)`` -> indirect irradiance."""
 
     def __init__(self, compressed, *, device="cpu", threads: int = 1, memory_budget: int | None = None,
-                 form: str | None = None):
+                 form: str | None = None, lanes: int | None = None):
         self.size = compressed.size
         self.padded = compressed.padded
         self.device = wp.get_device(device)
@@ -203,6 +249,8 @@ class Relighter:
             self.matrix = stored_operator(compressed)
             self.x = np.zeros((3, self.size, 1), np.float32)  # channel-major: one batched BLAS call
             return
+        self.lanes = (CUDA_LANES if self.device.is_cuda else 0) if lanes is None else int(lanes)
+        """Work items per block row: 0 = relight_blocks_kernel (CPU), else relight_lanes_kernel (CUDA)."""
         self.op = CompressedRows()
         self.op.blocks = wp.array(palette_blocks(compressed.blocks), dtype=wp.uint32, device=self.device)
         self.op.blocks_per_row = self.padded // 4
@@ -228,7 +276,12 @@ class Relighter:
         """y = M x in stored order on the buffers of the run-time form; what the relight timing measures."""
         if self.form == DENSE:
             return np.matmul(self.matrix, self.x)[:, :, 0].T
-        launch_rows(relight_blocks_kernel, self.padded // 4, [self.op, self.x, self.y], self.device, self.threads)
+        if self.lanes > 0:
+            self.y.zero_()
+            launch_rows(relight_lanes_kernel, self.padded // 4 * self.lanes, [self.op, self.lanes, self.x, self.y],
+                        self.device, self.threads)
+        else:
+            launch_rows(relight_blocks_kernel, self.padded // 4, [self.op, self.x, self.y], self.device, self.threads)
         return None
 
     def apply(self, irradiance: np.ndarray) -> np.ndarray:

@@ -236,6 +236,10 @@ def compute_form_factors(tracer, patches: Patches, tri_normals: np.ndarray, *, r
                        [tracer.scene, rays, strata, stride, *arrays, tracer.epsilon, seed, lo * rays, hit],
                        device=tracer.device, threads=tracer.threads, offset=lo * rays)
         hits = hit.numpy()
+        if hits.size and int(hits.max()) >= n:
+            raise RuntimeError(f"form factors on {device}: ray hits name patch {int(hits.max())} of {n}; the "
+                               f"closest-hit traversal is not reliable on this device (see docs/radiosity.md, "
+                               f"CUDA); run with --device cpu")
         source = np.repeat(np.arange(lo - first, hi - first, dtype=np.int64), rays)
         ok = hits >= 0
         counts += np.bincount(source[ok] * n + hits[ok], minlength=len(counts))

@@ -1,0 +1,130 @@
+"""Radiosity on a CUDA device: precompute and relight at 2k-16k patches, compressed vs dense (issue 17).
+
+Not a ``bench_`` module (the CPU smoke run would meet no GPU): run it where one is,
+``python -m usdbake.benchmarks.gpu_relight OUT.json [target_patches ...]``. Per patch count on atrium:
+the precompute (form factors traced on the device; operator products, reordering and BC1 on the
+CPU) and its parts, then y = M x timed (best of ROUNDS, device synchronized) four ways:
+
+- the compressed kernel on the device (``Relighter``, the thesis' in-kernel decode);
+- the same product as a dense float32 Warp kernel on the device (bench_radiosity's baseline);
+- cuBLAS through torch on the dense operator, where torch is installed (the memory-bound bound);
+- numpy BLAS on the host's cores (what the CPU relight does when the operator fits).
+
+Results are written after every patch count, so a run stopped by a time limit keeps what it measured.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+
+import numpy as np
+import warp as wp
+
+from . import harness
+from .bench_radiosity import relight_dense_kernel
+from usdbake import init_warp
+from usdbake.kernels.operator_relight import COMPRESSED, Relighter, dense_nbytes
+from usdbake.kernels.tracer import Tracer
+from usdbake.processors import form_factors as ff
+
+ROUNDS = 30
+
+
+def best_seconds(function, rounds: int, sync) -> float:
+    function()
+    sync()
+    best = float("inf")
+    for _ in range(rounds):
+        started = time.perf_counter()
+        function()
+        sync()
+        best = min(best, time.perf_counter() - started)
+    return best
+
+
+def timed_precompute(tracer, scene, params):
+    """The precompute split into its parts, with their seconds."""
+    from usdbake.geometry.patches import build_patches, choose_voxel_size
+    from usdbake.kernels.operator_codec import compress_operator
+
+    seconds = {}
+    started = time.perf_counter()
+    voxel = choose_voxel_size(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
+                              params.target_patches, scene.tri_prim)
+    patches = build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
+                            scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=scene.tri_prim)
+    seconds["patches"] = time.perf_counter() - started
+    started = time.perf_counter()
+    form = ff.compute_form_factors(tracer, patches, scene.tri_normals, rays=params.rays, seed=params.seed)
+    wp.synchronize_device(tracer.device)
+    seconds["form_factors"] = time.perf_counter() - started
+    started = time.perf_counter()
+    operator = ff.multibounce_operator(form, patches.patch_albedo, bounces=params.bounces)
+    seconds["operator"] = time.perf_counter() - started
+    started = time.perf_counter()
+    compressed = compress_operator(operator, exact_fraction=params.exact_fraction,
+                                   reorder_passes=params.reorder_passes, max_error=params.max_error)
+    seconds["compression"] = time.perf_counter() - started
+    return patches, operator, compressed, seconds
+
+
+def measure(scene, device: str, target: int) -> dict:
+    tracer = Tracer.from_scene(scene, device=device)
+    params = ff.FormFactors.Params(target_patches=target)
+    patches, operator, op, seconds = timed_precompute(tracer, scene, params)
+    n = op.size
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0, 1, (n, 3)).astype(np.float32)
+    sync = lambda: wp.synchronize_device(device)  # noqa: E731
+    relighter = Relighter(op, device=device, form=COMPRESSED)
+    y_compressed = relighter.apply(x)
+    row = {"patches": n, "precompute_s": sum(seconds.values()), **{f"{k}_s": v for k, v in seconds.items()},
+           "dense_mb": dense_nbytes(n) / 2**20, "compressed_runtime_mb": relighter.nbytes / 2**20,
+           "stored_mb": op.nbytes / 2**20}
+    row["compressed_ms"] = 1e3 * best_seconds(relighter.apply_stored, ROUNDS, sync)
+    dense_host = np.ascontiguousarray(np.moveaxis(operator, 0, -1))  # (n, n, 3)
+    y_dense = np.einsum("cij,jc->ic", operator, x)
+    row["compressed_vs_dense"] = harness.relative_rms(y_compressed, y_dense)
+    matrix = wp.array(dense_host, dtype=wp.vec3, device=device)
+    x_wp, y_wp = wp.array(x, dtype=wp.vec3, device=device), wp.zeros(n, dtype=wp.vec3, device=device)
+    row["dense_warp_ms"] = 1e3 * best_seconds(
+        lambda: wp.launch(relight_dense_kernel, dim=n, inputs=[0, matrix, x_wp, y_wp], device=device), ROUNDS, sync)
+    del matrix
+    try:
+        import torch
+
+        m_t = torch.from_numpy(np.ascontiguousarray(operator)).to("cuda")  # (3, n, n)
+        x_t = torch.from_numpy(np.ascontiguousarray(x.T[:, :, None])).to("cuda")
+        row["dense_cublas_ms"] = 1e3 * best_seconds(lambda: torch.bmm(m_t, x_t), ROUNDS, torch.cuda.synchronize)
+        del m_t, x_t
+        torch.cuda.empty_cache()
+    except ImportError:
+        row["dense_cublas_ms"] = None
+    m_rgb = np.ascontiguousarray(operator)
+    x_cols = np.ascontiguousarray(x.T[:, :, None])
+    row["dense_numpy_host_ms"] = 1e3 * best_seconds(lambda: np.matmul(m_rgb, x_cols), 5, lambda: None)
+    row["compressed_vs_dense_warp"] = row["dense_warp_ms"] / row["compressed_ms"]
+    return row
+
+
+def main(argv: list[str]) -> None:
+    out = argv[0]
+    targets = [int(t) for t in argv[1:]] or [2000, 5000, 10000, 16000]
+    device = os.environ.get("USDBAKE_GPU_DEVICE", "cuda:0")
+    init_warp(device)
+    scene = harness.load_scene("atrium")
+    report = {"device": wp.get_device(device).name, "host_cores": os.cpu_count(), "rows": []}
+    for target in targets:
+        started = time.perf_counter()
+        report["rows"].append(measure(scene, device, target))
+        report["rows"][-1]["wall_s"] = time.perf_counter() - started
+        print(json.dumps(report["rows"][-1]), flush=True)
+        with open(out, "w") as handle:
+            json.dump(report, handle, indent=1)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
