@@ -89,7 +89,7 @@ def cornell_sweep(quick: bool):
         points.append({
             "label": f"{product.patches.count} patches", "seconds": pre + apply, "error": error,
             "default": target == default, "patches": product.patches.count, "precompute_s": pre,
-            "apply_s": apply, "dense_error": harness.relative_rms(dense_vertex, reference),
+            "apply_s": apply, "transfer_share": solved["transfer_seconds"] / (pre + apply), "dense_error": harness.relative_rms(dense_vertex, reference),
             "compressed_vs_dense_patches": harness.relative_rms(e_patch, dense_patch),
             "compressed_vs_dense_vertices": harness.relative_rms(e_vertex, dense_vertex),
             "memory_ratio": product.operator.stats["memory_ratio"],
@@ -250,12 +250,72 @@ def sky_lit_window_room(paths: int) -> dict:
     return figures
 
 
+ROOM_POINTS, ROOM_PATHS = 2000, 8192
+"""Random surface points of the furnished room, and reference paths per point (two 4096-path runs differ by a
+median 2.5 % in indirect irradiance)."""
+
+
+def median_relative(estimate: np.ndarray, reference: np.ndarray) -> float:
+    """Median over points of |e - r| / r of the channel-mean irradiance, points with r > 0 (W/m^2)."""
+    e, r = estimate.mean(axis=1), reference.mean(axis=1)
+    lit = r > 1e-6 * max(float(r.max()), 1e-30)
+    return float(np.median(np.abs(e[lit] - r[lit]) / r[lit]))
+
+
+def furnished_room(quick: bool) -> dict:
+    """Total irradiance at random points on the furnished room's surfaces (sky through four windows, 6 x 5 m
+    floor of two triangles, 200 m ground) against the path tracer: the bake as `usdbake bake -p
+    sky_visibility -p radiosity` runs it (the sky-visibility refinement, form factors and radiosity on the
+    refined mesh; ``sky_visibility.size_reference = detail``: face sizes relative to the room, not the ground), read at the points by linear interpolation of the vertex values; and the same without
+    the refinement. The transfer's share is the final gather's time over the whole bake (all three steps)."""
+    from usdbake.core.pipeline import Pipeline
+    from usdbake.core.products import FormFactorProduct, RadiosityProduct, RefinedScene
+    from usdbake.stages.extract import extract_scene
+
+    from . import furnished_room as room
+
+    scene = extract_scene(room.build())
+    tracer = Tracer.from_scene(scene)
+    count, paths = (500, 2048) if quick else (ROOM_POINTS, ROOM_PATHS)
+    points, normals = room.room_points(scene, count, seed=5)
+    bounces = ff.FormFactors.Params().bounces + 1  # the final gather's reflection on top of the operator's k
+    reference = harness.cached_reference(
+        "radiosity_furnished_room", {"points": count, "paths": paths, "bounces": bounces, "seed": 7, "v": 1},
+        lambda: {"direct": rad.compute_direct_irradiance(tracer, scene, points, normals, sky_samples=16384, seed=9),
+                 "indirect": path_traced_indirect(tracer, scene, points, normals, paths=paths, bounces=bounces)})
+    figures = {}
+    for label, names in (("refined", ["sky_visibility", "radiosity"]), ("unrefined", ["radiosity"])):
+        steps = Pipeline.build(names, {"sky_visibility": {"size_reference": "detail"}}).run(scene)
+        products = {k: v for step in steps if step.result for k, v in step.result.products.items()}
+        baked = products[RefinedScene].scene if RefinedScene in products else scene
+        baked_tracer = Tracer.from_scene(baked)
+        at = lambda values: room.interpolate_at(baked_tracer, baked, values, points + (scene.origin - baked.origin).astype(np.float32), normals)  # noqa: E731
+        result = products[RadiosityProduct]
+        direct, indirect = at(result.vertex_irradiance_direct), at(result.vertex_irradiance_indirect)
+        total_reference = reference["direct"] + reference["indirect"]
+        figures[f"room_{label}_total_median"] = median_relative(direct + indirect, total_reference)
+        figures[f"room_{label}_indirect_median"] = median_relative(indirect, reference["indirect"])
+        figures[f"room_{label}_direct_median"] = median_relative(direct, reference["direct"])
+        figures[f"room_{label}_total_bias"] = float(np.nanmean(direct + indirect) / total_reference.mean() - 1)
+        figures[f"room_{label}_triangles"] = baked.num_triangles
+        bake_seconds = sum(step.seconds or 0.0 for step in steps)
+        figures[f"room_{label}_bake_s"] = bake_seconds
+        if label == "refined":  # the gather's share: the radiosity solve again on the same inputs, timed by part
+            ids = harness.receiver_points(baked)
+            solved = rad.solve(baked_tracer, baked, products[FormFactorProduct], rad.Radiosity.Params(), ids)
+            figures["room_transfer_s"] = solved["transfer_seconds"]
+            figures["room_transfer_share"] = solved["transfer_seconds"] / bake_seconds
+    figures["room_points"] = count
+    return figures
+
+
 def run(quick: bool = False) -> dict:
     fig = atrium_figures(quick)  # first: its peak-memory figure is the growth of the process's peak RSS
     points, extra, vertices, paths = cornell_sweep(quick)
     default = next((pt for pt in points if pt["default"]), points[-1])
     figures = {
         "cornell_error_default": default["error"],
+        "cornell_transfer_share_default": default["transfer_share"],
         "cornell_error_by_patches": {pt["patches"]: round(pt["error"], 4) for pt in points},
         "cornell_dense_error_by_patches": {pt["patches"]: round(pt["dense_error"], 4) for pt in points},
         "compressed_vs_uncompressed": default["compressed_vs_dense_patches"],
@@ -265,6 +325,7 @@ def run(quick: bool = False) -> dict:
         "cornell_error_default_interpolation_only": extra.get("interpolation_only_error"),
         **fig,
         **({} if quick else sky_lit_window_room(SKY_PATHS)),
+        **furnished_room(quick),
     }
     r = fig["reorder"]
     table = "\n".join([
@@ -296,6 +357,13 @@ def run(quick: bool = False) -> dict:
            f"{figures['sky_lit_perez_sun_error']:.3f} (mean ratio {figures['sky_lit_uniform_dome_mean_ratio']:.3f}"
            f" / {figures['sky_lit_perez_sun_mean_ratio']:.3f}) | <= 0.10 |"] if "sky_lit_uniform_dome_error" in figures
           else []),
+        f"| total irradiance vs path tracer at {figures['room_points']} random surface points of the furnished room "
+        f"(sky through 4 windows, 2-triangle floor, 200 m ground), median: sky_visibility refinement + radiosity / "
+        f"radiosity alone | {figures['room_refined_total_median']:.3f} / {figures['room_unrefined_total_median']:.3f} "
+        f"(bias {figures['room_refined_total_bias']:+.3f} / {figures['room_unrefined_total_bias']:+.3f}; indirect "
+        f"{figures['room_refined_indirect_median']:.3f} / {figures['room_unrefined_indirect_median']:.3f}) | <= 0.10 |",
+        f"| transfer (final gather) share of the bake: furnished room (all three steps) / cornell default | "
+        f"{figures['room_transfer_share']:.3f} / {figures['cornell_transfer_share_default']:.3f} | <= 0.25 |",
         f"| precompute atrium ({fig['atrium_triangles']} triangles) | {fig['atrium_precompute_s']:.1f} s, "
         f"peak +{fig['atrium_precompute_peak_mb']:.0f} MB | report |",
         "", "| patches | vs path tracer | dense operator vs path tracer | compressed vs dense |", "|---|---|---|---|",

@@ -78,3 +78,53 @@ def missing_receivers(scene: Scene) -> str:
     Meant for ``Processor.applies``: ``reason = missing_receivers(scene); return not reason, reason``.
     """
     return NO_RECEIVERS if len(receiver_prims(scene)) == 0 else ""
+
+
+BACKDROP_FACTOR = 4.0
+"""A receiver wider than all the others together by this factor on two axes is a backdrop (``backdrop_prims``)."""
+
+
+def prim_boxes(scene: Scene, prims: np.ndarray) -> np.ndarray:
+    """(K, 2, 3) float64 (min, max) of each prim's points."""
+    boxes = np.zeros((len(prims), 2, 3))
+    for row, prim in enumerate(prims):
+        points = scene.points[scene.prim_points(int(prim))].astype(np.float64)
+        boxes[row] = points.min(axis=0), points.max(axis=0)
+    return boxes
+
+
+def backdrop_prims(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(backdrops, the other receivers): a receiver is a backdrop (a ground plane, a sky dome mesh) when its
+    bounds exceed those of all other receivers together by BACKDROP_FACTOR on at least two axes. Probes
+    over a 200 m lawn around a 4 m room would leave the room without one."""
+    receivers = receiver_prims(scene)
+    if len(receivers) < 2:
+        return np.zeros(0, np.int64), receivers
+    boxes = prim_boxes(scene, receivers)
+    extent = boxes[:, 1] - boxes[:, 0]
+    # The union of all boxes but one, for every one at once: prefix and suffix minima / maxima.
+    inf = np.full((1, 3), np.inf)
+    low_before = np.concatenate([inf, np.minimum.accumulate(boxes[:, 0])[:-1]])
+    low_after = np.concatenate([np.minimum.accumulate(boxes[::-1, 0])[::-1][1:], inf])
+    high_before = np.concatenate([-inf, np.maximum.accumulate(boxes[:, 1])[:-1]])
+    high_after = np.concatenate([np.maximum.accumulate(boxes[::-1, 1])[::-1][1:], -inf])
+    rest_extent = np.maximum(high_before, high_after) - np.minimum(low_before, low_after)
+    backdrop = (extent > BACKDROP_FACTOR * np.maximum(rest_extent, 1e-30)).sum(axis=1) >= 2
+    return receivers[backdrop], receivers[~backdrop]
+
+
+def receiver_detail_box(scene: Scene) -> tuple[np.ndarray, np.ndarray] | None:
+    """(lo, hi) float64 bounds of the receivers that are not backdrops (``backdrop_prims``), in the Scene's
+    frame, or None when no receiver is a backdrop (or all are): where a bake's detail is."""
+    backdrops, others = backdrop_prims(scene)
+    if not (len(backdrops) and len(others)):
+        return None
+    boxes = prim_boxes(scene, others)
+    return boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)
+
+
+def detail_diagonal(scene: Scene) -> float:
+    """The diagonal of ``receiver_detail_box`` (the scene's without backdrops): the length that relative
+    sizes (smallest refined face, largest face) should scale with, not a ground plane's."""
+    box = receiver_detail_box(scene)
+    return scene.diagonal if box is None else float(np.linalg.norm(box[1] - box[0]))

@@ -32,6 +32,12 @@ MAX_SUBDIVISION = 64
 """Largest m (m^2 fragments) a triangle is split into: bounds fragment counts on huge ground planes."""
 MAX_FRAGMENTS = 8_000_000
 """Refuse voxel sizes that would split the scene into more fragments than this (~300 MB of corners)."""
+GRADE_DISTANCE = 4.0
+"""With a detail box (the receivers without the backdrops), a fragment farther than this many voxels from
+it clusters in voxels 2^L times larger, L = ceil(log2(distance / (GRADE_DISTANCE voxel))): a patch then
+spans at most ~1/4 radian seen from the detail, and a 200 m ground plane around a 6 m room costs a few
+rings of patches instead of the whole budget."""
+MAX_LEVEL = 12
 MAX_PATCHES = 16384
 """The operator is dense: 16384 patches already need 3.2 GB as float32 RGB during the precompute."""
 
@@ -75,22 +81,36 @@ def _fragments(points, tri_vertices, subdivision):
     return vertices, fragment_tri, start
 
 
+def fragment_levels(centres: np.ndarray, voxel: float, detail_box=None) -> np.ndarray:
+    """(Fr,) int64 voxel level of each fragment centre: 0 within GRADE_DISTANCE voxels of ``detail_box``
+    ((lo, hi) in the points' frame; None: 0 everywhere), else ceil(log2(distance / (GRADE_DISTANCE voxel)))."""
+    if detail_box is None:
+        return np.zeros(len(centres), np.int64)
+    lo, hi = (np.asarray(b, np.float64) for b in detail_box)
+    distance = np.linalg.norm(np.maximum(np.maximum(lo - centres, centres - hi), 0.0), axis=1)
+    ratio = np.maximum(distance / (GRADE_DISTANCE * voxel), 1.0)
+    return np.clip(np.ceil(np.log2(ratio)), 0, MAX_LEVEL).astype(np.int64)
+
+
 def _cluster_keys(centres: np.ndarray, normals: np.ndarray, lo: np.ndarray, voxel: float,
-                  groups: np.ndarray | None = None) -> np.ndarray:
-    """One key per fragment: (voxel, signed normal axis) packed in an int64, and the fragment's group
-    (its prim) as a second column when ``groups`` is given, so a patch never spans two prims."""
-    cell = np.floor((centres - lo) / voxel).astype(np.int64)
+                  groups: np.ndarray | None = None, levels: np.ndarray | None = None) -> np.ndarray:
+    """One key per fragment: (voxel, signed normal axis) packed in an int64, then the fragment's group
+    (its prim) when ``groups`` is given, so a patch never spans two prims, and its voxel level
+    (``fragment_levels``: voxels 2^level times larger) when ``levels`` is given."""
+    size = voxel if levels is None else voxel * np.exp2(levels.astype(np.float64))[:, None]
+    cell = np.floor((centres - lo) / size).astype(np.int64)
     cell = np.clip(cell, 0, (1 << 20) - 1)
     axis = np.abs(normals).argmax(axis=1)
     sign = np.take_along_axis(normals, axis[:, None], 1)[:, 0] < 0
     direction = axis * 2 + sign
     packed = ((cell[:, 0] << 43) | (cell[:, 1] << 23) | (cell[:, 2] << 3) | direction)
-    return packed if groups is None else np.column_stack([packed, np.asarray(groups, np.int64)])
+    columns = [packed] + ([] if groups is None else [np.asarray(groups, np.int64)]) + ([] if levels is None else [levels])
+    return packed if len(columns) == 1 else np.column_stack(columns)
 
 
 def build_patches(points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.ndarray, tri_areas: np.ndarray,
                   tri_albedo: np.ndarray, tri_emission: np.ndarray, *, voxel_size: float,
-                  tri_group: np.ndarray | None = None) -> Patches:
+                  tri_group: np.ndarray | None = None, detail_box=None) -> Patches:
     """Cluster triangle fragments into patches per voxel and per dominant normal axis.
 
     The voxelization of Shcherbakov (MSU 2017), section 5, precompute step 1,
@@ -105,6 +125,7 @@ def build_patches(points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.
     tri_group : (T,) int, optional; fragments of different groups (prims) never share a patch: a floor
         inside a wall and the ground outside it fall in one voxel with one normal, and a patch holding
         both would average the dark and the daylit side
+    detail_box : (lo, hi), optional; fragments farther from it cluster in coarser voxels (``fragment_levels``)
     """
     if not voxel_size > 0:
         raise ValueError(f"voxel_size={voxel_size} must be > 0")
@@ -121,7 +142,8 @@ def build_patches(points: np.ndarray, tri_vertices: np.ndarray, tri_normals: np.
     areas = (tri_areas[fragment_tri] / (subdivision[fragment_tri].astype(np.float64) ** 2))
     lo = points.min(axis=0).astype(np.float64) if len(points) else np.zeros(3)
     groups = None if tri_group is None else np.asarray(tri_group)[fragment_tri][valid]
-    keys = _cluster_keys(centres[valid], normals[valid], lo, voxel_size, groups)
+    levels = None if detail_box is None else fragment_levels(centres[valid], voxel_size, detail_box)
+    keys = _cluster_keys(centres[valid], normals[valid], lo, voxel_size, groups, levels)
     _, inverse = np.unique(keys, axis=0, return_inverse=True)
     inverse = inverse.reshape(-1)
     if len(inverse) and int(inverse.max()) + 1 > MAX_PATCHES:
@@ -181,7 +203,8 @@ def _centre_fragment(m: int) -> int:
     return j * m - j * (j - 1) // 2 + i
 
 
-def count_patches(points, tri_vertices, tri_normals, tri_areas, voxel: float, tri_group=None) -> int:
+def count_patches(points, tri_vertices, tri_normals, tri_areas, voxel: float, tri_group=None,
+                  detail_box=None) -> int:
     """Number of patches build_patches would make (cheaper: no per-patch means)."""
     subdivision = _subdivision(points, tri_vertices, voxel)
     if int((subdivision.astype(np.int64) ** 2).sum()) > MAX_FRAGMENTS:
@@ -190,20 +213,26 @@ def count_patches(points, tri_vertices, tri_normals, tri_areas, voxel: float, tr
     valid = ((tri_areas > 0) & (np.linalg.norm(tri_normals, axis=1) > 0.5))[fragment_tri]
     lo = points.min(axis=0).astype(np.float64)
     groups = None if tri_group is None else np.asarray(tri_group)[fragment_tri][valid]
-    keys = _cluster_keys(vertices.mean(axis=1)[valid].astype(np.float64),
-                         tri_normals[fragment_tri][valid].astype(np.float64), lo, voxel, groups)
+    centres = vertices.mean(axis=1)[valid].astype(np.float64)
+    levels = None if detail_box is None else fragment_levels(centres, voxel, detail_box)
+    keys = _cluster_keys(centres, tri_normals[fragment_tri][valid].astype(np.float64), lo, voxel, groups, levels)
     return len(np.unique(keys, axis=0))
 
 
-def choose_voxel_size(points, tri_vertices, tri_normals, tri_areas, target: int, tri_group=None) -> float:
+def choose_voxel_size(points, tri_vertices, tri_normals, tri_areas, target: int, tri_group=None,
+                      detail_box=None) -> float:
     """Voxel edge (stage units) giving about ``target`` patches (patch count ~ area / voxel^2; a few refinements)."""
-    total = float(tri_areas[np.isfinite(tri_areas)].sum())
+    finite = np.isfinite(tri_areas)
+    if detail_box is not None:  # the budget goes mostly to the detail: start from its area
+        centres = points[tri_vertices].mean(axis=1)
+        finite &= np.all((centres >= detail_box[0]) & (centres <= detail_box[1]), axis=1)
+    total = float(tri_areas[finite].sum()) or float(tri_areas[np.isfinite(tri_areas)].sum())
     if total <= 0:
         return 1.0
     voxel = math.sqrt(total / target)
     best, best_err = voxel, math.inf
     for _ in range(6):
-        count = count_patches(points, tri_vertices, tri_normals, tri_areas, voxel, tri_group)
+        count = count_patches(points, tri_vertices, tri_normals, tri_areas, voxel, tri_group, detail_box)
         err = abs(math.log(max(count, 1) / target))
         if err < best_err:
             best, best_err = voxel, err

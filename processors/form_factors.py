@@ -85,6 +85,7 @@ from ..core.products import FormFactorProduct, Patches
 from ..core.scene import Scene
 from ..formats import dds
 from ..formats.sparse_operator import sparse_file_bytes
+from ..geometry.mesh import receiver_detail_box
 from ..geometry.patches import MAX_PATCHES, build_patches, choose_voxel_size
 from ..kernels.operator_codec import MAX_ERROR, compress_operator
 from ..kernels.patches import fragment_of_hit
@@ -317,10 +318,12 @@ def multibounce_operator(form: np.ndarray, albedo: np.ndarray, *, bounces: int =
 def precompute(tracer, scene: Scene, p, progress=lambda f: None, chunks=None) -> tuple[FormFactorProduct, dict]:
     """Patches -> form factors -> multi-bounce operator -> compression (pure; used by run and benchmarks).
     ``chunks`` (core.chunks; default: in process on ``tracer``) computes the form factors by rows."""
+    detail = receiver_detail_box(scene)
     voxel = p.voxel_size or choose_voxel_size(scene.points, scene.tri_vertices, scene.tri_normals,
-                                              scene.tri_areas, p.target_patches, scene.tri_prim)
+                                              scene.tri_areas, p.target_patches, scene.tri_prim, detail)
     patches = build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
-                            scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=scene.tri_prim)
+                            scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=scene.tri_prim,
+                            detail_box=detail)
     progress(0.05)
     chunks = chunks if chunks is not None else SceneChunks(tracer)
     form = chunks.map(form_factor_rows_chunk, (np.arange(patches.count),), scene=scene, patches=patches,
@@ -338,7 +341,7 @@ def precompute(tracer, scene: Scene, p, progress=lambda f: None, chunks=None) ->
 
 class FormFactors(Processor):
     name = "form_factors"
-    version = "4"
+    version = "5"
     summary = "Radiosity precompute: voxel patches, ray-cast form factors, compressed multi-bounce matrix (BC1)."
     facets = ("geometry", "materials")
     provides = (FormFactorProduct,)

@@ -115,7 +115,7 @@ from ..core import Attribute, Context, Params, Prim, Processor, Result, param
 from ..core.products import ProbeCloud
 from ..core.scene import Scene
 from ..geometry import tetrahedra
-from ..geometry.mesh import receiver_prims
+from ..geometry.mesh import backdrop_prims, receiver_detail_box, receiver_prims
 from ..kernels.lights import NO_LIGHTS, SceneLighting, has_light, scene_lighting
 from ..kernels.probe_capture import PROBE_DIRECTIONS, classify_points, compute_probe_sh, probe_sh_chunk
 from ..kernels.probe_lookup import ProbeLookup
@@ -130,9 +130,6 @@ surface sees half its sphere black and makes tetrahedra cut by the surface."""
 CONTRAST_FLOOR_RELATIVE = 1e-3
 """Irradiance luminance below this fraction of the scene's largest probe luminance counts as
 dark when contrasts are formed (E_i + E_j + floor), so noise in black areas is not variation."""
-
-BACKDROP_FACTOR = 4.0
-"""A receiver wider than all the others together by this factor on two axes is a backdrop (``backdrop_prims``)."""
 
 RECEIVER_MARGIN = 0.1
 """Without probe volumes, the placement box is the non-backdrop receivers' bounds grown by this share of their
@@ -155,10 +152,9 @@ def placement_box(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = scene.probe_volumes[:, 0].min(axis=0), scene.probe_volumes[:, 1].max(axis=0)
     else:
         lo, hi = (np.asarray(b, np.float64) for b in scene.bounds)
-        backdrops, others = backdrop_prims(scene)
-        if len(backdrops) and len(others):
-            boxes = prim_boxes(scene, others)
-            inner_lo, inner_hi = boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)
+        detail = receiver_detail_box(scene)
+        if detail is not None:
+            inner_lo, inner_hi = detail
             margin = RECEIVER_MARGIN * float(np.linalg.norm(inner_hi - inner_lo))
             lo, hi = np.maximum(inner_lo - margin, lo), np.minimum(inner_hi + margin, hi)
     centre = 0.5 * (lo + hi)
@@ -166,33 +162,6 @@ def placement_box(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return centre - half, centre + half
 
 
-def prim_boxes(scene: Scene, prims: np.ndarray) -> np.ndarray:
-    """(K, 2, 3) float64 (min, max) of each prim's points."""
-    boxes = np.zeros((len(prims), 2, 3))
-    for row, prim in enumerate(prims):
-        points = scene.points[scene.prim_points(int(prim))].astype(np.float64)
-        boxes[row] = points.min(axis=0), points.max(axis=0)
-    return boxes
-
-
-def backdrop_prims(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """(backdrops, the other receivers): a receiver is a backdrop (a ground plane, a sky dome mesh) when its
-    bounds exceed those of all other receivers together by BACKDROP_FACTOR on at least two axes. Probes
-    over a 200 m lawn around a 4 m room would leave the room without one."""
-    receivers = receiver_prims(scene)
-    if len(receivers) < 2:
-        return np.zeros(0, np.int64), receivers
-    boxes = prim_boxes(scene, receivers)
-    extent = boxes[:, 1] - boxes[:, 0]
-    # The union of all boxes but one, for every one at once: prefix and suffix minima / maxima.
-    inf = np.full((1, 3), np.inf)
-    low_before = np.concatenate([inf, np.minimum.accumulate(boxes[:, 0])[:-1]])
-    low_after = np.concatenate([np.minimum.accumulate(boxes[::-1, 0])[::-1][1:], inf])
-    high_before = np.concatenate([-inf, np.maximum.accumulate(boxes[:, 1])[:-1]])
-    high_after = np.concatenate([np.maximum.accumulate(boxes[::-1, 1])[::-1][1:], -inf])
-    rest_extent = np.maximum(high_before, high_after) - np.minimum(low_before, low_after)
-    backdrop = (extent > BACKDROP_FACTOR * np.maximum(rest_extent, 1e-30)).sum(axis=1) >= 2
-    return receivers[backdrop], receivers[~backdrop]
 
 
 def in_placement_volume(scene: Scene, points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

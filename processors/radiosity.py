@@ -54,6 +54,7 @@ Parameters: ``usdbake list radiosity`` or docs/radiosity.md, both generated from
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -329,6 +330,7 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
     point looking at the patches sees), with direct light evaluated at near hits; with 0 the patches'
     k-bounce indirect light interpolated (``transfer_to_vertices``: no rays, smooth, blurred in corners).
     ``apply_operator(E0) -> E_ind`` replaces the relight (run: a Relighter for the step's memory budget; benchmarks: the dense operator).
+    ``transfer_seconds`` in the result: the time of the transfer to the points (the gather or the blend).
     """
     patches, op = product.patches, product.operator
     points, fragment = _patch_points(patches, p.patch_points, p.seed)
@@ -346,6 +348,7 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
     e0_vertex = compute_direct_irradiance(tracer, scene, positions, normals, light_samples=p.light_samples,
                                           sky_samples=p.sky_samples, seed=p.seed + 2, emissive=p.emissive_lights)
     progress(0.6)
+    started = time.perf_counter()
     if p.gather_rays > 0:
         zero = np.zeros_like(e_ind_patch)
         first_patch = final_gather(tracer, scene, patches, e0_patch, zero, zero, points, point_normals,
@@ -359,9 +362,11 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
         e_ind_vertex = transfer_to_vertices(positions, normals, patches.patch_centroids, patches.patch_normals,
                                             e_ind_patch, neighbors=p.neighbors, normal_cos=p.normal_cos,
                                             smoothing=0.5 * patches.voxel_size)
+    transfer_seconds = time.perf_counter() - started
     progress(0.9)
     return {"patch_direct": e0_patch.astype(np.float32), "patch_indirect": e_ind_patch,
-            "vertex_direct": e0_vertex, "vertex_indirect": np.maximum(e_ind_vertex, 0.0).astype(np.float32)}
+            "vertex_direct": e0_vertex, "vertex_indirect": np.maximum(e_ind_vertex, 0.0).astype(np.float32),
+            "transfer_seconds": transfer_seconds}
 
 
 def relighter_for(tracer, op, p) -> Relighter:

@@ -72,7 +72,7 @@ from ..core import Attribute, Context, Params, Prim, Primvar, Processor, Result,
 from ..core.chunks import SceneChunks
 from ..core.products import RefinedScene, SkyVisibilityProduct
 from ..core.scene import Scene
-from ..geometry.mesh import missing_receivers, receiver_prims
+from ..geometry.mesh import backdrop_prims, detail_diagonal, missing_receivers, receiver_prims
 from ..geometry.refine import refine, weld_points
 from ..geometry.refined_scene import refine_scene
 from ..kernels.sampling import strata_for, stratified_pair, triangle_point
@@ -278,7 +278,7 @@ def _areas_normals(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarra
 
 def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples: int = 4,
                            tolerance: float = 0.1, min_area: float = 1e-5, max_level: int = 5,
-                           max_face_area: float = 0.0,
+                           max_face_area: float = 0.0, size_reference: str = "scene",
                            max_triangles: int = 500_000, seed: int = 0, adaptive: bool = True,
                            prims: np.ndarray | None = None, criterion: str = "share", uniform: bool = False,
                            progress=lambda f: None, chunks=None) -> tuple[SkyVisibilityProduct, dict]:
@@ -316,7 +316,9 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     quant_error = 0.0
     score = np.zeros(len(tris), np.float64)
     pending = np.ones(len(tris), bool)
-    area_floor = float(min_area) * scene.diagonal ** 2
+    # size_reference 'detail': a 200 m ground plane around a room does not make every face of the room small
+    length = detail_diagonal(scene) if size_reference == "detail" else scene.diagonal
+    area_floor = float(min_area) * length ** 2
     rays = 0
     next_id = 0
     ids = np.zeros(len(tris), np.int64)
@@ -331,10 +333,11 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
         weights = np.einsum("tij,tjk->tik", result.corner_weights, weights[result.parent])
         return result
 
-    area_cap = float(max_face_area) * scene.diagonal ** 2
+    area_cap = float(max_face_area) * length ** 2
+    backdrop = np.isin(scene.tri_prim, backdrop_prims(scene)[0] if size_reference == "detail" else [])
     if area_cap > 0:  # large faces first: each (face, patch) pair is judged from `samples` points only
-        for _ in range(PRESPLIT_PASSES):
-            big = _areas_normals(points, triangles)[0] > area_cap
+        for _ in range(PRESPLIT_PASSES):  # (not the backdrops': their area is why the length left them out)
+            big = (_areas_normals(points, triangles)[0] > area_cap) & ~backdrop[source]
             if not big.any() or len(triangles) >= max_triangles:
                 break
             split(big)
@@ -453,6 +456,9 @@ class SkyVisibility(Processor):
         max_face_area: float = param(1e-3, "faces larger than this, times the scene diagonal squared, are split "
                                      "before tracing, so no large face is judged from a handful of points "
                                      "(0: off)", low=0.0, high=1.0)
+        size_reference: str = param("scene", "what min_area and max_face_area are relative to: scene (the stage's "
+                                     "diagonal) or detail (the receivers' without backdrops such as a ground plane, "
+                                     "which are then not pre-split)", choices=("scene", "detail"))
         max_triangles: int = param(500_000, "stop refining at this many faces (V takes faces x patches bytes)",
                                    low=1)
         criterion: str = param("share", "refinement test: share (cosine-weighted share of the face's sky that is "
@@ -478,7 +484,7 @@ class SkyVisibility(Processor):
         patches = patch_layout(p.patch_layout, count=p.patch_count, subdivision=p.subdivision)
         product, stats = compute_sky_visibility(
             ctx.tracer, scene, patches=patches, samples=p.samples, tolerance=p.tolerance,
-            min_area=p.min_area, max_level=p.max_level, max_face_area=p.max_face_area,
+            min_area=p.min_area, max_level=p.max_level, max_face_area=p.max_face_area, size_reference=p.size_reference,
             max_triangles=p.max_triangles, seed=p.seed,
             criterion=p.criterion, progress=ctx.progress, chunks=ctx.chunks)
         refined, meshes = refine_scene(scene, product.face_points, product.point_source, product.face_vertices,

@@ -1,13 +1,15 @@
-"""Radiosity on a CUDA device: precompute and relight at 2k-16k patches, compressed vs dense (issue 17).
+"""Radiosity at scale: precompute, memory and relight at 2k-16k patches, compressed vs dense (issue 17).
 
-Not a ``bench_`` module (the CPU smoke run would meet no GPU): run it where one is,
-``python -m usdbake.benchmarks.gpu_relight OUT.json [target_patches ...]``. Per patch count on atrium:
-the precompute (form factors traced on the device; operator products, reordering and BC1 on the
-CPU) and its parts, then y = M x timed (best of ROUNDS, device synchronized) four ways:
+Not a ``bench_`` module (minutes per size, and the smoke run's CPU meets no GPU):
+``python -m usdbake.benchmarks.radiosity_scale OUT.json [target_patches ...]``, on the device named by
+$USDBAKE_DEVICE (default cuda:0 where Warp sees one, else cpu). Per patch count on atrium: the
+precompute (form factors traced on the device; operator products, reordering and BC1 on the CPU), its
+parts and the growth of peak memory, the run-time form the default memory budget picks and the one a
+1 GB budget picks, then y = M x timed (best of ROUNDS, device synchronized) four ways:
 
 - the compressed kernel on the device (``Relighter``, the thesis' in-kernel decode);
 - the same product as a dense float32 Warp kernel on the device (bench_radiosity's baseline);
-- cuBLAS through torch on the dense operator, where torch is installed (the memory-bound bound);
+- cuBLAS through torch on the dense operator, on CUDA where torch is installed;
 - numpy BLAS on the host's cores (what the CPU relight does when the operator fits).
 
 Results are written after every patch count, so a run stopped by a time limit keeps what it measured.
@@ -26,7 +28,7 @@ import warp as wp
 from . import harness
 from .bench_radiosity import relight_dense_kernel
 from usdbake import init_warp
-from usdbake.kernels.operator_relight import COMPRESSED, Relighter, dense_nbytes
+from usdbake.kernels.operator_relight import COMPRESSED, Relighter, dense_nbytes, relight_form
 from usdbake.kernels.tracer import Tracer
 from usdbake.processors import form_factors as ff
 
@@ -47,15 +49,18 @@ def best_seconds(function, rounds: int, sync) -> float:
 
 def timed_precompute(tracer, scene, params):
     """The precompute split into its parts, with their seconds."""
+    from usdbake.geometry.mesh import receiver_detail_box
     from usdbake.geometry.patches import build_patches, choose_voxel_size
     from usdbake.kernels.operator_codec import compress_operator
 
     seconds = {}
     started = time.perf_counter()
+    detail = receiver_detail_box(scene)
     voxel = choose_voxel_size(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
-                              params.target_patches, scene.tri_prim)
+                              params.target_patches, scene.tri_prim, detail)
     patches = build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
-                            scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=scene.tri_prim)
+                            scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=scene.tri_prim,
+                            detail_box=detail)
     seconds["patches"] = time.perf_counter() - started
     started = time.perf_counter()
     form = ff.compute_form_factors(tracer, patches, scene.tri_normals, rays=params.rays, seed=params.seed)
@@ -74,7 +79,8 @@ def timed_precompute(tracer, scene, params):
 def measure(scene, device: str, target: int) -> dict:
     tracer = Tracer.from_scene(scene, device=device)
     params = ff.FormFactors.Params(target_patches=target)
-    patches, operator, op, seconds = timed_precompute(tracer, scene, params)
+    with harness.measure() as m:
+        patches, operator, op, seconds = timed_precompute(tracer, scene, params)
     n = op.size
     rng = np.random.default_rng(3)
     x = rng.uniform(0, 1, (n, 3)).astype(np.float32)
@@ -83,7 +89,8 @@ def measure(scene, device: str, target: int) -> dict:
     y_compressed = relighter.apply(x)
     row = {"patches": n, "precompute_s": sum(seconds.values()), **{f"{k}_s": v for k, v in seconds.items()},
            "dense_mb": dense_nbytes(n) / 2**20, "compressed_runtime_mb": relighter.nbytes / 2**20,
-           "stored_mb": op.nbytes / 2**20}
+           "stored_mb": op.nbytes / 2**20, "precompute_peak_mb": m.peak_mb,
+           "default_form": relight_form(n, device), "form_at_1gb": relight_form(n, device, 2**30)}
     row["compressed_ms"] = 1e3 * best_seconds(relighter.apply_stored, ROUNDS, sync)
     dense_host = np.ascontiguousarray(np.moveaxis(operator, 0, -1))  # (n, n, 3)
     y_dense = np.einsum("cij,jc->ic", operator, x)
@@ -96,6 +103,8 @@ def measure(scene, device: str, target: int) -> dict:
     try:
         import torch
 
+        if not wp.get_device(device).is_cuda:
+            raise ImportError("cuBLAS only on CUDA")
         m_t = torch.from_numpy(np.ascontiguousarray(operator)).to("cuda")  # (3, n, n)
         x_t = torch.from_numpy(np.ascontiguousarray(x.T[:, :, None])).to("cuda")
         row["dense_cublas_ms"] = 1e3 * best_seconds(lambda: torch.bmm(m_t, x_t), ROUNDS, torch.cuda.synchronize)
@@ -113,8 +122,8 @@ def measure(scene, device: str, target: int) -> dict:
 def main(argv: list[str]) -> None:
     out = argv[0]
     targets = [int(t) for t in argv[1:]] or [2000, 5000, 10000, 16000]
-    device = os.environ.get("USDBAKE_GPU_DEVICE", "cuda:0")
-    init_warp(device)
+    init_warp("cuda:0")
+    device = os.environ.get("USDBAKE_DEVICE") or ("cuda:0" if wp.is_cuda_available() else "cpu")
     scene = harness.load_scene("atrium")
     report = {"device": wp.get_device(device).name, "host_cores": os.cpu_count(), "rows": []}
     for target in targets:
