@@ -325,7 +325,7 @@ def run(quick: bool = False) -> dict:
         "cornell_error_default_interpolation_only": extra.get("interpolation_only_error"),
         **fig,
         **({} if quick else sky_lit_window_room(SKY_PATHS)),
-        **furnished_room(quick),
+        **({} if quick else furnished_room(quick)),  # minutes: not in the smoke run's budget, as window_room
     }
     r = fig["reorder"]
     table = "\n".join([
@@ -357,13 +357,13 @@ def run(quick: bool = False) -> dict:
            f"{figures['sky_lit_perez_sun_error']:.3f} (mean ratio {figures['sky_lit_uniform_dome_mean_ratio']:.3f}"
            f" / {figures['sky_lit_perez_sun_mean_ratio']:.3f}) | <= 0.10 |"] if "sky_lit_uniform_dome_error" in figures
           else []),
-        f"| total irradiance vs path tracer at {figures['room_points']} random surface points of the furnished room "
+        *([f"| total irradiance vs path tracer at {figures['room_points']} random surface points of the furnished room "
         f"(sky through 4 windows, 2-triangle floor, 200 m ground), median: sky_visibility refinement + radiosity / "
         f"radiosity alone | {figures['room_refined_total_median']:.3f} / {figures['room_unrefined_total_median']:.3f} "
         f"(bias {figures['room_refined_total_bias']:+.3f} / {figures['room_unrefined_total_bias']:+.3f}; indirect "
         f"{figures['room_refined_indirect_median']:.3f} / {figures['room_unrefined_indirect_median']:.3f}) | <= 0.10 |",
         f"| transfer (final gather) share of the bake: furnished room (all three steps) / cornell default | "
-        f"{figures['room_transfer_share']:.3f} / {figures['cornell_transfer_share_default']:.3f} | <= 0.25 |",
+        f"{figures['room_transfer_share']:.3f} / {figures['cornell_transfer_share_default']:.3f} | <= 0.25 |"] if "room_points" in figures else []),
         f"| precompute atrium ({fig['atrium_triangles']} triangles) | {fig['atrium_precompute_s']:.1f} s, "
         f"peak +{fig['atrium_precompute_peak_mb']:.0f} MB | report |",
         "", "| patches | vs path tracer | dense operator vs path tracer | compressed vs dense |", "|---|---|---|---|",
