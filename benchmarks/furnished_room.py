@@ -49,11 +49,6 @@ FURNITURE = {
 }
 
 
-def wall_with_windows(builder: MeshBuilder, origin, u, v, u_stops, v_stops, windows) -> None:
-    """A planar wall as a grid over the stops, the (i, j) cells in ``windows`` left open."""
-    builder.grid(origin, u, v, u_stops, v_stops, skip=set(windows))
-
-
 def build() -> Usd.Stage:
     """The furnished room stage, in memory."""
     stage, looks = new_stage(UsdGeom.Tokens.z, 1.0, "furnished room lit by a uniform sky", MATERIALS,
@@ -64,14 +59,14 @@ def build() -> Usd.Stage:
     ceiling.box(ROOM_LO, ROOM_HI, faces=("+z",), inward=True)
     walls.box(ROOM_LO, ROOM_HI, faces=("+y",), inward=True)  # north wall: solid
     sill, head = 0.9, 2.2
-    # South wall (y = y0, facing +Y): two windows.
-    wall_with_windows(walls, (x0, y0, z0), Z, X, [0, sill, head, z1 - z0],
-                      [0, 1.0, 2.4, 3.6, 5.0, x1 - x0], windows=[(1, 1), (1, 3)])
+    # Walls as grids over the window stops, the window cells (i, j) skipped. South (y = y0, facing +Y): two.
+    walls.grid((x0, y0, z0), Z, X, [0, sill, head, z1 - z0],
+               [0, 1.0, 2.4, 3.6, 5.0, x1 - x0], skip={(1, 1), (1, 3)})
     # West wall (x = x0, facing +X) and east wall (x = x1, facing -X): one window each.
-    wall_with_windows(walls, (x0, y0, z0), Y, Z, [0, 1.5, 3.2, y1 - y0], [0, sill, head, z1 - z0],
-                      windows=[(1, 1)])
-    wall_with_windows(walls, (x1, y0, z0), Z, Y, [0, sill, head, z1 - z0], [0, 2.0, 3.5, y1 - y0],
-                      windows=[(1, 1)])
+    walls.grid((x0, y0, z0), Y, Z, [0, 1.5, 3.2, y1 - y0], [0, sill, head, z1 - z0],
+               skip={(1, 1)})
+    walls.grid((x1, y0, z0), Z, Y, [0, sill, head, z1 - z0], [0, 2.0, 3.5, y1 - y0],
+               skip={(1, 1)})
     for name, builder, look in (("Floor", floor, "Oak"), ("Ceiling", ceiling, "Ceiling"),
                                 ("Walls", walls, "Plaster")):
         write_mesh(stage, f"/World/Room/{name}", builder, looks[look])
@@ -97,13 +92,7 @@ def room_points(scene, count: int, *, seed: int) -> tuple[np.ndarray, np.ndarray
     """(count, 3) float32 area-uniform random points on the room's surfaces (faces whose centre lies in
     the room's box), in the Scene's frame, and their (count, 3) face normals."""
     centres = scene.points[scene.tri_vertices].mean(axis=1) + scene.origin
-    tris = np.flatnonzero(inside_room(centres) & (scene.tri_areas > 0))
-    rng = np.random.default_rng(seed)  # fixed: the same points for every setting compared
-    pick = rng.choice(tris, count, p=scene.tri_areas[tris] / scene.tri_areas[tris].sum())
-    r1, r2 = np.sqrt(rng.random(count))[:, None], rng.random(count)[:, None]
-    corners = scene.points[scene.tri_vertices[pick]].astype(np.float64)
-    points = corners[:, 0] * (1 - r1) + corners[:, 1] * (r1 * (1 - r2)) + corners[:, 2] * (r1 * r2)
-    return points.astype(np.float32), scene.tri_normals[pick].astype(np.float32)
+    return harness.surface_points(scene, count, seed=seed, triangles=inside_room(centres))
 
 
 def interpolate_at(tracer, scene, vertex_values: np.ndarray, points: np.ndarray, normals: np.ndarray) -> np.ndarray:

@@ -61,10 +61,12 @@ def triangle_points_kernel(start: int, points: wp.array(dtype=wp.vec3), tri_vert
     out[i] = triangle_point(points[tri[0]], points[tri[1]], points[tri[2]], u[0], u[1])
 
 
-def surface_points(scene, count: int, *, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(count, 3) float32 area-uniform random points on the receivers' triangles, and their (count, 3) face
-    normals: triangles picked in proportion to their area, then ``triangle_point`` (Osada et al. 2002)."""
-    tris = np.flatnonzero(np.isin(scene.tri_prim, receiver_prims(scene)) & (scene.tri_areas > 0))
+def surface_points(scene, count: int, *, seed: int, triangles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(count, 3) float32 area-uniform random points on the receivers' triangles (or on ``triangles``, a bool
+    mask over the scene's), and their (count, 3) face normals: triangles picked in proportion to their area,
+    then ``triangle_point`` (Osada et al. 2002)."""
+    chosen = np.isin(scene.tri_prim, receiver_prims(scene)) if triangles is None else triangles
+    tris = np.flatnonzero(chosen & (scene.tri_areas > 0))
     rng = np.random.default_rng(seed)  # the caller's fixed seed: the same points for every setting compared
     pick = rng.choice(tris, count, p=scene.tri_areas[tris] / scene.tri_areas[tris].sum())
     u = np.stack([rng.random(count), rng.random(count)], axis=1).astype(np.float32)

@@ -47,40 +47,12 @@ def best_seconds(function, rounds: int, sync) -> float:
     return best
 
 
-def timed_precompute(tracer, scene, params):
-    """The precompute split into its parts, with their seconds."""
-    from usdbake.geometry.mesh import receiver_detail_box
-    from usdbake.geometry.patches import build_patches, choose_voxel_size
-    from usdbake.kernels.operator_codec import compress_operator
-
-    seconds = {}
-    started = time.perf_counter()
-    detail = receiver_detail_box(scene)
-    voxel = choose_voxel_size(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
-                              params.target_patches, scene.tri_prim, detail)
-    patches = build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
-                            scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=scene.tri_prim,
-                            detail_box=detail)
-    seconds["patches"] = time.perf_counter() - started
-    started = time.perf_counter()
-    form = ff.compute_form_factors(tracer, patches, scene.tri_normals, rays=params.rays, seed=params.seed)
-    wp.synchronize_device(tracer.device)
-    seconds["form_factors"] = time.perf_counter() - started
-    started = time.perf_counter()
-    operator = ff.multibounce_operator(form, patches.patch_albedo, bounces=params.bounces)
-    seconds["operator"] = time.perf_counter() - started
-    started = time.perf_counter()
-    compressed = compress_operator(operator, exact_fraction=params.exact_fraction,
-                                   reorder_passes=params.reorder_passes, max_error=params.max_error)
-    seconds["compression"] = time.perf_counter() - started
-    return patches, operator, compressed, seconds
-
-
 def measure(scene, device: str, target: int) -> dict:
     tracer = Tracer.from_scene(scene, device=device)
     params = ff.FormFactors.Params(target_patches=target)
     with harness.measure() as m:
-        patches, operator, op, seconds = timed_precompute(tracer, scene, params)
+        product, dense = ff.precompute(tracer, scene, params)
+    op, operator, seconds = product.operator, dense["operator"], dense["seconds"]
     n = op.size
     rng = np.random.default_rng(3)
     x = rng.uniform(0, 1, (n, 3)).astype(np.float32)

@@ -38,10 +38,6 @@ RAY_EPSILON_RELATIVE = 1e-5
 rounding of recentred coordinates (~1e-7 of the diagonal) and far below any
 feature a baker resolves."""
 
-CUDA_BLOCK_DIM = 128
-"""Threads per CUDA block. The tracing kernels use up to 255 registers a thread; Warp's default of 256
-threads a block would ask an SM for more than its 64k registers, and such a launch fails (CUDA error
-701) and leaves its outputs unwritten."""
 CPU_BLOCK_DIM = 1
 """Warp's CPU launch block size; stated so preloading and launching agree."""
 
@@ -71,8 +67,7 @@ def launch_chunked(kernel, dim: int, inputs: list, *, device, threads: int, offs
     min_chunk = MIN_CHUNK if min_chunk is None else min_chunk
     device = wp.get_device(device)
     if device.is_cuda or threads <= 1 or dim < 2 * min_chunk:
-        wp.launch(kernel, dim=dim, inputs=[offset, *inputs], device=device,
-                  **({"block_dim": CUDA_BLOCK_DIM} if device.is_cuda else {}))
+        wp.launch(kernel, dim=dim, inputs=[offset, *inputs], device=device)
         wp.synchronize_device(device)
         return
     # Compile/load once on this thread (concurrent first loads would race);

@@ -74,6 +74,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -317,26 +318,39 @@ def multibounce_operator(form: np.ndarray, albedo: np.ndarray, *, bounces: int =
 
 def precompute(tracer, scene: Scene, p, progress=lambda f: None, chunks=None) -> tuple[FormFactorProduct, dict]:
     """Patches -> form factors -> multi-bounce operator -> compression (pure; used by run and benchmarks).
-    ``chunks`` (core.chunks; default: in process on ``tracer``) computes the form factors by rows."""
+    ``chunks`` (core.chunks; default: in process on ``tracer``) computes the form factors by rows. The dict
+    holds the dense form factors and operator, and ``seconds`` of each part (for the scale benchmark)."""
+    seconds, started = {}, time.perf_counter()
+
+    def part(name: str) -> None:
+        nonlocal started
+        seconds[name] = time.perf_counter() - started
+        started = time.perf_counter()
+
     detail = receiver_detail_box(scene)
     voxel = p.voxel_size or choose_voxel_size(scene.points, scene.tri_vertices, scene.tri_normals,
                                               scene.tri_areas, p.target_patches, scene.tri_prim, detail)
     patches = build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
                             scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=scene.tri_prim,
                             detail_box=detail)
+    part("patches")
     progress(0.05)
     chunks = chunks if chunks is not None else SceneChunks(tracer)
     form = chunks.map(form_factor_rows_chunk, (np.arange(patches.count),), scene=scene, patches=patches,
                       rays=p.rays, seed=p.seed,
                       progress=lambda f: progress(0.05 + 0.6 * f))
     checks = form_factor_checks(form, patches.patch_areas)
+    part("form_factors")
     operator = multibounce_operator(form, patches.patch_albedo, bounces=p.bounces, infinite=p.infinite)
+    part("operator")
     progress(0.75)
     compressed = compress_operator(operator, exact_fraction=p.exact_fraction, log_floor=p.log_floor,
                                    reorder_passes=p.reorder_passes, row_correction=p.row_correction,
                                    quantization=p.quantization, max_error=p.max_error)
+    part("compression")
     progress(1.0)
-    return FormFactorProduct(patches, compressed, p.bounces, p.infinite, checks), {"form": form, "operator": operator}
+    return (FormFactorProduct(patches, compressed, p.bounces, p.infinite, checks),
+            {"form": form, "operator": operator, "seconds": seconds})
 
 
 class FormFactors(Processor):

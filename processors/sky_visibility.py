@@ -287,7 +287,9 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     The precompute of Bosch, Besuievsky & Martin, Sec. 3 (Fig. 2) and 4: visibility
     factors per (triangle, sky patch) (Sec. 4.1), then triangles with partial
     visibility, area above ``min_area`` (times the scene diagonal^2, stage
-    units^2) and fewer than ``max_level`` four-way splits below their input
+    units^2; with ``size_reference="detail"`` the diagonal of the receivers
+    without backdrops, ``geometry.mesh.detail_diagonal``, for this and
+    ``max_face_area``) and fewer than ``max_level`` four-way splits below their input
     triangle are split and traced again until nothing splits (Sec. 4.2; here
     all patches at once rather than patch by patch, with the module docstring's
     partial-visibility measure and a conforming longest-edge split).
@@ -317,7 +319,8 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     score = np.zeros(len(tris), np.float64)
     pending = np.ones(len(tris), bool)
     # size_reference 'detail': a 200 m ground plane around a room does not make every face of the room small
-    length = detail_diagonal(scene) if size_reference == "detail" else scene.diagonal
+    detail = size_reference == "detail"
+    length = detail_diagonal(scene) if detail else scene.diagonal
     area_floor = float(min_area) * length ** 2
     rays = 0
     next_id = 0
@@ -334,7 +337,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
         return result
 
     area_cap = float(max_face_area) * length ** 2
-    backdrop = np.isin(scene.tri_prim, backdrop_prims(scene)[0] if size_reference == "detail" else [])
+    backdrop = np.isin(scene.tri_prim, backdrop_prims(scene)[0] if detail else [])
     if area_cap > 0:  # large faces first: each (face, patch) pair is judged from `samples` points only
         for _ in range(PRESPLIT_PASSES):  # (not the backdrops': their area is why the length left them out)
             big = (_areas_normals(points, triangles)[0] > area_cap) & ~backdrop[source]
