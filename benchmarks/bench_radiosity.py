@@ -266,7 +266,7 @@ def furnished_room(quick: bool) -> dict:
     """Total irradiance at random points on the furnished room's surfaces (sky through four windows, 6 x 5 m
     floor of two triangles, 200 m ground) against the path tracer: the bake as `usdbake bake -p
     sky_visibility -p radiosity` runs it (the sky-visibility refinement, form factors and radiosity on the
-    refined mesh; ``sky_visibility.size_reference = detail``: face sizes relative to the room, not the ground), read at the points by linear interpolation of the vertex values; and the same without
+    refined mesh, face sizes relative to the room, not the ground), read at the points by linear interpolation of the vertex values; and the same without
     the refinement. The transfer's share is the final gather's time over the whole bake (all three steps)."""
     from usdbake.core.pipeline import Pipeline
     from usdbake.core.products import FormFactorProduct, RadiosityProduct, RefinedScene
@@ -285,7 +285,7 @@ def furnished_room(quick: bool) -> dict:
                  "indirect": path_traced_indirect(tracer, scene, points, normals, paths=paths, bounces=bounces)})
     figures = {}
     for label, names in (("refined", ["sky_visibility", "radiosity"]), ("unrefined", ["radiosity"])):
-        steps = Pipeline.build(names, {"sky_visibility": {"size_reference": "detail"}}).run(scene)
+        steps = Pipeline.build(names).run(scene)
         products = {k: v for step in steps if step.result for k, v in step.result.products.items()}
         baked = products[RefinedScene].scene if RefinedScene in products else scene
         baked_tracer = Tracer.from_scene(baked)

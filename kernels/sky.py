@@ -226,6 +226,14 @@ def patch_samples(patches: SkyPatches, per_side: int = 3) -> np.ndarray:
 
 
 @wp.func
+def patch_direction(z: float, azimuth: float) -> wp.vec3:
+    """The ENU unit direction at z = sin(altitude) and azimuth (radians from north towards east)."""
+    r = wp.sqrt(wp.max(0.0, 1.0 - z * z))
+    sc = sin_cos(azimuth)
+    return wp.vec3(r * sc[0], r * sc[1], z)
+
+
+@wp.func
 def sample_patch(bounds: wp.vec4, enu_to_world: wp.mat33, u1: float, u2: float) -> wp.vec3:
     """Uniform (equal solid angle) direction inside a patch: z and azimuth uniform within its bounds.
 
@@ -239,9 +247,44 @@ def sample_patch(bounds: wp.vec4, enu_to_world: wp.mat33, u1: float, u2: float) 
     """
     z = bounds[0] + u1 * (bounds[1] - bounds[0])
     azimuth = bounds[2] + u2 * (bounds[3] - bounds[2])
-    r = wp.sqrt(wp.max(0.0, 1.0 - z * z))
-    sin_cos_azimuth = sin_cos(azimuth)
-    return enu_to_world * wp.vec3(r * sin_cos_azimuth[0], r * sin_cos_azimuth[1], z)
+    return enu_to_world * patch_direction(z, azimuth)
+
+
+@wp.func
+def patch_mean_cosine(bounds: wp.vec4, n_enu: wp.vec3) -> float:
+    """Mean of n . w over a patch's directions (per steradian), exact: with z and azimuth uniform
+    (``sample_patch``), w = (r sin az, r cos az, z), r = sqrt(1 - z^2), so
+
+        int n.w dw = n_e int r dz int sin az + n_n int r dz int cos az + n_u int z dz (az1 - az0),
+
+    int r dz = (z r + asin z) / 2. Equals the patch's mean of max(0, n . w) when the whole patch lies
+    above the plane of n (the caller checks)."""
+    z0 = bounds[0]
+    z1 = bounds[1]
+    a0 = bounds[2]
+    a1 = bounds[3]
+    r0 = wp.sqrt(wp.max(0.0, 1.0 - z0 * z0))
+    r1 = wp.sqrt(wp.max(0.0, 1.0 - z1 * z1))
+    int_r = 0.5 * ((z1 * r1 + wp.asin(wp.clamp(z1, -1.0, 1.0))) - (z0 * r0 + wp.asin(wp.clamp(z0, -1.0, 1.0))))
+    sc0 = sin_cos(a0)
+    sc1 = sin_cos(a1)
+    integral = (n_enu[0] * int_r * (sc0[1] - sc1[1]) + n_enu[1] * int_r * (sc1[0] - sc0[0])
+                + n_enu[2] * 0.5 * (z1 * z1 - z0 * z0) * (a1 - a0))
+    return integral / wp.max((z1 - z0) * (a1 - a0), 1e-30)
+
+
+@wp.func
+def patch_above(bounds: wp.vec4, n_enu: wp.vec3) -> bool:
+    """The patch's four corners and centre lie on or above the plane of n (n . w >= 0, to float rounding:
+    a horizontal face and the patches resting on the horizon)."""
+    zm = 0.5 * (bounds[0] + bounds[1])
+    am = 0.5 * (bounds[2] + bounds[3])
+    tolerance = -1.0e-6
+    return (wp.dot(n_enu, patch_direction(bounds[0], bounds[2])) >= tolerance
+            and wp.dot(n_enu, patch_direction(bounds[0], bounds[3])) >= tolerance
+            and wp.dot(n_enu, patch_direction(bounds[1], bounds[2])) >= tolerance
+            and wp.dot(n_enu, patch_direction(bounds[1], bounds[3])) >= tolerance
+            and wp.dot(n_enu, patch_direction(zm, am)) > 0.0)
 
 
 # ---------------------------------------------------------------------------

@@ -76,7 +76,7 @@ from ..geometry.mesh import backdrop_prims, detail_diagonal, missing_receivers, 
 from ..geometry.refine import refine, weld_points
 from ..geometry.refined_scene import refine_scene
 from ..kernels.sampling import strata_for, stratified_pair, triangle_point
-from ..kernels.sky import SkyPatches, enu_to_world, patch_layout, sample_patch
+from ..kernels.sky import SkyPatches, enu_to_world, patch_above, patch_layout, patch_mean_cosine, sample_patch
 from ..kernels.tracer import FAR, triangle_origin
 from ..kernels.traversal import TraceScene, trace_any
 
@@ -117,7 +117,9 @@ def patch_visibility_kernel(
     V_ij += (f_v / f_c) cos theta_ik over the patch's samples k, then averaged),
     with a ray per sample from a uniform point of the triangle instead of the
     occlusion query's visible-fragment share f_v / f_c: V_ij = (1/s) sum_k
-    vis_k max(0, n_i . w_k), dimensionless in [0, 1]. ``partial`` feeds the
+    vis_k max(0, n_i . w_k), dimensionless in [0, 1]; for a patch wholly above
+    the triangle's plane, scaled to the exact mean cosine C_ij (``patch_mean_cosine``):
+    V_ij = C_ij sum_k vis_k cos_k / sum_k cos_k. ``partial`` feeds the
     refinement test of Sec. 4.2 (0 < V_ij < 1 in the paper): min of the
     visible and occluded cosine-weighted shares (``criterion = share``), or
     their sum when both are non-zero (``any_partial``).
@@ -152,6 +154,13 @@ def patch_visibility_kernel(
                 occ += cos_theta
             else:
                 vis += cos_theta
+    # A patch wholly above the triangle's plane: its cosine-weighted share is known exactly, so the samples
+    # only split it into visible and occluded (a ratio estimate): an open face sums to exactly 1, not 1 +- noise.
+    n_enu = wp.transpose(to_world) * n
+    if vis + occ > 0.0 and patch_above(bounds, n_enu):
+        scale = patch_mean_cosine(bounds, n_enu) * float(count) / (vis + occ)
+        vis = vis * scale
+        occ = occ * scale
     visible[k] = vis / float(count)
     if any_partial != 0:
         if vis > 0.0 and occ > 0.0:
@@ -437,7 +446,7 @@ def sees_sky(tracer, scene: Scene, directions: np.ndarray) -> bool:
 
 class SkyVisibility(Processor):
     name = "sky_visibility"
-    version = "2"
+    version = "3"
     summary = "Per-face sky patch visibility with adaptive crack-free refinement (Bosch et al.)."
     facets = ("geometry",)
     writes = ("points", "faceVertexCounts", "faceVertexIndices", "orientation",
@@ -459,7 +468,7 @@ class SkyVisibility(Processor):
         max_face_area: float = param(1e-3, "faces larger than this, times the scene diagonal squared, are split "
                                      "before tracing, so no large face is judged from a handful of points "
                                      "(0: off)", low=0.0, high=1.0)
-        size_reference: str = param("scene", "what min_area and max_face_area are relative to: scene (the stage's "
+        size_reference: str = param("detail", "what min_area and max_face_area are relative to: scene (the stage's "
                                      "diagonal) or detail (the receivers' without backdrops such as a ground plane, "
                                      "which are then not pre-split)", choices=("scene", "detail"))
         max_triangles: int = param(500_000, "stop refining at this many faces (V takes faces x patches bytes)",
