@@ -355,7 +355,7 @@ def precompute(tracer, scene: Scene, p, progress=lambda f: None, chunks=None) ->
 
 class FormFactors(Processor):
     name = "form_factors"
-    version = "5"
+    version = "6"
     summary = "Radiosity precompute: voxel patches, ray-cast form factors, compressed multi-bounce matrix (BC1)."
     facets = ("geometry", "materials")
     provides = (FormFactorProduct,)

@@ -238,12 +238,31 @@ def test_reordering_lowers_the_summed_error(box_operator):
 
 def test_greedy_order_groups_similar_rows():
     rng = np.random.default_rng(8)  # fixed seed: two row families, shuffled
-    base = np.stack([np.zeros(16), np.full(16, 100.0)])
+    base = np.stack([np.zeros(16), np.full(16, 100)])
     labels = rng.permutation(np.repeat([0, 1], 10))
-    rows = base[labels] + rng.uniform(0, 1, (20, 16))
+    rows = base[labels] + rng.integers(0, 10, (20, 16))
     order = codec.greedy_order(rows)
     assert sorted(order) == list(range(20))
     assert np.count_nonzero(np.diff(labels[order])) == 1  # one switch between the families
+
+
+def plain_greedy(signatures: np.ndarray) -> np.ndarray:
+    """The greedy pass written plainly: from item 0, the nearest (L1) remaining item, the lowest index on ties."""
+    n = len(signatures)
+    remaining, order, current = list(range(1, n)), [0], 0
+    while remaining:
+        dist = [int(np.abs(signatures[j] - signatures[current]).sum()) for j in remaining]
+        current = remaining.pop(int(np.argmin(dist)))  # argmin: the first of the equal ones, remaining is sorted
+        order.append(current)
+    return np.array(order)
+
+
+def test_greedy_order_equals_the_plain_greedy_with_ties():
+    rng = np.random.default_rng(12)  # fixed: few values, so many rows are equally near
+    rows = rng.integers(0, 3, (150, 5))
+    np.testing.assert_array_equal(codec.greedy_order(rows), plain_greedy(rows))
+    big = rng.integers(0, 48_961, (60, 256))  # column-group code sums of 16k patches (765 x 64 at most)
+    np.testing.assert_array_equal(codec.greedy_order(big), plain_greedy(big))
 
 
 # ---------------------------------------------------------------------------
