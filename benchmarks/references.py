@@ -15,10 +15,10 @@ import warp as wp
 from usdbake.kernels.lights import (
     Lights,
     Surfaces,
-    direct_irradiance,
     emissive_lights,
     hit_radiance,
     light_sample_count,
+    path_indirect_irradiance,
     scene_lighting,
     visible_light_sample,
 )
@@ -47,37 +47,16 @@ def indirect_paths_kernel(
     seed: int,
     out: wp.array(dtype=wp.vec3),
 ):
-    """Sum over paths of the indirect irradiance estimate at point item // chunks.
-
-    A cosine-weighted path x -> y1 -> y2 ...: the estimate of E_ind(x) is
-    sum_h (rho(y1) ... rho(yh)) E0(yh), with E0 by one next-event sample per light
-    (the Neumann series of the radiosity equation, truncated after ``bounces`` terms).
-    """
+    """Sum over paths of the indirect irradiance estimate at point item // chunks
+    (``path_indirect_irradiance``: the Neumann series truncated after ``bounces`` terms)."""
     item = start + wp.tid()
     v = item // chunks
     n = normals[v]
     total = wp.vec3(0.0, 0.0, 0.0)
-    if wp.length(n) < 0.5:
-        out[item] = total
-        return
-    state = wp.rand_init(seed, item)
-    for path in range(paths_per_item):
-        p = positions[v]
-        normal = n
-        throughput = wp.vec3(1.0, 1.0, 1.0)
-        for h in range(bounces):
-            w = tangent_frame(normal) * cosine_hemisphere(wp.randf(state), wp.randf(state))
-            origin = surface_origin(scene, p, normal, wp.vec3(0.0, 0.0, 0.0), epsilon)
-            q = trace_closest(scene, origin, w, FAR)
-            if not q.result:
-                break
-            hn = surfaces.tri_normals[q.face]
-            if wp.dot(w, hn) >= 0.0 or wp.length(hn) < 0.5:
-                break  # back face: absorbed, as in the form factors
-            p = origin + w * q.t
-            normal = hn
-            throughput = wp.cw_mul(throughput, surfaces.tri_albedo[q.face])
-            total += wp.cw_mul(throughput, direct_irradiance(scene, lights, p, normal, 1, 1, epsilon, state))
+    if wp.length(n) >= 0.5:
+        for path in range(paths_per_item):
+            total += path_indirect_irradiance(scene, surfaces, lights, positions[v], n, bounces, epsilon,
+                                              wp.rand_init(seed, item * paths_per_item + path))
     out[item] = total
 
 

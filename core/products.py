@@ -273,6 +273,12 @@ class ProbeCloud:
     """(T,) uint8 6-bit blocked-edge masks (tetrahedra.TET_EDGES); zeros without leak fixing."""
     tetra: Any
     """usdbake.geometry.tetrahedra.Tetrahedralization of the probes."""
+    direct_lights: bool = True
+    """The SH hold the direct light of the lights that are not geometry (distant, sphere, rect, disk); False:
+    the lookup adds it (``light_probes.irradiance_at`` with a tracer) or the engine's real-time lights do."""
+    capture_positions: Any = None
+    """(P, 3) float32 where each probe was captured when that differs from ``probe_positions`` (conforming
+    tetrahedra: a probe on a wall is captured a little off it, on its own side); None: the same."""
 
 
 @dataclass(frozen=True)

@@ -46,7 +46,7 @@ import warp as wp
 from ..core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Scene
 from .sampling import concentric_disk, cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
 from .tracer import FAR, surface_origin
-from .traversal import TraceScene, trace_any
+from .traversal import TraceScene, trace_any, trace_closest
 
 wp.set_module_options({"enable_backward": False})
 
@@ -366,6 +366,53 @@ def hit_radiance(scene: TraceScene, surfaces: Surfaces, lights: Lights, origin: 
         value = wp.cw_mul(surfaces.tri_albedo[tri], e) / wp.pi
         if see_emission != 0:
             value = value + surfaces.tri_emission[tri]
+    return value
+
+
+@wp.func
+def path_indirect_irradiance(scene: TraceScene, surfaces: Surfaces, lights: Lights, p: wp.vec3, n: wp.vec3,
+                             bounces: int, epsilon: float, state: wp.uint32) -> wp.vec3:
+    """One path's estimate of the indirect irradiance at p with unit normal n: a cosine-weighted path
+    x -> y1 -> y2 ... gives E_ind(x) ~ sum_h (rho(y1) ... rho(yh)) E0(yh), E0 by one next-event sample per
+    light (the Neumann series of the radiosity equation truncated after ``bounces`` terms); a back face
+    absorbs the path, as in the form factors. ``state`` seeds this path only (pass a fresh one per path)."""
+    rng = wp.rand_init(wp.int32(state), 0x5bd1)
+    total = wp.vec3(0.0, 0.0, 0.0)
+    x = p
+    normal = n
+    throughput = wp.vec3(1.0, 1.0, 1.0)
+    for h in range(bounces):
+        w = tangent_frame(normal) * cosine_hemisphere(wp.randf(rng), wp.randf(rng))
+        origin = surface_origin(scene, x, normal, wp.vec3(0.0, 0.0, 0.0), epsilon)
+        q = trace_closest(scene, origin, w, FAR)
+        if not q.result:
+            break
+        hn = surfaces.tri_normals[q.face]
+        if wp.dot(w, hn) >= 0.0 or wp.length(hn) < 0.5:
+            break
+        x = origin + w * q.t
+        normal = hn
+        throughput = wp.cw_mul(throughput, surfaces.tri_albedo[q.face])
+        total += wp.cw_mul(throughput, direct_irradiance(scene, lights, x, normal, 1, 1, epsilon,
+                                                         wp.rand_init(wp.int32(state), h)))
+    return total
+
+
+@wp.func
+def hit_radiance_bounces(scene: TraceScene, surfaces: Surfaces, lights: Lights, origin: wp.vec3, d: wp.vec3,
+                         tri: int, t: float, see_emission: int, bounces: int, epsilon: float,
+                         state: wp.uint32) -> wp.vec3:
+    """``hit_radiance`` with interreflection: L = L_e + rho (E0 + E_ind) / pi at the hit, E_ind by one path
+    of ``bounces - 1`` bounces (``path_indirect_irradiance``); ``bounces`` 1 is ``hit_radiance``."""
+    value = hit_radiance(scene, surfaces, lights, origin, d, tri, t, see_emission, epsilon, state)
+    n = surfaces.tri_normals[tri]
+    front = wp.dot(n, d) < 0.0
+    if bounces > 1 and (front or surfaces.tri_double_sided[tri] != 0) and wp.length(n) > 0.5:
+        if not front:
+            n = -n
+        e = path_indirect_irradiance(scene, surfaces, lights, origin + d * t, n, bounces - 1, epsilon,
+                                     wp.rand_init(wp.int32(state), 0x2c1b))
+        value = value + wp.cw_mul(surfaces.tri_albedo[tri], e) / wp.pi
     return value
 
 

@@ -20,7 +20,7 @@ from .lights import (
     Lights,
     SceneLighting,
     Surfaces,
-    hit_radiance,
+    hit_radiance_bounces,
     light_sample_count,
     scene_lighting,
     sky_radiance,
@@ -59,12 +59,13 @@ def capture_kernel(
     strata: int,
     seed: int,
     first: int,
+    bounces: int,
     epsilon: float,
     directions: wp.array(dtype=wp.vec3),
     radiance: wp.array(dtype=wp.vec3),
 ):
     """Ray i = probe * strata^2 + k: incident radiance L(w) at the probe from stratified direction k
-    (escaped rays see the dome; hits return emission + one bounce of direct light, ``hit_radiance``);
+    (escaped rays see the dome; hits return emission + ``bounces`` bounces of light, ``hit_radiance_bounces``);
     the Monte Carlo input of the SH projection, Sukys section 2.3 / Ramamoorthi & Hanrahan eq. 7.
     ``first``: global index of probe 0 (a chunk's start), which with i seeds the ray."""
     i = start + wp.tid()
@@ -79,7 +80,8 @@ def capture_kernel(
     q = trace_closest(scene, origin, d, FAR)
     value = sky_radiance(lights, d)
     if q.result:
-        value = hit_radiance(scene, surfaces, lights, origin, d, q.face, q.t, 1, epsilon, wp.rand_init(wp.int32(state), samples))
+        value = hit_radiance_bounces(scene, surfaces, lights, origin, d, q.face, q.t, 1, bounces, epsilon,
+                                     wp.rand_init(wp.int32(state), samples))
     radiance[i] = value
 
 
@@ -142,12 +144,15 @@ def inside_kernel(
 
 
 def compute_probe_sh(tracer, scene: Scene, positions: np.ndarray, *, rays: int, seed: int = 0,
-                     lighting: SceneLighting | None = None, first: int = 0) -> np.ndarray:
+                     lighting: SceneLighting | None = None, first: int = 0, bounces: int = 1,
+                     direct_lights: bool = True) -> np.ndarray:
     """Irradiance SH (P, 9, 3) float32 (W/m^2) at probe positions (P, 3) in the scene frame.
 
-    Radiance by one-bounce ray casting (module docstring), projected on L2 SH, plus the
-    non-geometric lights as visible point sources, convolved with the clamped cosine. ``first``:
-    the global index of positions[0], which seeds its rays (a chunk of a larger set, core.chunks).
+    Radiance by ray casting with ``bounces`` bounces of light at the hits (module docstring),
+    projected on L2 SH, plus (``direct_lights``) the non-geometric lights as visible point sources,
+    convolved with the clamped cosine. Without ``direct_lights`` the probe holds what an engine's
+    real-time lights leave out: the dome and light that bounced (Sukys 3.1.2, light decoupling).
+    ``first``: the global index of positions[0], which seeds its rays (a chunk of a larger set, core.chunks).
     """
     positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
     count = len(positions)
@@ -160,15 +165,17 @@ def compute_probe_sh(tracer, scene: Scene, positions: np.ndarray, *, rays: int, 
     directions = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
     radiance = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
     tracer.launch(capture_kernel, count * samples, [
-        tracer.scene, lighting.surfaces, lighting.lights, probes_wp, strata, int(seed), int(first), tracer.epsilon,
-        directions, radiance,
+        tracer.scene, lighting.surfaces, lighting.lights, probes_wp, strata, int(seed), int(first), int(bounces),
+        tracer.epsilon, directions, radiance,
     ])
     coefficients = wp.zeros((count, 27), dtype=float, device=tracer.device)
     tracer.launch(project_kernel, count, [directions, radiance, samples, coefficients])
-    light_strata = strata_for(LIGHT_SAMPLES)
-    tracer.launch(probe_lights_kernel, count, [tracer.scene, lighting.lights, probes_wp, light_strata,
-                                               int(seed) + 1, int(first), coefficients])
-    tracer.rays_cast += count * samples * (1 + lighting.shadow_rays) + count * len(scene.lights) * LIGHT_SAMPLES
+    tracer.rays_cast += count * samples * bounces * (1 + lighting.shadow_rays)
+    if direct_lights:
+        light_strata = strata_for(LIGHT_SAMPLES)
+        tracer.launch(probe_lights_kernel, count, [tracer.scene, lighting.lights, probes_wp, light_strata,
+                                                   int(seed) + 1, int(first), coefficients])
+        tracer.rays_cast += count * len(scene.lights) * LIGHT_SAMPLES
     radiance_sh = np.nan_to_num(coefficients.numpy().reshape(count, 9, 3).astype(np.float64),
                                 nan=0.0, posinf=0.0, neginf=0.0)
     return (radiance_sh * COSINE_LOBE[None, :, None]).astype(np.float32)
@@ -188,6 +195,55 @@ def classify_points(tracer, lighting: SceneLighting, positions: np.ndarray) -> t
     return votes.numpy() > 0, nearest.numpy()
 
 
-def probe_sh_chunk(tracer, first: int, positions: np.ndarray, *, scene: Scene, rays: int, seed: int) -> np.ndarray:
+def probe_sh_chunk(tracer, first: int, positions: np.ndarray, *, scene: Scene, rays: int, seed: int,
+                   bounces: int = 1, direct_lights: bool = True) -> np.ndarray:
     """``compute_probe_sh`` of probes first .. first + len(positions) - 1: one chunk (core.chunks)."""
-    return compute_probe_sh(tracer, scene, positions, rays=rays, seed=seed, first=first)
+    return compute_probe_sh(tracer, scene, positions, rays=rays, seed=seed, first=first, bounces=bounces,
+                            direct_lights=direct_lights)
+
+
+@wp.kernel
+def direct_lights_kernel(
+    start: int,
+    scene: TraceScene,
+    lights: Lights,
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    strata: int,
+    seed: int,
+    irradiance: wp.array(dtype=wp.vec3),
+):
+    """Direct irradiance at point i with normal n from the non-dome lights, as a real-time light adds it
+    beside decoupled probes: E = sum_l L_l sum_k weight_k max(0, n . w_k) over ``visible_light_sample``
+    (weight = Omega V / count; the exact clamped cosine, not its L2 projection)."""
+    i = start + wp.tid()
+    p = points[i]
+    n = normals[i]
+    state = wp.rand_init(seed, i)
+    e = wp.vec3(0.0, 0.0, 0.0)
+    for l in range(lights.light_kind.shape[0]):
+        for k in range(light_sample_count(lights, l, strata)):
+            s = visible_light_sample(scene, lights, l, p, k, strata, state)
+            c = wp.dot(n, s.direction)
+            if s.weight > 0.0 and c > 0.0:
+                e += lights.light_radiance[l] * (s.weight * c)
+    irradiance[i] = e
+
+
+def direct_light_irradiance(tracer, scene: Scene, points: np.ndarray, normals: np.ndarray, *,
+                            samples: int = LIGHT_SAMPLES, seed: int = 0,
+                            lighting: SceneLighting | None = None) -> np.ndarray:
+    """(N, 3) float32 irradiance (W/m^2) at points (N, 3, scene frame) with unit normals from the
+    lights that are not geometry (distant, sphere, rect, disk), with shadow rays: what a cloud baked with
+    ``direct_lights`` off leaves to the lookup (``direct_lights_kernel``)."""
+    points = np.ascontiguousarray(points, np.float32).reshape(-1, 3)
+    n = len(points)
+    out = wp.zeros(n, dtype=wp.vec3, device=tracer.device)
+    if n and len(scene.lights):
+        lighting = lighting or scene_lighting(scene, tracer.device)
+        strata = strata_for(samples)
+        tracer.launch(direct_lights_kernel, n, [tracer.scene, lighting.lights, tracer.array(points, wp.vec3),
+                                                tracer.array(np.asarray(normals, np.float32).reshape(-1, 3), wp.vec3),
+                                                strata, int(seed), out])
+        tracer.rays_cast += n * len(scene.lights) * strata * strata
+    return out.numpy()

@@ -106,22 +106,41 @@ Parameters: ``usdbake list light_probes`` or docs/light_probes.md, both generate
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.cluster.vq import kmeans2
 from scipy.spatial import cKDTree
 
 from ..core import Attribute, Context, Params, Prim, Processor, Result, param
 from ..core.products import ProbeCloud
 from ..core.scene import Scene
 from ..geometry import tetrahedra
-from ..geometry.mesh import backdrop_prims, receiver_detail_box, receiver_prims
+from ..geometry.conforming import ConformingMesh, conforming_mesh
+from ..geometry.mesh import backdrop_prims, receiver_detail_box
 from ..kernels.lights import NO_LIGHTS, SceneLighting, has_light, scene_lighting
-from ..kernels.probe_capture import PROBE_DIRECTIONS, classify_points, compute_probe_sh, probe_sh_chunk
+from ..kernels.probe_capture import (
+    LIGHT_SAMPLES,
+    PROBE_DIRECTIONS,
+    classify_points,
+    compute_probe_sh,
+    direct_light_irradiance,
+    probe_sh_chunk,
+)
 from ..kernels.probe_lookup import ProbeLookup
 from ..kernels.sh import dering, sh_basis_np
 
 CLOUD_PRIM = "/usdbake/LightProbes"
+
+TETRAHEDRA = ("delaunay", "conforming")
+DIRECT_LIGHTS = ("lookup", "probes")
+
+CONFORMING_DENSITY = 6.0
+"""First guess of fTetWild's probes per cubic target edge length (measured on the thin-wall rooms); the edge
+length is rescaled once when the count misses the budget by more than CONFORMING_TOLERANCE."""
+
+CONFORMING_TOLERANCE = 0.25
 
 CLEARANCE_FRACTION = 0.1
 """A probe must be at least this fraction of ``min_spacing`` away from any surface: a probe on a
@@ -134,6 +153,12 @@ dark when contrasts are formed (E_i + E_j + floor), so noise in black areas is n
 RECEIVER_MARGIN = 0.1
 """Without probe volumes, the placement box is the non-backdrop receivers' bounds grown by this share of their
 diagonal on every side, so probes also surround them."""
+
+MERGE_CONTRAST_SHARE = 0.25
+"""Two probes whose edge contrast is below this share of the spawn ``contrast`` see the same light: one merges."""
+
+DARK_CLUSTER_SIZE = 8
+"""Interior probes of an unlit region are replaced by one probe per this many (k-means, Sukys 3.1.3)."""
 
 BOUNDS_MIN_RELATIVE = 0.05
 """Each axis of the placement box is at least this fraction of the diagonal (flat scenes)."""
@@ -291,7 +316,7 @@ class Placement:
 
 def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0, iterations: int = 3,
                  contrast: float = 0.25, placement_rays: int = 64, seed: int = 0,
-                 leak_probes: bool = True, lighting: SceneLighting | None = None,
+                 leak_probes: bool = True, bounces: int = 1, lighting: SceneLighting | None = None,
                  progress=lambda f: None) -> Placement:
     """Probe positions in the empty space of the scene (module docstring, Sukys 3.1)."""
     reserve = probes // 4 if leak_probes else 0  # room kept for the probes beside blockers
@@ -311,7 +336,13 @@ def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0,
     positions = grid[keep].astype(np.float64)
     dropped = int((~keep).sum())
     stats = {"moved": 0, "spawned": 0, "merged": 0}
-    sh = compute_probe_sh(tracer, scene, positions, rays=placement_rays, seed=seed + 1, lighting=lighting)
+
+    def capture(points: np.ndarray, capture_seed: int) -> np.ndarray:
+        # Light decoupling (Sukys 3.1.2): placement sees the dome and light that bounced, not the real-time lights.
+        return compute_probe_sh(tracer, scene, points, rays=placement_rays, seed=capture_seed, lighting=lighting,
+                                bounces=bounces, direct_lights=False)
+
+    sh = capture(positions, seed + 1)
     capture_seed = seed + 2
     for round_ in range(iterations):
         progress(0.1 + 0.5 * round_ / max(iterations, 1))
@@ -332,8 +363,7 @@ def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0,
             ok = valid(target) & ~segment_blocked(tracer, positions[movers], target)
             movers, target = movers[ok], target[ok]
             if len(movers):
-                new_sh = compute_probe_sh(tracer, scene, target, rays=placement_rays, seed=capture_seed,
-                                          lighting=lighting)
+                new_sh = capture(target, capture_seed)
                 capture_seed += 1
                 lit = np.abs(new_sh).max(axis=(1, 2)) > 0
                 positions[movers[lit]] = target[lit]
@@ -354,19 +384,25 @@ def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0,
             mid = 0.5 * (positions[edges[wanted, 0]] + positions[edges[wanted, 1]])
             mid = mid[valid(mid)][:room]  # blocked edges too: their midpoint may lie in a space between blockers
             if len(mid):
-                new_sh = compute_probe_sh(tracer, scene, mid, rays=placement_rays, seed=capture_seed,
-                                          lighting=lighting)
+                new_sh = capture(mid, capture_seed)
                 capture_seed += 1
                 positions = np.concatenate([positions, mid])
                 sh = np.concatenate([sh, new_sh])
                 v = np.concatenate([v, np.full(len(mid), np.inf)])  # new probes survive the merge
                 stats["spawned"] += len(mid)
 
-        # Merge: greedy thinning, higher variation first.
+        # Merge: probes that see the same light fold into their more varied neighbour, then greedy
+        # thinning, higher variation first.
+        edges = cloud_edges(positions)
+        alike = np.zeros(len(positions), bool) if edges is None else similar_probes(
+            positions, sample_irradiance(sh), v, edges, floor, MERGE_CONTRAST_SHARE * contrast, 2.0 * spacing_min)
         order = np.argsort(-v, kind="stable")
-        survivors = thin(positions, order, spacing_min)
+        survivors = thin(positions, order[~alike[order]], spacing_min)
         stats["merged"] += len(positions) - len(survivors)
         positions, sh = positions[survivors], sh[survivors]
+
+    positions, sh, clustered = cluster_dark_probes(positions, sh, rng)
+    stats["merged"] += clustered
 
     added = 0
     if leak_probes and len(positions) >= 4:
@@ -377,6 +413,51 @@ def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0,
         positions = positions[:probes]
     return Placement(positions.astype(np.float32), spacing_min, len(grid), dropped, stats["moved"],
                      stats["spawned"], stats["merged"], added)
+
+
+def similar_probes(positions: np.ndarray, samples: np.ndarray, v: np.ndarray, edges: np.ndarray, floor: float,
+                   threshold: float, max_length: float) -> np.ndarray:
+    """(P,) bool: probes merged away (Sukys 3.1.1, merge). Edges shorter than ``max_length`` whose contrast
+    (bounded in [0, 1), ``edge_contrast``) is below ``threshold`` are taken least contrasted first; the
+    probe of lower variation V of each goes, at most one per edge and none whose partner already went."""
+    contrast = edge_contrast(samples, edges, floor)
+    length = np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1)
+    gone = np.zeros(len(positions), bool)
+    touched = np.zeros(len(positions), bool)
+    candidates = np.flatnonzero((contrast < threshold) & (length < max_length))
+    for e in candidates[np.argsort(contrast[candidates], kind="stable")]:
+        a, b = edges[e]
+        if touched[a] or touched[b]:
+            continue
+        gone[a if v[a] < v[b] else b] = True
+        touched[a] = touched[b] = True
+    return gone
+
+
+def cluster_dark_probes(positions: np.ndarray, sh: np.ndarray, rng: np.random.Generator):
+    """Sukys 3.1.3, completely unlit areas: probes that see no light and whose Delaunay neighbours see none
+    either (the inside of a dark region; dark probes beside lit ones keep the shadow's edge) are replaced
+    by one probe per k-means cluster of DARK_CLUSTER_SIZE (scipy), the member nearest its centroid so
+    the survivor is a valid spot. Returns positions, sh and how many probes went."""
+    edges = cloud_edges(positions)
+    samples = sample_irradiance(sh).max(axis=1)
+    dark = samples <= CONTRAST_FLOOR_RELATIVE * max(float(samples.max(initial=0.0)), 1e-30)
+    if edges is None or dark.sum() <= DARK_CLUSTER_SIZE:
+        return positions, sh, 0
+    lit_neighbour = np.zeros(len(positions), bool)
+    for i, j in ((0, 1), (1, 0)):
+        lit_neighbour[edges[~dark[edges[:, j]], i]] = True
+    interior = np.flatnonzero(dark & ~lit_neighbour)
+    if len(interior) <= DARK_CLUSTER_SIZE:
+        return positions, sh, 0
+    clusters = int(np.ceil(len(interior) / DARK_CLUSTER_SIZE))
+    centroids, labels = kmeans2(positions[interior], clusters, minit="++", seed=rng)
+    keep = np.ones(len(positions), bool)
+    keep[interior] = False
+    for c in np.unique(labels):
+        members = interior[labels == c]
+        keep[members[np.argmin(np.linalg.norm(positions[members] - centroids[c], axis=1))]] = True
+    return positions[keep], sh[keep], int((~keep).sum())
 
 
 def wall_probes(tracer, positions: np.ndarray, valid, min_spacing: float, clearance: float,
@@ -427,6 +508,25 @@ def thin(positions: np.ndarray, order: np.ndarray, radius: float) -> np.ndarray:
     return np.sort(np.asarray(kept, np.int64))
 
 
+def conforming_placement(tracer, scene: Scene, lighting: SceneLighting, probes: int, *,
+                         threads: int = 0) -> ConformingMesh:
+    """The conforming probe mesh (``geometry.conforming``) of the placement box, its target edge length set so
+    the probe count is near ``probes`` (a first guess from CONFORMING_DENSITY, rescaled once)."""
+    lo, hi = placement_box(scene)
+    triangles = scene.points[scene.tri_vertices].astype(np.float64)
+
+    def classify(points):
+        return classify_points(tracer, lighting, points)
+
+    edge = float((CONFORMING_DENSITY * np.prod(hi - lo) / max(probes, 4)) ** (1.0 / 3.0))
+    mesh = conforming_mesh(tracer, classify, triangles, lo, hi, edge, threads)
+    count = len(mesh.positions)
+    if abs(count - probes) > CONFORMING_TOLERANCE * probes:
+        edge *= (count / probes) ** (1.0 / 3.0)
+        mesh = conforming_mesh(tracer, classify, triangles, lo, hi, edge, threads)
+    return mesh
+
+
 # ---------------------------------------------------------------------------
 # The cloud and its interpolation
 
@@ -434,7 +534,8 @@ def thin(positions: np.ndarray, order: np.ndarray, radius: float) -> np.ndarray:
 
 
 
-def build_cloud(positions: np.ndarray, sh: np.ndarray, tracer=None, *, leak_fix: bool = True) -> ProbeCloud:
+def build_cloud(positions: np.ndarray, sh: np.ndarray, tracer=None, *, leak_fix: bool = True,
+                direct_lights: bool = True) -> ProbeCloud:
     """Tetrahedralize probes and (with a tracer and leak_fix) ray-cast the edges for blockers."""
     positions = np.asarray(positions, np.float32).reshape(-1, 3)
     tetra = tetrahedra.tetrahedralize(positions)
@@ -444,16 +545,18 @@ def build_cloud(positions: np.ndarray, sh: np.ndarray, tracer=None, *, leak_fix:
         edge_blocked = segment_blocked(tracer, positions[edges[:, 0]], positions[edges[:, 1]])
         blocked = tetrahedra.edge_masks(index, edge_blocked)
     return ProbeCloud(positions, np.asarray(sh, np.float32).reshape(-1, 9, 3), tetra.tet_vertices,
-                      tetra.tet_neighbors, blocked, tetra)
+                      tetra.tet_neighbors, blocked, tetra, direct_lights)
 
 
-def cloud_from_arrays(positions, sh, tet_vertices, tet_neighbors, tet_blocked=None) -> ProbeCloud:
+def cloud_from_arrays(positions, sh, tet_vertices, tet_neighbors, tet_blocked=None, *, direct_lights: bool = True,
+                      capture_positions=None) -> ProbeCloud:
     """A ProbeCloud from stored arrays (e.g. the attributes of a LightProbeCloud prim)."""
     positions = np.asarray(positions, np.float32).reshape(-1, 3)
     tetra = tetrahedra.from_arrays(positions, tet_vertices, tet_neighbors)
     blocked = np.zeros(tetra.num_tets, np.uint8) if tet_blocked is None else np.asarray(tet_blocked, np.uint8)
+    capture = None if capture_positions is None else np.asarray(capture_positions, np.float32).reshape(-1, 3)
     return ProbeCloud(positions, np.asarray(sh, np.float32).reshape(-1, 9, 3), tetra.tet_vertices,
-                      tetra.tet_neighbors, blocked, tetra)
+                      tetra.tet_neighbors, blocked, tetra, direct_lights, capture)
 
 
 def interpolation_weights(cloud: ProbeCloud, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -479,11 +582,17 @@ def interpolate_sh(cloud: ProbeCloud, points: np.ndarray) -> np.ndarray:
     return np.einsum("nv,nvkc->nkc", weights, cloud.probe_sh[probes].astype(np.float64)).astype(np.float32)
 
 
-def irradiance_at(cloud: ProbeCloud, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(N, 3) float32 irradiance E(n) = sum_k c_k Y_k(n) (W/m^2) at points with unit normals."""
+def irradiance_at(cloud: ProbeCloud, points: np.ndarray, normals: np.ndarray, *, tracer=None,
+                  scene: Scene | None = None, light_samples: int = LIGHT_SAMPLES) -> np.ndarray:
+    """(N, 3) float32 irradiance E(n) = sum_k c_k Y_k(n) (W/m^2) at points (scene frame) with unit normals;
+    for a cloud baked with direct_lights=lookup and a ``tracer`` and ``scene``, plus the lights' direct
+    light at the points (``direct_light_irradiance``, ``light_samples`` per area light)."""
     sh = interpolate_sh(cloud, points).astype(np.float64)
     basis = sh_basis_np(np.asarray(normals, np.float64).reshape(-1, 3))
-    return np.einsum("nk,nkc->nc", basis, sh).astype(np.float32)
+    e = np.einsum("nk,nkc->nc", basis, sh)
+    if not cloud.direct_lights and tracer is not None and scene is not None:
+        e += direct_light_irradiance(tracer, scene, points, normals, samples=light_samples)
+    return e.astype(np.float32)
 
 
 # ---------------------------------------------------------------------------
@@ -504,12 +613,19 @@ def cloud_records(cloud: ProbeCloud, origin: np.ndarray) -> list:
         Attribute(path, "shBasis", "realOrthonormal", "token"),
         Attribute(path, "bake:tetBlockedEdges", cloud.tet_blocked.astype(np.uint8), "uchar[]"),
         Attribute(path, "bake:shQuantity", "irradiance", "token", uniform=True),
-    ]
+        # An engine's lookup without our code: b = M (p - v0) with M per tetrahedron, b0 = 1 - b1 - b2 - b3.
+        Attribute(path, "bake:tetBarycentricMatrices", cloud.tetra.tet_inverse.reshape(-1).astype(np.float32),
+                  "float[]"),
+        Attribute(path, "bake:directLights", "included" if cloud.direct_lights else "excluded", "token",
+                  uniform=True),
+    ] + ([] if cloud.capture_positions is None else [
+        Attribute(path, "bake:capturePositions", (cloud.capture_positions.astype(np.float64)
+                                                  + np.asarray(origin, np.float64)).astype(np.float32), "point3f[]")])
 
 
 class LightProbes(Processor):
     name = "light_probes"
-    version = "2"
+    version = "3"
     summary = "Light probe cloud: placement by gradient ascent + spawn/merge, L2 SH irradiance, tetrahedra."
     facets = ("geometry", "materials", "lights")
     provides = (ProbeCloud,)
@@ -525,7 +641,15 @@ class LightProbes(Processor):
                                 low=0.0, high=1.0)
         rays: int = param(256, "capture rays per probe (rounded to a square)", low=1, high=1_000_000)
         placement_rays: int = param(64, "capture rays per probe while placing", low=1, high=1_000_000)
-        leak_fix: bool = param(True, "wall probes, ray-cast tetrahedron edges, stop interpolation across blockers")
+        leak_fix: bool = param(True, "delaunay: wall probes, ray-cast tetrahedron edges, stop interpolation "
+                                     "across blockers")
+        tetrahedra: str = param("delaunay", "delaunay: the placed cloud's Delaunay tetrahedra (scipy) with the leak "
+                                "rule; conforming: fTetWild's mesh of the empty space, a probe per vertex and side "
+                                "of every surface (no tetrahedron crosses one)", choices=TETRAHEDRA)
+        direct_lights: str = param("lookup", "lookup: probes hold the dome and bounced light, the direct light of "
+                                   "distant/sphere/rect/disk lights is added where the cloud is read (shadow rays; "
+                                   "an engine's real-time lights); probes: it is in the SH too", choices=DIRECT_LIGHTS)
+        bounces: int = param(3, "bounces of light the probes see (1: surfaces lit directly)", low=1, high=16)
         dering: bool = param(True, "window each ringing probe's SH by the least Gaussian exp(-s l(l+1)) that makes "
                                    "its irradiance non-negative in every direction (probes that do not ring are kept)")
         seed: int = param(0, "random seed (identical results across thread counts)", low=0, high=2**31 - 1)
@@ -543,32 +667,52 @@ class LightProbes(Processor):
         ctx.progress(0.0)
         lighting = scene_lighting(scene, tracer.device)
         rays_before = tracer.rays_cast
-        placement = place_probes(tracer, scene, probes=p.probes, min_spacing=p.min_spacing,
-                                 iterations=p.iterations, contrast=p.contrast, placement_rays=p.placement_rays,
-                                 seed=p.seed, leak_probes=p.leak_fix, lighting=lighting, progress=ctx.progress)
-        if len(placement.positions) < 4:
-            raise ValueError(f"light_probes: only {len(placement.positions)} probe positions in empty space "
-                             f"({placement.dropped_inside} of {placement.candidates} candidates were inside or "
-                             "next to geometry); raise probes or lower min_spacing")
+        stats: dict[str, float] = {}
+        started = time.perf_counter()
+        if p.tetrahedra == "conforming":
+            mesh = conforming_placement(tracer, scene, lighting, p.probes, threads=ctx.threads or 0)
+            positions, capture_at = mesh.positions.astype(np.float32), mesh.capture_positions.astype(np.float32)
+            stats.update({"mesh_vertices": float(mesh.mesh_vertices), "solid_tets": float(mesh.solid_tets),
+                          "covered_faces": float(mesh.covered_faces), "tetwild_seconds": mesh.seconds})
+        else:
+            placement = place_probes(tracer, scene, probes=p.probes, min_spacing=p.min_spacing,
+                                     iterations=p.iterations, contrast=p.contrast, placement_rays=p.placement_rays,
+                                     seed=p.seed, leak_probes=p.leak_fix, bounces=p.bounces, lighting=lighting,
+                                     progress=ctx.progress)
+            if len(placement.positions) < 4:
+                raise ValueError(f"light_probes: only {len(placement.positions)} probe positions in empty space "
+                                 f"({placement.dropped_inside} of {placement.candidates} candidates were inside or "
+                                 "next to geometry); raise probes or lower min_spacing")
+            positions = capture_at = placement.positions
+            stats.update({"candidates": float(placement.candidates), "dropped_inside": float(placement.dropped_inside),
+                          "moved": float(placement.moved), "spawned": float(placement.spawned),
+                          "merged": float(placement.merged), "wall_probes": float(placement.wall_probes),
+                          "min_spacing": float(placement.min_spacing)})
         ctx.progress(0.6)
-        sh = ctx.chunks.map(probe_sh_chunk, (placement.positions,), scene=scene, rays=p.rays, seed=p.seed + 1_000_003)
+        stats["placement_seconds"] = time.perf_counter() - started
+        started = time.perf_counter()
+        direct_in_probes = p.direct_lights == "probes"
+        sh = ctx.chunks.map(probe_sh_chunk, (capture_at,), scene=scene, rays=p.rays, seed=p.seed + 1_000_003,
+                            bounces=p.bounces, direct_lights=direct_in_probes)
+        stats["capture_seconds"] = time.perf_counter() - started
         deringed = 0
         if p.dering:
             windowed, strengths = dering(sh)
             sh, deringed = windowed.astype(np.float32), int((strengths > 0).sum())
         ctx.progress(0.9)
         try:
-            cloud = build_cloud(placement.positions, sh, tracer, leak_fix=p.leak_fix)
+            if p.tetrahedra == "conforming":
+                cloud = cloud_from_arrays(positions, sh, mesh.tet_vertices, mesh.tet_neighbors,
+                                          direct_lights=direct_in_probes, capture_positions=capture_at)
+            else:
+                cloud = build_cloud(positions, sh, tracer, leak_fix=p.leak_fix, direct_lights=direct_in_probes)
         except tetrahedra.DegenerateProbesError as error:
             raise ValueError(f"light_probes: {error}") from None
         ctx.progress(1.0)
         blocked_edges = int(np.unpackbits(cloud.tet_blocked[:, None], axis=1).sum())
-        stats = {"probes": float(len(cloud.probe_positions)), "tetrahedra": float(len(cloud.tet_vertices)),
-                 "candidates": float(placement.candidates), "dropped_inside": float(placement.dropped_inside),
-                 "moved": float(placement.moved), "spawned": float(placement.spawned),
-                 "merged": float(placement.merged), "wall_probes": float(placement.wall_probes),
-                 "blocked_tet_edges": float(blocked_edges), "deringed_probes": float(deringed),
-                 "min_spacing": float(placement.min_spacing), "rays": float(tracer.rays_cast - rays_before)}
+        stats.update({"probes": float(len(cloud.probe_positions)), "tetrahedra": float(len(cloud.tet_vertices)),
+                      "blocked_tet_edges": float(blocked_edges), "deringed_probes": float(deringed),
+                      "rays": float(tracer.rays_cast - rays_before)})
         messages = []
         backdrops, _ = backdrop_prims(scene)
         if not len(scene.probe_volumes) and len(backdrops):
