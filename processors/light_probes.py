@@ -128,6 +128,7 @@ from ..kernels.probe_capture import (
     direct_light_irradiance,
     probe_sh_chunk,
 )
+from ..kernels.probe_ascent import variation_gradient
 from ..kernels.probe_lookup import ProbeLookup
 from ..kernels.sh import dering, sh_basis_np
 
@@ -248,27 +249,6 @@ def variation(positions: np.ndarray, samples: np.ndarray, edges: np.ndarray,
     return v, contrast
 
 
-def variation_gradient(positions: np.ndarray, v: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares gradient of V per probe from its edge neighbours (P, 3), and mean edge length (P,)."""
-    p = len(positions)
-    a_mat = np.zeros((p, 3, 3))
-    rhs = np.zeros((p, 3))
-    length_sum = np.zeros(p)
-    degree = np.zeros(p)
-    for i, j in ((0, 1), (1, 0)):
-        src, dst = edges[:, i], edges[:, j]
-        dx = positions[dst] - positions[src]
-        d2 = np.maximum((dx * dx).sum(axis=1), 1e-30)
-        w = 1.0 / d2
-        np.add.at(a_mat, src, w[:, None, None] * dx[:, :, None] * dx[:, None, :])
-        np.add.at(rhs, src, (w * (v[dst] - v[src]))[:, None] * dx)
-        np.add.at(length_sum, src, np.sqrt(d2))
-        np.add.at(degree, src, 1.0)
-    a_mat += 1e-9 * np.eye(3)[None] * np.maximum(np.trace(a_mat, axis1=1, axis2=2), 1e-30)[:, None, None]
-    gradient = np.linalg.solve(a_mat, rhs[:, :, None])[:, :, 0]
-    return gradient, length_sum / np.maximum(degree, 1.0)
-
-
 def cloud_edges(positions: np.ndarray) -> np.ndarray | None:
     """(E, 2) edges of the probes' Delaunay tetrahedra, or None when the probes span no volume."""
     try:
@@ -354,7 +334,7 @@ def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0,
         v, _ = variation(positions, samples, edges, floor)
 
         # Gradient ascent on V, with the "second order" revert.
-        gradient, mean_edge = variation_gradient(positions, v, edges)
+        gradient, mean_edge = variation_gradient(tracer, positions, v, edges)
         norm = np.linalg.norm(gradient, axis=1)
         movers = np.flatnonzero((norm > 0) & (v > 0))
         if len(movers):

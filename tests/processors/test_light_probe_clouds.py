@@ -207,3 +207,19 @@ def test_clip_to_box_keeps_the_inside_part_of_a_crossing_triangle():
     # The triangle covers the unit square's strip y in [0.5, 1] of the plane z = 0.5 (its slanted edges stay
     # outside x in [0, 1] there): area 0.5.
     assert area == pytest.approx(0.5, rel=1e-9)
+
+
+def test_variation_gradient_kernel_recovers_a_linear_field():
+    """Least squares over the neighbours is exact for V linear in position (up to the tiny ridge)."""
+    from usdbake.kernels.probe_ascent import variation_gradient
+
+    rng = np.random.default_rng(1)
+    positions = rng.uniform(-2, 2, (300, 3))
+    slope = np.array([0.3, -1.2, 0.7])
+    edges = lp.cloud_edges(positions)
+    tracer = Tracer.from_scene(two_rooms())
+    gradient, mean_edge = variation_gradient(tracer, positions, positions @ slope + 5.0, edges)
+    np.testing.assert_allclose(gradient, np.broadcast_to(slope, gradient.shape), rtol=1e-6, atol=1e-6)
+    length = np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1)
+    expected = np.bincount(edges.ravel(), np.repeat(length, 2), 300) / np.bincount(edges.ravel(), minlength=300)
+    np.testing.assert_allclose(mean_edge, expected, rtol=1e-12)
