@@ -1,109 +1,50 @@
 """Light probe cloud: automatic placement, L2 SH irradiance capture, tetrahedral interpolation.
 
 Sukys, "Light probe cloud generation for games", MSc thesis, Chalmers 2014
-(placement: section 3.1, spawn and merge 3.1.1, gradient ascent 3.1.2;
-tetrahedral grid and barycentric traversal 3.2.1; leaks 3.2.2), after Cupisz,
-"Light probe interpolation using tetrahedral tessellations", GDC 2012.
+(placement: section 3.1, spawn and merge 3.1.1, gradient ascent and light
+decoupling 3.1.2, unlit areas 3.1.3; tetrahedral grid and barycentric traversal
+3.2.1; leaks 3.2.2), after Cupisz, "Light probe interpolation using tetrahedral
+tessellations", GDC 2012. docs/light_probes.md has the whole account and figures.
 
-**Placement.**
+**Placement** (``tetrahedra=delaunay``). Jittered grid candidates over the
+placement box (``placement_box``), dropped inside geometry (26-ray back-face
+vote) or nearer a surface than the clearance (``CLEARANCE_FRACTION`` of
+``min_spacing``); captured *decoupled* (the dome and bounced light, not the
+real-time lights); then ``iterations`` rounds of gradient ascent on the
+variation ``V_i = max_j c_ij / |x_i - x_j|`` (``c_ij``: mean over 26 normals of
+``|E_i - E_j| / (E_i + E_j + floor)``, in [0, 1); gradient by least squares in
+``kernels/probe_ascent.py``; a move into darkness, into or through geometry is
+reverted), spawn at the midpoints of contrasted long edges, merge of
+neighbours that see the same light (``similar_probes``) and thinning to
+``min_spacing``; k-means of the inside of unlit regions
+(``cluster_dark_probes``); with ``leak_fix``, wall probes beside the blockers
+of tetrahedron edges (``wall_probes``). ``tetrahedra=conforming`` places the
+probes on fTetWild's mesh of the empty space instead (``geometry/conforming.py``:
+one probe per vertex and side of every surface).
 
-1. Candidates: the corners of a grid of at most ``probes / 2`` points over
-   the scene bounds shrunk by the clearance (so the probes' hull reaches the
-   walls, floor and ceiling), jittered by a quarter cell (seeded). A
-   candidate is *inside geometry* when, of 26 fixed rays (axes, face and
-   cube diagonals), more hit single-sided triangles from the back than from
-   the front (double-sided triangles do not vote); it is dropped then, and
-   also when its nearest hit is closer than the clearance
-   (``CLEARANCE_FRACTION`` = 0.1 of ``min_spacing``).
-2. Capture (below) at ``placement_rays`` per probe.
-3. ``iterations`` rounds of
+**Capture** (``kernels/probe_capture.py``). ``rays`` stratified sphere
+directions per probe; escaped rays see the dome, hits return
+``L_e + rho (E0 + E_ind) / pi`` with ``bounces`` bounces; the lights that are not
+geometry are projected as visible sources only with ``direct_lights=probes``,
+otherwise ``irradiance_at`` adds them at the lookup by shadow rays. The
+radiance SH is convolved with the clamped cosine, so ``shCoefficients`` hold
+irradiance: ``E(n) = sum_k c_k Y_k(n)`` (W/m^2). De-ringing windows probes whose
+L2 irradiance goes negative (``kernels.sh.dering``).
 
-   - *gradient ascent* on the lighting-variation measure ``V`` (the
-     irradiance-gradient idea of Chajdas et al. 2011 used by Sukys, made
-     scale-free): for a Delaunay edge (i, j), the contrast ``c_ij`` is the
-     mean over 26 normals of ``|E_i - E_j| / (E_i + E_j)`` (luminance of the
-     SH irradiance, Sukys' 26-direction sampling), and ``V_i = max_j c_ij /
-     |x_i - x_j|``. Each probe moves along the least-squares gradient of V
-     over its neighbours by half its mean edge length, halved every round. A
-     move is rejected when the segment crosses geometry, the new spot is
-     inside geometry or too close to it, or the probe sees no light there
-     (Sukys' "second order" revert);
-   - *spawn*: a probe at the midpoint of each edge with contrast >
-     ``contrast`` and length > 2 ``min_spacing`` (blocked edges included:
-     their midpoint may be a space between two blockers, e.g. a gallery
-     between two slabs), if the midpoint is valid, most contrasted first, up
-     to three quarters of the budget ``probes``;
-   - *merge*: probes closer than ``min_spacing`` are thinned greedily, the
-     probe with the higher V survives.
-4. With ``leak_fix``, *wall probes* (Sukys 3.2.2): where a tetrahedron edge
-   meets geometry, a probe on each side of the blocker, two clearances before
-   the hit, when that is at least ``min_spacing / 2`` from the edge's own
-   end (his guard against dense clusters), thinned to ``min_spacing / 2``,
-   up to the budget.
+**Interpolation.** The device walk of ``kernels/probe_lookup.py`` (the float64
+walk of ``geometry.tetrahedra`` for points it leaves outside the hull or in a
+flat tetrahedron); outside the hull, the boundary tetrahedron's barycentrics
+clamped. Delaunay clouds with ``leak_fix`` store a 6-bit blocked-edge mask per
+tetrahedron (two rays per edge) and ``tetrahedra.leak_weights`` keeps only the
+query's side of the blockers; conforming clouds need no rule.
 
-**Capture.** From each probe, ``rays`` stratified uniform sphere directions
-(strata^2, jittered, seeded per ray). A ray that escapes returns the dome
-light radiance (sum of the dome lights, textures ignored; 0 if none). A ray
-that hits the front of a triangle (either side if double-sided) returns its
-outgoing radiance ``L_e + albedo / pi * E_direct``, one bounce:
-``E_direct`` at the hit with one shadow-ray sample per light: distant lights
-(UsdLux: an unnormalized light's intensity is the radiance of its disc, so a
-surface facing it gets ``E = L Omega`` with ``Omega = 2 pi (1 - cos(angle /
-2))``, 6.7e-5 sr for the sun's 0.53 degrees; a zero angle reads the intensity
-as the irradiance; ``normalize`` is not visible in the Scene, see the docs),
-dome (one cosine-weighted ray, ``E = pi L V``), sphere (a direction in the
-subtended cone, ``E = L Omega cos V``), rect and disk (a point on the
-emitter, ``E = L A cos cos' / d^2 V``), and, only when the stage has no UsdLux lights,
-emissive triangles (one picked by power). A hit on the back of a single-sided
-triangle returns 0 (the inside of geometry is dark). Lights that are not
-geometry (distant, sphere, rect, disk) are added to each probe as visible
-point sources: ``L_lm += E Y_lm(w)`` towards the light's centre (a
-shadow-ray per light). The radiance SH (projection, ``kernels/sh.py``) is
-convolved with the clamped cosine (pi, 2 pi/3, pi/4):
-
-    shCoefficients = irradiance SH, E(n) = sum_k c_k Y_k(n)   (W/m^2)
-
-which is what ``usdbake preview --probes`` evaluates at each sphere normal.
-
-**Leak fixing** (Sukys 3.2.2, Cupisz): every tetrahedron edge is tested with
-two rays, probe a -> b and b -> a; an edge is blocked when either meets
-geometry. Blocked edges are stored as a 6-bit mask per tetrahedron
-(``bake:tetBlockedEdges``, bit e = edge ``tetrahedra.TET_EDGES[e]``). At
-interpolation time the tetrahedron's unblocked edges split its four probes
-into sides; the side with the largest total barycentric weight is the
-query's and the other sides contribute nothing; within that side, a probe cut
-from the side's heaviest probe by a blocked edge is dropped too; the weights
-left are renormalized (``tetrahedra.leak_weights``). The side is decided by
-weights, not by the wall's position, so near a blocker the switch happens
-where the two sides weigh the same; the wall probes of step 4 put that close
-to the wall.
-
-Outside the hull of the probes the barycentrics of the boundary tetrahedron
-the walk stops in are clamped to >= 0 and renormalized.
-
-USD written (bake layer): a ``LightProbeCloud`` prim at
-``/usdbake/LightProbes`` (``/usdbake`` is a Scope; a root prim, so the cloud
-does not depend on the transform of the stage's default prim; positions are
-world space):
-
-====================== =========== ============================================
-property               type        value
-====================== =========== ============================================
-probePositions         point3f[]   probe positions (world space)
-shCoefficients         float3[]    irradiance SH, 9 per probe, probe-major (RGB)
-tetrahedra             int[]       4 probe indices per tetrahedron
-tetNeighbors           int[]       4 per tetrahedron, opposite each vertex; -1 none
-shOrder                int         2
-shBasis                token       realOrthonormal
-bake:tetBlockedEdges   uchar[]     6-bit blocked-edge mask per tetrahedron
-bake:shQuantity        token       irradiance (uniform)
-====================== =========== ============================================
-
-Product: a ``ProbeCloud`` (core/products.py; positions in the scene frame).
+USD written (bake layer): a ``LightProbeCloud`` prim at ``/usdbake/LightProbes``
+(``cloud_records``: world-space positions, irradiance SH, tetrahedra,
+neighbours, blocked edges, barycentric matrices, ``bake:directLights``, capture
+positions of a conforming cloud). Product: a ``ProbeCloud`` (scene frame).
 
 Parameters: ``usdbake list light_probes`` or docs/light_probes.md, both generated from ``Params`` below.
 """
-
 from __future__ import annotations
 
 import time
