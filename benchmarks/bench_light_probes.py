@@ -1,7 +1,8 @@
-"""Light probes on atrium.usda: interpolated irradiance against direct capture at 16x rays."""
+"""Light probes against path-traced irradiance: placed cloud, conforming cloud and a uniform grid."""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -11,115 +12,168 @@ from usdbake.core.products import ProbeCloud
 
 NAME = "light_probes"
 DESCRIPTION = (
-    "Light probe cloud on `atrium.usda`. Error = relative RMS of the irradiance interpolated from the cloud "
-    "(tetrahedral walk, leak rule) at random free-space points, for 26 normals each (luminance clamped at 0, "
-    "as `sample_irradiance` reads it), against a direct capture at those points with 16x the default rays "
-    "(4096, different seed), cached; divided by "
-    "the mean reference irradiance (`median`: the median over points of the per-point RMS). "
-    "Knobs: probe budget (default 1024) and capture rays (default 256); "
-    "seconds = the whole processor (placement, capture, tetrahedra, edge rays). The noise floor is the "
-    "error of a direct capture at the points at default rays. Thin wall: two closed rooms with 5 cm of wall "
-    "between them and lamps of 2000 and 100 W/sr; leak error = the same relative RMS at 400 points within "
-    "10 cm of the wall on the dim room's side, with and without `leak_fix` (default 1024-probe budget); "
-    "`thin_wall_error_*` at 800 points spread over both rooms.")
+    "Light probe clouds against a dense path-traced reference (`benchmarks/probe_reference.py`: direct light "
+    "by 256 samples per light and 1024 sky rays, plus 1024 paths of 4 bounces of indirect light) at free-space "
+    "points (6 axis normals each, >= 0.1 m from surfaces), near-surface points (5 cm off a surface, its "
+    "normal) and leak points (within 10 cm of a wall on its dark side), on atrium, the furnished room of "
+    "`furnished_room.py` (uniform sky through four windows, 200 m ground) and two thin-walled rooms lit by "
+    "lamps of 2000 and 100 W/sr. Error = relative RMS of the irradiance luminance. Three ways to fill the "
+    "space with the same number of probes: `delaunay` (the placed cloud at default settings: error-driven "
+    "placement, Delaunay tetrahedra, leak rule), `conforming` (fTetWild's mesh of the empty space sized by the "
+    "error-driven placement, a probe per vertex and side) and `grid` (a uniform lattice over the "
+    "same box with trilinear interpolation, as engines' irradiance volumes, captured the same way). All three "
+    "leave the lights' direct light to the lookup (`direct_lights=lookup`) unless a row says `probes`.")
+
+SCENE_BUDGETS = {"atrium": (256, 512, 1024, 2048), "furnished_room": (128, 256, 512, 1024),
+                 "thin_wall": (128, 256, 512, 1024)}
 DEFAULT_PROBES = 1024
-DEFAULT_RAYS = 256
-POINT_CLEARANCE = 0.3
-"""Test points keep 0.3 m from surfaces (where a character or a prop would be lit by the probes)."""
+QUICK = {"scenes": ("thin_wall",), "budgets": (256,), "free": 150, "near": 100, "leak": 100, "paths": 64}
+FULL = {"free": 6000, "near": 4000, "leak": 500, "paths": 1024}
 
 
 def run(quick: bool = False) -> dict:
     from usdbake.core import Context
-    from usdbake.kernels.lights import scene_lighting
     from usdbake.kernels.tracer import Tracer
     from usdbake.processors import light_probes as lp
 
-    scene = harness.load_scene("atrium")
-    tracer = Tracer.from_scene(scene)
-    lighting = scene_lighting(scene, tracer.device)
-    count = 150 if quick else 600
-    points = _free_points(lp, tracer, lighting, scene, count)
+    from . import probe_reference as ref
 
-    reference_rays = 16 * DEFAULT_RAYS
-    reference = harness.cached_reference(
-        "light_probes_atrium", {"rays": reference_rays, "seed": 99, "points": len(points), "quick": quick,
-                                "version": lp.LightProbes.version, "clearance": POINT_CLEARANCE},
-        lambda: {"sh": lp.compute_probe_sh(tracer, scene, points, rays=reference_rays, seed=99,
-                                           lighting=lighting)})["sh"]
-    e_ref = lp.sample_irradiance(reference)
-    scale = float(e_ref.mean())
-
-    def error(sh) -> float:
-        return float(np.sqrt(np.mean((lp.sample_irradiance(sh) - e_ref) ** 2)) / scale)
-
-    def median_error(sh) -> float:  # per point: RMS over its 26 normals / the mean reference irradiance
-        return float(np.median(np.sqrt(np.mean((lp.sample_irradiance(sh) - e_ref) ** 2, axis=1)) / scale))
-
+    settings = QUICK if quick else FULL
+    scenes = QUICK["scenes"] if quick else ref.SCENES
     processor = lp.LightProbes()
+    rows, figures = [], {}
+    for name in scenes:
+        scene = ref.load(name)
+        if name == "furnished_room":  # probes where the grid and the test points are: the room (a probe volume)
+            scene = dataclasses.replace(scene, probe_volumes=np.array([ref.grid_box(name, scene)]))
+        tracer = Tracer.from_scene(scene)
+        tests = ref.test_set(name, scene, tracer, free=settings["free"], near=settings["near"],
+                             leak=settings["leak"])
+        reference = ref.reference(name, scene, tracer, tests, paths=settings["paths"])
+        kinds = {kind: tests.rows(k) for k, kind in enumerate(ref.KIND_NAMES)}
 
-    def bake(**params):
-        started = time.perf_counter()
-        result = processor.run(Context(scene, processor.Params(**params), tracer))
-        seconds = time.perf_counter() - started
-        cloud = result.products[ProbeCloud]
-        return cloud, seconds, result.stats
+        def errors(estimate) -> dict:
+            out = {"error": ref.relative_error(estimate, reference, tests.kind != ref.LEAK)}
+            for kind, rows_of_kind in kinds.items():
+                if rows_of_kind.any():
+                    out[kind] = ref.relative_error(estimate, reference, rows_of_kind)
+            return out
 
-    bake(probes=16, rays=4, placement_rays=4, iterations=1)  # compile outside the timing
-    rows = []
-    budgets = [64, 1024] if quick else [64, 128, 256, 512, 1024, 2048, 4096]
-    for probes in budgets:
-        cloud, seconds, stats = bake(probes=probes)
-        rows.append({"label": f"probes={probes}", "knob": "probes", "probes_budget": probes,
-                     "probes": int(stats["probes"]), "rays": DEFAULT_RAYS, "seconds": seconds,
-                     "error": error(lp.interpolate_sh(cloud, points)),
-                     "median": median_error(lp.interpolate_sh(cloud, points)), "default": probes == DEFAULT_PROBES})
-    for rays in ([64] if quick else [64, 1024]):
-        cloud, seconds, stats = bake(rays=rays)
-        rows.append({"label": f"rays={rays}", "knob": "rays", "probes_budget": DEFAULT_PROBES,
-                     "probes": int(stats["probes"]), "rays": rays, "seconds": seconds,
-                     "error": error(lp.interpolate_sh(cloud, points)),
-                     "median": median_error(lp.interpolate_sh(cloud, points)), "default": False})
+        def bake(**params):
+            started = time.perf_counter()
+            result = processor.run(Context(scene, processor.Params(**params), tracer))
+            seconds = time.perf_counter() - started
+            cloud = result.products[ProbeCloud]
+            estimate = lp.irradiance_at(cloud, tests.positions, tests.normals, tracer=tracer, scene=scene)
+            return {"probes": len(cloud.probe_positions), "seconds": seconds,
+                    "placement_seconds": result.stats["placement_seconds"],
+                    "capture_seconds": result.stats["capture_seconds"], **errors(estimate)}
 
-    default = next(r for r in rows if r["default"])
-    floor = error(lp.compute_probe_sh(tracer, scene, points, rays=DEFAULT_RAYS, seed=7, lighting=lighting))
-    grid_cloud, grid_seconds, grid_stats = bake(iterations=0)
-    leaky_cloud, _, _ = bake(leak_fix=False)
-    figures = {
-        "test_points": len(points),
-        "probes_at_default": default["probes"],
-        "relative_rms_at_default": round(default["error"], 4),
-        "median_point_error_at_default": round(default["median"], 4),
-        "processor_seconds_default": round(default["seconds"], 3),
-        "direct_capture_noise_floor": round(floor, 4),
-        "relative_rms_grid_only_same_budget": round(error(lp.interpolate_sh(grid_cloud, points)), 4),
-        "median_point_error_grid_only": round(median_error(lp.interpolate_sh(grid_cloud, points)), 4),
-        "probes_grid_only": int(grid_stats["probes"]),
-        "relative_rms_without_leak_fix": round(error(lp.interpolate_sh(leaky_cloud, points)), 4),
-        "median_point_error_without_leak_fix": round(median_error(lp.interpolate_sh(leaky_cloud, points)), 4),
-    }
-    figures.update(thin_wall_leak())
-    if not quick:
-        figures["bake_wall_seconds_default"] = round(harness.bake_wall_seconds(harness.SAMPLES / "atrium.usda",
-                                                                               "light_probes"), 3)
-    table = harness.markdown_table(rows, ["label", "probes", "rays", "seconds", "error", "median"])
-    return harness.result(NAME, description=DESCRIPTION,
-                          settings={"reference_rays": reference_rays, "test_points": len(points),
-                                    "point_clearance": POINT_CLEARANCE},
-                          points=rows, figures=figures, table=table, knob="probe budget / capture rays",
-                          error_label="relative RMS irradiance vs 16x-ray capture")
+        def grid(count: int, direct_lights: str = "lookup", rays: int = 256, bounces: int = 3):
+            lo, hi = ref.grid_box(name, scene)
+            positions, dims = ref.grid_positions(lo, hi, count)
+            started = time.perf_counter()
+            sh = lp.compute_probe_sh(tracer, scene, positions, rays=rays, seed=1_000_003, bounces=bounces,
+                                     direct_lights=direct_lights == "probes")
+            seconds = time.perf_counter() - started
+            index, weights = ref.grid_weights(lo, hi, dims, tests.positions)
+            interpolated = np.einsum("nv,nvkc->nkc", weights, sh[index].astype(np.float64))
+            estimate = np.einsum("nk,nkc->nc", lp.sh_basis_np(tests.normals.astype(np.float64)), interpolated)
+            if direct_lights == "lookup":
+                estimate = estimate + lp.direct_light_irradiance(tracer, scene, tests.positions, tests.normals)
+            return {"probes": len(positions), "seconds": seconds, **errors(estimate)}
+
+        processor.run(Context(scene, processor.Params(probes=16, rays=4, placement_rays=4, iterations=1), tracer))
+        budgets = QUICK["budgets"] if quick else SCENE_BUDGETS[name]
+        default = budgets[-1] if quick else DEFAULT_PROBES if name == "atrium" else budgets[-2]
+        for budget in budgets:
+            placed = bake(probes=budget)
+            rows.append(_row(name, "delaunay", budget, placed))
+            rows.append(_row(name, "grid", budget, grid(placed["probes"])))
+            if not quick and (name != "atrium" or budget == default):  # atrium: fTetWild takes minutes
+                rows.append(_row(name, "conforming", budget, bake(probes=budget, tetrahedra="conforming")))
+        variants = {"delaunay, no leak handling": dict(leak_fix=False),
+                    "delaunay, thesis placement": dict(placement="thesis")}
+        if not quick:
+            variants["delaunay, direct in probes"] = dict(direct_lights="probes")
+            variants["delaunay, 1 bounce"] = dict(bounces=1)
+        for label, params in variants.items():
+            rows.append(_row(name, label, default, bake(probes=default, **params)))
+        if not quick:
+            placed = next(r for r in rows if r["scene"] == name and r["method"] == "delaunay"
+                          and r["budget"] == default)
+            rows.append(_row(name, "grid, direct in probes", default, grid(placed["probes"], "probes")))
+        figures.update(_scene_figures(name, rows, default, quick))
+        figures[f"{name}_test_points"] = tests.points
+        figures[f"{name}_test_points_per_kind"] = tests.counts
+        figures[f"{name}_reference_noise"] = round(ref.reference_noise(name, scene, tracer, tests,
+                                                                       paths=settings["paths"]), 4)
+    table = harness.markdown_table(rows, ["scene", "method", "budget", "probes", "seconds", "error", "free", "near",
+                                          "leak"])
+    return harness.result(NAME, description=DESCRIPTION, settings={**settings, "scenes": list(scenes)},
+                          points=rows, figures={k: v for k, v in figures.items() if v is not None}, table=table,
+                          knob="probe budget", error_label="relative RMS irradiance vs path tracer")
 
 
-def _free_points(lp, tracer, lighting, scene, count: int) -> np.ndarray:
-    """``count`` random points in the placement box, outside geometry and POINT_CLEARANCE from it."""
-    rng = np.random.default_rng(2024)  # fixed seed: the same test points every run
-    lo, hi = lp.placement_box(scene)
-    found = []
-    while sum(len(f) for f in found) < count:
-        candidates = (lo + rng.random((4 * count, 3)) * (hi - lo)).astype(np.float32)
-        inside, nearest = lp.classify_points(tracer, lighting, candidates)
-        found.append(candidates[~inside & (nearest >= POINT_CLEARANCE)])
-    return np.concatenate(found)[:count]
+def _row(scene: str, method: str, budget: int, measured: dict) -> dict:
+    row = {"scene": scene, "method": method, "budget": budget, "probes": measured["probes"],
+           "seconds": round(measured["seconds"], 3), "error": round(measured["error"], 4)}
+    for part in ("placement_seconds", "capture_seconds"):
+        if part in measured:
+            row[part] = round(measured[part], 3)
+    for kind in ("free", "near", "leak"):
+        if kind in measured:
+            row[kind] = round(measured[kind], 4)
+    return row
 
+
+def _scene_figures(name: str, rows: list[dict], default: int, quick: bool) -> dict:
+    """Ratios at the default budget: placed / grid error, grid probes needed for the placed error, leak
+    reductions."""
+    mine = [r for r in rows if r["scene"] == name]
+
+    def at(method: str, budget: int = default) -> dict | None:
+        return next((r for r in mine if r["method"] == method and r["budget"] == budget), None)
+
+    figures = {}
+    placed, grid = at("delaunay"), at("grid")
+    figures[f"{name}_delaunay_over_grid_error"] = round(placed["error"] / grid["error"], 3)
+    conforming = at("conforming")
+    if conforming:
+        figures[f"{name}_conforming_over_grid_error"] = round(conforming["error"] / at("grid")["error"], 3)
+    grid_curve = sorted((r["probes"], r["error"]) for r in mine if r["method"] == "grid")
+    for method in ("delaunay", "conforming"):
+        row = at(method)
+        if row and len(grid_curve) > 1:
+            ratio = _probes_for_error(grid_curve, row)
+            if ratio is not None:
+                figures[f"{name}_grid_probes_for_{method}_error_ratio"] = ratio
+            elif row["error"] < min(e for _, e in grid_curve):  # no grid of the sweep is as good
+                figures[f"{name}_grid_probes_for_{method}_error_ratio_at_least"] = round(
+                    max(c for c, _ in grid_curve) / row["probes"], 3)
+    leaky = at("delaunay, no leak handling")
+    if leaky and "leak" in leaky:
+        for method in ("delaunay", "conforming"):
+            row = at(method)
+            if row and "leak" in row:
+                figures[f"{name}_leak_reduction_{method}"] = round(leaky["leak"] / max(row["leak"], 1e-12), 3)
+                figures[f"{name}_overall_error_{method}_vs_no_leak_handling"] = round(
+                    row["error"] / leaky["error"], 3)
+    return figures
+
+
+def _probes_for_error(grid_curve: list[tuple[int, float]], row: dict) -> float | None:
+    """How many times more probes the grid needs for ``row``'s error (log-log interpolation of its curve;
+    None when the curve does not reach that error)."""
+    counts = np.log([c for c, _ in grid_curve])
+    errors = np.log([e for _, e in grid_curve])
+    target = np.log(row["error"])
+    for k in range(len(counts) - 1):
+        lo, hi = sorted((errors[k], errors[k + 1]))
+        if lo <= target <= hi and errors[k] != errors[k + 1]:
+            t = (target - errors[k]) / (errors[k + 1] - errors[k])
+            return round(float(np.exp(counts[k] + t * (counts[k + 1] - counts[k]))) / row["probes"], 3)
+    return None
 
 
 LEAK_BAND = 0.1
@@ -145,38 +199,3 @@ def thin_wall_stage():
         lamp.CreateRadiusAttr(0.1)
         UsdGeom.Xformable(lamp).AddTranslateOp().Set(Gf.Vec3d(x0 + 2.0, 2.0, 2.5))
     return stage
-
-
-def thin_wall_leak(probes: int = DEFAULT_PROBES, points: int = 400) -> dict:
-    """Irradiance error at points within LEAK_BAND of the thin wall on the dim room's side, and at points
-    spread over both rooms, with and without leak handling (``leak_fix``), against a 4096-ray capture."""
-    from usdbake.core import Context
-    from usdbake.kernels.lights import scene_lighting
-    from usdbake.kernels.tracer import Tracer
-    from usdbake.processors import light_probes as lp
-    from usdbake.stages.extract import extract_scene
-
-    scene = extract_scene(thin_wall_stage())
-    tracer = Tracer.from_scene(scene)
-    lighting = scene_lighting(scene, tracer.device)
-    rng = np.random.default_rng(5)  # fixed seed: the same points every run
-    near = np.c_[rng.uniform(4.05 + 0.01, 4.05 + LEAK_BAND, points), rng.uniform(0.2, 3.8, points),
-                 rng.uniform(0.2, 2.8, points)]
-    spread = np.c_[np.r_[rng.uniform(0.2, 3.8, points), rng.uniform(4.25, 7.85, points)],
-                   rng.uniform(0.2, 3.8, 2 * points), rng.uniform(0.2, 2.8, 2 * points)]
-    at = (np.r_[near, spread] - scene.origin).astype(np.float32)
-    reference = lp.sample_irradiance(lp.compute_probe_sh(tracer, scene, at, rays=16 * DEFAULT_RAYS, seed=99,
-                                                         lighting=lighting))
-    processor = lp.LightProbes()
-    figures = {}
-    for leak_fix in (False, True):
-        result = processor.run(Context(scene, processor.Params(probes=probes, leak_fix=leak_fix), tracer))
-        estimate = lp.sample_irradiance(lp.interpolate_sh(result.products[ProbeCloud], at))
-        key = "with" if leak_fix else "without"
-        figures[f"thin_wall_leak_error_{key}_leak_fix"] = round(float(
-            np.sqrt(np.mean((estimate[:points] - reference[:points]) ** 2)) / reference[:points].mean()), 4)
-        figures[f"thin_wall_error_{key}_leak_fix"] = round(float(
-            np.sqrt(np.mean((estimate[points:] - reference[points:]) ** 2)) / reference[points:].mean()), 4)
-    figures["thin_wall_leak_reduction"] = round(figures["thin_wall_leak_error_without_leak_fix"]
-                                                / figures["thin_wall_leak_error_with_leak_fix"], 3)
-    return figures

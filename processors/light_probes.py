@@ -75,6 +75,7 @@ from ..kernels.sh import dering, sh_basis_np
 
 CLOUD_PRIM = "/usdbake/LightProbes"
 
+PLACEMENTS = ("refine", "thesis")
 TETRAHEDRA = ("delaunay", "conforming")
 DIRECT_LIGHTS = ("lookup", "probes")
 
@@ -101,6 +102,15 @@ MERGE_CONTRAST_SHARE = 0.25
 
 DARK_CLUSTER_SIZE = 8
 """Interior probes of an unlit region are replaced by one probe per this many (k-means, Sukys 3.1.3)."""
+
+CANDIDATES_PER_PROBE = 8
+"""Error-driven placement captures this many candidate spots per probe of the budget."""
+
+REFINE_START_SHARE = 0.25
+"""Error-driven placement starts from a lattice of this share of the budget."""
+
+REFINE_STEP_SHARE = 0.125
+"""Each round of error-driven placement grows the cloud by this share."""
 
 BOUNDS_MIN_RELATIVE = 0.05
 """Each axis of the placement box is at least this fraction of the diagonal (flat scenes)."""
@@ -381,6 +391,71 @@ def cluster_dark_probes(positions: np.ndarray, sh: np.ndarray, rng: np.random.Ge
     return positions[keep], sh[keep], int((~keep).sum())
 
 
+def refine_placement(tracer, scene: Scene, *, probes: int, placement_rays: int = 64, bounces: int = 1,
+                     seed: int = 0, leak_fix: bool = True, lighting: SceneLighting | None = None,
+                     progress=lambda f: None) -> Placement:
+    """Error-driven placement: probes go where the cloud predicts its own light worst.
+
+    Candidates: a jittered grid of CANDIDATES_PER_PROBE x ``probes`` valid spots (as the thesis grid: outside
+    geometry, off surfaces, in the placement volume), captured decoupled at ``placement_rays``. The cloud
+    starts from the candidates nearest a lattice of REFINE_START_SHARE x ``probes`` points; each round
+    tetrahedralizes it (with the leak rule when ``leak_fix``), interpolates it at every candidate and adds the
+    candidates with the largest error (RMS over Sukys' 26 directions of the luminance difference to their own
+    capture), REFINE_STEP_SHARE of the cloud per round, none within two candidate spacings of another pick.
+    Sum-of-squares error is what the relative RMS of a lookup measures, so each pick removes the largest
+    share of it the cloud can see (a greedy, cross-validation-style refinement; the thesis's spawn at edge
+    midpoints is its heuristic form)."""
+    lighting = lighting or scene_lighting(scene, tracer.device)
+    rng = np.random.default_rng(seed)  # seeded: the placement is reproducible
+    lo, hi = placement_box(scene)
+    spacing = grid_spacing(lo, hi, CANDIDATES_PER_PROBE * probes)
+    clearance = CLEARANCE_FRACTION * spacing
+    grid = candidate_grid(lo, hi, spacing, 1.01 * clearance, rng)
+    inside, nearest = classify_points(tracer, lighting, grid)
+    keep = ~inside & (nearest >= clearance) & in_placement_volume(scene, grid, lo, hi)
+    candidates = grid[keep].astype(np.float64)
+    empty = Placement(candidates.astype(np.float32), spacing, len(grid), int((~keep).sum()), 0, 0, 0)
+    if len(candidates) <= 4:
+        return empty
+    sh = compute_probe_sh(tracer, scene, candidates, rays=placement_rays, seed=seed + 1, lighting=lighting,
+                          bounces=bounces, direct_lights=False)
+    truth = sample_irradiance(sh)
+    start = candidate_grid(lo, hi, grid_spacing(lo, hi, max(8, int(REFINE_START_SHARE * probes))), 0.0, rng)
+    in_cloud = np.zeros(len(candidates), bool)
+    in_cloud[np.unique(cKDTree(candidates).query(start)[1])] = True
+    target = min(probes, len(candidates))
+    while in_cloud.sum() < target:
+        progress(0.1 + 0.5 * in_cloud.sum() / target)
+        members = np.flatnonzero(in_cloud)
+        try:
+            cloud = build_cloud(candidates[members], sh[members], tracer, leak_fix=leak_fix)
+        except tetrahedra.DegenerateProbesError:
+            in_cloud[rng.choice(np.flatnonzero(~in_cloud), min(4, int((~in_cloud).sum())), replace=False)] = True
+            continue
+        error = np.sqrt(np.mean((sample_irradiance(interpolate_sh(cloud, candidates)) - truth) ** 2, axis=1))
+        error[in_cloud] = -1.0
+        room = min(target - int(in_cloud.sum()), max(1, int(REFINE_STEP_SHARE * in_cloud.sum())))
+        picked = separated_worst(candidates, error, room, 2.0 * spacing)
+        if not len(picked):
+            break
+        in_cloud[picked] = True
+    return Placement(candidates[in_cloud].astype(np.float32), spacing, len(grid), int((~keep).sum()), 0,
+                     int(in_cloud.sum()), 0)
+
+
+def separated_worst(points: np.ndarray, error: np.ndarray, count: int, radius: float) -> np.ndarray:
+    """Indices of up to ``count`` points of positive error, largest first, none within ``radius`` of an
+    earlier pick (so one bright spot does not take a round's whole share)."""
+    picked: list[int] = []
+    for i in np.argsort(-error, kind="stable"):
+        if error[i] <= 0 or len(picked) >= count:
+            break
+        if picked and np.min(np.linalg.norm(points[picked] - points[i], axis=1)) < radius:
+            continue
+        picked.append(int(i))
+    return np.asarray(picked, np.int64)
+
+
 def wall_probes(tracer, positions: np.ndarray, valid, min_spacing: float, clearance: float,
                 room: int) -> np.ndarray:
     """Sukys 3.2.2: where a tetrahedron edge meets geometry, a probe on each side of the blocker,
@@ -429,10 +504,12 @@ def thin(positions: np.ndarray, order: np.ndarray, radius: float) -> np.ndarray:
     return np.sort(np.asarray(kept, np.int64))
 
 
-def conforming_placement(tracer, scene: Scene, lighting: SceneLighting, probes: int, *,
-                         threads: int = 0) -> ConformingMesh:
+def conforming_placement(tracer, scene: Scene, lighting: SceneLighting, probes: int, *, threads: int = 0,
+                         density_from: np.ndarray | None = None) -> ConformingMesh:
     """The conforming probe mesh (``geometry.conforming``) of the placement box, its target edge length set so
-    the probe count is near ``probes`` (a first guess from CONFORMING_DENSITY, rescaled once)."""
+    the probe count is near ``probes`` (a first guess from CONFORMING_DENSITY, rescaled once). With
+    ``density_from`` (a placed cloud's positions), the target edge length varies as that cloud's spacing
+    (fTetWild's background sizing mesh: the cloud's Delaunay tetrahedra, each probe's mean edge length)."""
     lo, hi = placement_box(scene)
     triangles = scene.points[scene.tri_vertices].astype(np.float64)
 
@@ -440,11 +517,23 @@ def conforming_placement(tracer, scene: Scene, lighting: SceneLighting, probes: 
         return classify_points(tracer, lighting, points)
 
     edge = float((CONFORMING_DENSITY * np.prod(hi - lo) / max(probes, 4)) ** (1.0 / 3.0))
-    mesh = conforming_mesh(tracer, classify, triangles, lo, hi, edge, threads)
+    sizing = None
+    if density_from is not None and len(density_from) >= 4:
+        tetra = tetrahedra.tetrahedralize(density_from)
+        edges, _ = tetrahedra.edge_list(tetra.tet_vertices)
+        length = np.linalg.norm(density_from[edges[:, 0]] - density_from[edges[:, 1]], axis=1)
+        spacing = np.bincount(edges.ravel(), np.repeat(length, 2), len(density_from)) / np.maximum(
+            np.bincount(edges.ravel(), minlength=len(density_from)), 1)
+        sizing = (np.asarray(density_from, np.float64), tetra.tet_vertices, spacing)
+    mesh = conforming_mesh(tracer, classify, triangles, lo, hi, edge, threads, sizing)
     count = len(mesh.positions)
-    if abs(count - probes) > CONFORMING_TOLERANCE * probes:
-        edge *= (count / probes) ** (1.0 / 3.0)
-        mesh = conforming_mesh(tracer, classify, triangles, lo, hi, edge, threads)
+    # Rescaled once; not when the count is over twice the budget: then the surfaces' detail sets it, and
+    # longer edges would not bring it down (atrium: 28k probes for a budget of 1024).
+    if abs(count - probes) > CONFORMING_TOLERANCE * probes and count < 2 * probes:
+        scale = (count / probes) ** (1.0 / 3.0)
+        edge *= scale
+        sizing = None if sizing is None else (sizing[0], sizing[1], sizing[2] * scale)
+        mesh = conforming_mesh(tracer, classify, triangles, lo, hi, edge, threads, sizing)
     return mesh
 
 
@@ -564,6 +653,9 @@ class LightProbes(Processor):
         placement_rays: int = param(64, "capture rays per probe while placing", low=1, high=1_000_000)
         leak_fix: bool = param(True, "delaunay: wall probes, ray-cast tetrahedron edges, stop interpolation "
                                      "across blockers")
+        placement: str = param("refine", "refine: probes go where the cloud predicts its own (decoupled) light "
+                               "worst among captured candidates; thesis: Sukys' grid + gradient ascent + spawn and "
+                               "merge (iterations, contrast, min_spacing) + wall probes", choices=PLACEMENTS)
         tetrahedra: str = param("delaunay", "delaunay: the placed cloud's Delaunay tetrahedra (scipy) with the leak "
                                 "rule; conforming: fTetWild's mesh of the empty space, a probe per vertex and side "
                                 "of every surface (no tetrahedron crosses one)", choices=TETRAHEDRA)
@@ -591,15 +683,26 @@ class LightProbes(Processor):
         stats: dict[str, float] = {}
         started = time.perf_counter()
         if p.tetrahedra == "conforming":
-            mesh = conforming_placement(tracer, scene, lighting, p.probes, threads=ctx.threads or 0)
+            density = None
+            if p.placement == "refine":
+                density = refine_placement(tracer, scene, probes=p.probes, placement_rays=p.placement_rays,
+                                           bounces=p.bounces, seed=p.seed, leak_fix=False, lighting=lighting,
+                                           progress=ctx.progress).positions.astype(np.float64)
+            mesh = conforming_placement(tracer, scene, lighting, p.probes, threads=ctx.threads or 0,
+                                        density_from=density)
             positions, capture_at = mesh.positions.astype(np.float32), mesh.capture_positions.astype(np.float32)
             stats.update({"mesh_vertices": float(mesh.mesh_vertices), "solid_tets": float(mesh.solid_tets),
                           "covered_faces": float(mesh.covered_faces), "tetwild_seconds": mesh.seconds})
         else:
-            placement = place_probes(tracer, scene, probes=p.probes, min_spacing=p.min_spacing,
-                                     iterations=p.iterations, contrast=p.contrast, placement_rays=p.placement_rays,
-                                     seed=p.seed, leak_probes=p.leak_fix, bounces=p.bounces, lighting=lighting,
-                                     progress=ctx.progress)
+            if p.placement == "refine":
+                placement = refine_placement(tracer, scene, probes=p.probes, placement_rays=p.placement_rays,
+                                             bounces=p.bounces, seed=p.seed, leak_fix=p.leak_fix, lighting=lighting,
+                                             progress=ctx.progress)
+            else:
+                placement = place_probes(tracer, scene, probes=p.probes, min_spacing=p.min_spacing,
+                                         iterations=p.iterations, contrast=p.contrast,
+                                         placement_rays=p.placement_rays, seed=p.seed, leak_probes=p.leak_fix,
+                                         bounces=p.bounces, lighting=lighting, progress=ctx.progress)
             if len(placement.positions) < 4:
                 raise ValueError(f"light_probes: only {len(placement.positions)} probe positions in empty space "
                                  f"({placement.dropped_inside} of {placement.candidates} candidates were inside or "
@@ -641,6 +744,9 @@ class LightProbes(Processor):
             messages.append(f"probes placed around the receivers, leaving out the backdrop(s) "
                             f"{', '.join(scene.prim_paths[int(b)] for b in backdrops[:3])}"
                             f"{' ...' if len(backdrops) > 3 else ''} (a ProbeVolumeAPI prim says where probes go)")
+        if p.tetrahedra == "conforming" and len(cloud.probe_positions) > 2 * p.probes:
+            messages.append(f"conforming tetrahedra need {len(cloud.probe_positions)} probes to follow this stage's "
+                            f"surfaces, over twice the budget of {p.probes} (tetrahedra=delaunay keeps the budget)")
         if len(scene.probe_volumes):
             stats["probe_volumes"] = float(len(scene.probe_volumes))
             messages.append(f"{len(cloud.probe_positions)} probes placed in {len(scene.probe_volumes)} probe "

@@ -159,6 +159,17 @@ def partitioned_room():
 CONFORMING_SCENES = {"two rooms": two_rooms, "partitioned room": partitioned_room}
 
 
+def test_error_driven_placement_puts_probes_where_the_light_is():
+    """Room A's lamp is 20 times room B's: the same relative variation is 20 times the absolute error there,
+    so the refinement spends most of the budget beyond its uniform start in room A."""
+    scene = two_rooms()
+    result, _ = bake(scene, probes=200, rays=16, placement_rays=64)
+    positions = result.products[ProbeCloud].probe_positions
+    in_a, in_b = (positions[:, 0] < 4.0).sum(), (positions[:, 0] > 4.05).sum()
+    assert in_a + in_b == len(positions) == 200
+    assert in_a > 2 * in_b
+
+
 @pytest.fixture(scope="module", params=sorted(CONFORMING_SCENES))
 def conforming_rooms(request):
     scene = CONFORMING_SCENES[request.param]()

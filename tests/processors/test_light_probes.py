@@ -185,9 +185,10 @@ def room_with_boxes():
     return make_scene(points, tris, lights=lights), [((-3, -3, 0), (-1, -1, 2)), ((1, 0, 0), (3.5, 3, 3))]
 
 
-def test_probes_never_inside_closed_geometry():
+@pytest.mark.parametrize("placement", lp.PLACEMENTS)
+def test_probes_never_inside_closed_geometry(placement):
     scene, boxes = room_with_boxes()
-    result, _ = run(scene, probes=128, rays=64, placement_rays=16, iterations=3)
+    result, _ = run(scene, probes=128, rays=64, placement_rays=16, iterations=3, placement=placement)
     cloud = result.products[ProbeCloud]
     positions = cloud.probe_positions
     assert len(positions) >= 20
@@ -217,8 +218,8 @@ def test_classify_points_inside_outside():
 def test_spawn_and_ascent_add_probes_where_light_changes():
     """With a hard shadow in the room, adaptation moves and spawns probes (and respects the budget)."""
     scene, _ = room_with_boxes()
-    grid_only, _ = run(scene, probes=96, rays=16, placement_rays=16, iterations=0)
-    adapted, _ = run(scene, probes=96, rays=16, placement_rays=16, iterations=3)
+    grid_only, _ = run(scene, probes=96, rays=16, placement_rays=16, iterations=0, placement="thesis")
+    adapted, _ = run(scene, probes=96, rays=16, placement_rays=16, iterations=3, placement="thesis")
     assert adapted.stats["moved"] > 0 and adapted.stats["spawned"] > 0
     assert adapted.stats["probes"] <= 96
     assert grid_only.stats["moved"] == grid_only.stats["spawned"] == 0
