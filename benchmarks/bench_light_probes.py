@@ -86,14 +86,22 @@ def run(quick: bool = False) -> dict:
         processor.run(Context(scene, processor.Params(probes=16, rays=4, placement_rays=4, iterations=1), tracer))
         budgets = QUICK["budgets"] if quick else SCENE_BUDGETS[name]
         default = budgets[-1] if quick else DEFAULT_PROBES if name == "atrium" else budgets[-2]
+
+        def with_grid(method: str, budget: int, measured: dict) -> None:
+            """The cloud's row and a grid row of the same probe count (the curve's points)."""
+            same = grid(measured["probes"])
+            rows.append(_row(name, "grid", budget, same))
+            rows.append({**_row(name, method, budget, measured), "grid_error": round(same["error"], 4),
+                         "vs_grid": round(measured["error"] / same["error"], 3)})
+
         for budget in budgets:
-            placed = bake(probes=budget)
-            rows.append(_row(name, "delaunay", budget, placed))
-            rows.append(_row(name, "grid", budget, grid(placed["probes"])))
+            with_grid("delaunay", budget, bake(probes=budget))
+            rows.append(_row(name, "delaunay, no leak handling", budget, bake(probes=budget, leak_fix=False)))
             if not quick and (name != "atrium" or budget == default):  # atrium: fTetWild takes minutes
-                rows.append(_row(name, "conforming", budget, bake(probes=budget, tetrahedra="conforming")))
-        variants = {"delaunay, no leak handling": dict(leak_fix=False),
-                    "delaunay, thesis placement": dict(placement="thesis")}
+                with_grid("conforming", budget, bake(probes=budget, tetrahedra="conforming"))
+        for count in ([] if quick else [2 * budgets[-1], 4 * budgets[-1]]):  # the grid's curve goes on
+            rows.append(_row(name, "grid", count, grid(count)))
+        variants = {"delaunay, thesis placement": dict(placement="thesis")}
         if not quick:
             variants["delaunay, direct in probes"] = dict(direct_lights="probes")
             variants["delaunay, 1 bounce"] = dict(bounces=1)
@@ -108,11 +116,45 @@ def run(quick: bool = False) -> dict:
         figures[f"{name}_test_points_per_kind"] = tests.counts
         figures[f"{name}_reference_noise"] = round(ref.reference_noise(name, scene, tracer, tests,
                                                                        paths=settings["paths"]), 4)
+    curves_plot(rows)
     table = harness.markdown_table(rows, ["scene", "method", "budget", "probes", "seconds", "error", "free", "near",
-                                          "leak"])
+                                          "leak", "vs_grid", "grid_ratio"])
     return harness.result(NAME, description=DESCRIPTION, settings={**settings, "scenes": list(scenes)},
                           points=rows, figures={k: v for k, v in figures.items() if v is not None}, table=table,
                           knob="probe budget", error_label="relative RMS irradiance vs path tracer")
+
+
+def curves_plot(rows: list[dict]):
+    """docs/benchmarks/light_probes_curves.png: error against probe count per scene, grid and clouds."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        import matplotlib.ticker
+    except ImportError:
+        return None
+    from . import report
+
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    figure, axes = plt.subplots(1, len(scenes), figsize=(4.2 * len(scenes), 3.6), squeeze=False)
+    for axis, scene in zip(axes[0], scenes):
+        for method, style in (("grid", "s-"), ("delaunay", "o-"), ("conforming", "^-")):
+            points = sorted((r["probes"], r["error"]) for r in rows if r["scene"] == scene and r["method"] == method)
+            if points:
+                axis.loglog(*zip(*points), style, label=method, ms=4)
+        axis.set_title(scene)
+        axis.set_xlabel("probes")
+        axis.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        axis.grid(True, which="both", alpha=0.3)
+    axes[0][0].set_ylabel("relative RMS irradiance vs path tracer")
+    axes[0][0].legend(fontsize=8)
+    figure.tight_layout()
+    path = report.DOCS / "benchmarks" / "light_probes_curves.png"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
 
 
 def _row(scene: str, method: str, budget: int, measured: dict) -> dict:
@@ -128,51 +170,51 @@ def _row(scene: str, method: str, budget: int, measured: dict) -> dict:
 
 
 def _scene_figures(name: str, rows: list[dict], default: int, quick: bool) -> dict:
-    """Ratios at the default budget: placed / grid error, grid probes needed for the placed error, leak
-    reductions."""
+    """At the default budget: cloud / grid error at equal probe counts, how many more probes the grid needs
+    for the cloud's error (each budget: the ``grid_ratio`` column), leak reductions vs no leak handling."""
     mine = [r for r in rows if r["scene"] == name]
 
     def at(method: str, budget: int = default) -> dict | None:
         return next((r for r in mine if r["method"] == method and r["budget"] == budget), None)
 
     figures = {}
-    placed, grid = at("delaunay"), at("grid")
-    figures[f"{name}_delaunay_over_grid_error"] = round(placed["error"] / grid["error"], 3)
-    conforming = at("conforming")
-    if conforming:
-        figures[f"{name}_conforming_over_grid_error"] = round(conforming["error"] / at("grid")["error"], 3)
-    grid_curve = sorted((r["probes"], r["error"]) for r in mine if r["method"] == "grid")
+    grid_curve = sorted({(r["probes"], r["error"]) for r in mine if r["method"] == "grid"})
     for method in ("delaunay", "conforming"):
+        for row in (r for r in mine if r["method"] == method):
+            row["grid_ratio"] = _probes_for_error(grid_curve, row)
         row = at(method)
-        if row and len(grid_curve) > 1:
-            ratio = _probes_for_error(grid_curve, row)
-            if ratio is not None:
-                figures[f"{name}_grid_probes_for_{method}_error_ratio"] = ratio
-            elif row["error"] < min(e for _, e in grid_curve):  # no grid of the sweep is as good
-                figures[f"{name}_grid_probes_for_{method}_error_ratio_at_least"] = round(
-                    max(c for c, _ in grid_curve) / row["probes"], 3)
-    leaky = at("delaunay, no leak handling")
-    if leaky and "leak" in leaky:
-        for method in ("delaunay", "conforming"):
-            row = at(method)
-            if row and "leak" in row:
-                figures[f"{name}_leak_reduction_{method}"] = round(leaky["leak"] / max(row["leak"], 1e-12), 3)
-                figures[f"{name}_overall_error_{method}_vs_no_leak_handling"] = round(
-                    row["error"] / leaky["error"], 3)
+        if row is None:
+            continue
+        figures[f"{name}_{method}_over_grid_error"] = row["vs_grid"]
+        figures[f"{name}_{method}_probes"] = row["probes"]
+        if row["grid_ratio"] is not None:
+            figures[f"{name}_grid_probes_for_{method}_error"] = row["grid_ratio"]
+        elif grid_curve and row["error"] < min(e for _, e in grid_curve):  # no grid of the sweep is as good
+            figures[f"{name}_grid_probes_for_{method}_error_at_least"] = round(
+                max(c for c, _ in grid_curve) / row["probes"], 3)
+        ratios = [r["grid_ratio"] for r in mine if r["method"] == method and r["grid_ratio"] is not None]
+        if ratios:
+            figures[f"{name}_grid_probes_for_{method}_error_min_over_budgets"] = min(ratios)
+        leaky = at("delaunay, no leak handling")
+        if leaky and "leak" in row:
+            figures[f"{name}_leak_reduction_{method}"] = round(leaky["leak"] / max(row["leak"], 1e-12), 3)
+            figures[f"{name}_overall_error_{method}_vs_no_leak_handling"] = round(row["error"] / leaky["error"], 3)
     return figures
 
 
 def _probes_for_error(grid_curve: list[tuple[int, float]], row: dict) -> float | None:
-    """How many times more probes the grid needs for ``row``'s error (log-log interpolation of its curve;
-    None when the curve does not reach that error)."""
-    counts = np.log([c for c, _ in grid_curve])
-    errors = np.log([e for _, e in grid_curve])
-    target = np.log(row["error"])
-    for k in range(len(counts) - 1):
-        lo, hi = sorted((errors[k], errors[k + 1]))
-        if lo <= target <= hi and errors[k] != errors[k + 1]:
-            t = (target - errors[k]) / (errors[k + 1] - errors[k])
-            return round(float(np.exp(counts[k] + t * (counts[k + 1] - counts[k]))) / row["probes"], 3)
+    """Grid probes needed for ``row``'s error / the row's probes: the fewest grid probes of the sweep whose
+    error is at most the row's, interpolated log-log with the grid point before it; None when no grid of
+    the sweep is as good (the grid's error is not monotonic in its count: its planes fall in walls or not)."""
+    for k, (count, error) in enumerate(grid_curve):
+        if error <= row["error"]:
+            if k == 0:
+                return round(count / row["probes"], 3)
+            (c0, e0), (c1, e1) = grid_curve[k - 1], (count, error)
+            if e0 <= e1:
+                return round(count / row["probes"], 3)
+            t = np.log(row["error"] / e0) / np.log(e1 / e0)
+            return round(float(np.exp(np.log(c0) + t * (np.log(c1) - np.log(c0)))) / row["probes"], 3)
     return None
 
 
