@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import importlib.machinery
 import importlib.util
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,6 +54,8 @@ _WRAPPER = None
 def tetwild():
     """pytetwild's compiled fTetWild wrapper module (loaded once, without pytetwild's pyvista import)."""
     global _WRAPPER
+    if _WRAPPER is None and "pytetwild.PyfTetWildWrapper" in sys.modules:  # pytetwild imported (with pyvista)
+        _WRAPPER = sys.modules["pytetwild.PyfTetWildWrapper"]
     if _WRAPPER is None:
         spec = importlib.util.find_spec("pytetwild")
         if spec is None or not spec.submodule_search_locations:
@@ -64,6 +67,7 @@ def tetwild():
         loader = importlib.machinery.ExtensionFileLoader("pytetwild.PyfTetWildWrapper", str(found[0]))
         module = importlib.util.module_from_spec(importlib.util.spec_from_loader(loader.name, loader))
         loader.exec_module(module)
+        sys.modules[loader.name] = module  # pytetwild's own import, if it comes later, finds this one
         _WRAPPER = module
     return _WRAPPER
 
