@@ -21,8 +21,10 @@ DESCRIPTION = (
     "space with the same number of probes: `delaunay` (the placed cloud at default settings: error-driven "
     "placement, Delaunay tetrahedra, leak rule), `conforming` (fTetWild's mesh of the empty space sized by the "
     "error-driven placement, a probe per vertex and side) and `grid` (a uniform lattice over the "
-    "same box with trilinear interpolation, as engines' irradiance volumes, captured the same way). All three "
-    "leave the lights' direct light to the lookup (`direct_lights=lookup`) unless a row says `probes`.")
+    "same box with trilinear interpolation, as engines' irradiance volumes, captured the same way; `grid + "
+    "visibility`: its corners hidden from the point drop out, the cloud's lookup rule). All leave the lights' "
+    "direct light to the lookup (`direct_lights=lookup`) unless a row says `probes`; the cloud's lookup tests "
+    "its four probes for visibility (a tracer is given).")
 
 SCENE_BUDGETS = {"atrium": (256, 512, 1024, 2048), "furnished_room": (128, 256, 512, 1024),
                  "thin_wall": (128, 256, 512, 1024)}
@@ -69,7 +71,8 @@ def run(quick: bool = False) -> dict:
                     "placement_seconds": result.stats["placement_seconds"],
                     "capture_seconds": result.stats["capture_seconds"], **errors(estimate)}
 
-        def grid(count: int, direct_lights: str = "lookup", rays: int = 256, bounces: int = 3):
+        def grid(count: int, direct_lights: str = "lookup", rays: int = 256, bounces: int = 3,
+                 visibility: bool = False):
             lo, hi = ref.grid_box(name, scene)
             positions, dims = ref.grid_positions(lo, hi, count)
             started = time.perf_counter()
@@ -77,6 +80,12 @@ def run(quick: bool = False) -> dict:
                                      direct_lights=direct_lights == "probes")
             seconds = time.perf_counter() - started
             index, weights = ref.grid_weights(lo, hi, dims, tests.positions)
+            if visibility:  # the cloud's lookup rule on the lattice: corners hidden from the point drop out
+                hidden = lp.segment_blocked(tracer, np.repeat(tests.positions, 8, axis=0),
+                                            positions[index].reshape(-1, 3)).reshape(-1, 8)
+                seen = np.where(hidden, 0.0, weights)
+                total = seen.sum(axis=1, keepdims=True)
+                weights = np.where(total > 0, seen / np.maximum(total, 1e-300), weights)
             interpolated = np.einsum("nv,nvkc->nkc", weights, sh[index].astype(np.float64))
             estimate = np.einsum("nk,nkc->nc", lp.sh_basis_np(tests.normals.astype(np.float64)), interpolated)
             if direct_lights == "lookup":
@@ -96,6 +105,7 @@ def run(quick: bool = False) -> dict:
 
         for budget in budgets:
             with_grid("delaunay", budget, bake(probes=budget))
+            rows.append(_row(name, "grid + visibility", budget, grid(rows[-1]["probes"], visibility=True)))
             rows.append(_row(name, "delaunay, no leak handling", budget, bake(probes=budget, leak_fix=False)))
             if not quick and (name != "atrium" or budget == default):  # atrium: fTetWild takes minutes
                 with_grid("conforming", budget, bake(probes=budget, tetrahedra="conforming"))
@@ -186,6 +196,9 @@ def _scene_figures(name: str, rows: list[dict], default: int, quick: bool) -> di
         if row is None:
             continue
         figures[f"{name}_{method}_over_grid_error"] = row["vs_grid"]
+        seen = at("grid + visibility", row["budget"]) if method == "delaunay" else None  # same count
+        if seen:
+            figures[f"{name}_{method}_over_visibility_grid_error"] = round(row["error"] / seen["error"], 3)
         figures[f"{name}_{method}_probes"] = row["probes"]
         if row["grid_ratio"] is not None:
             figures[f"{name}_grid_probes_for_{method}_error"] = row["grid_ratio"]

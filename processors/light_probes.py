@@ -36,7 +36,8 @@ walk of ``geometry.tetrahedra`` for points it leaves outside the hull or in a
 flat tetrahedron); outside the hull, the boundary tetrahedron's barycentrics
 clamped. Delaunay clouds with ``leak_fix`` store a 6-bit blocked-edge mask per
 tetrahedron (two rays per edge) and ``tetrahedra.leak_weights`` keeps only the
-query's side of the blockers; conforming clouds need no rule.
+query's side of the blockers; a lookup with a tracer tests the four probes'
+visibility instead (``visible_weights``); conforming clouds need neither.
 
 USD written (bake layer): a ``LightProbeCloud`` prim at ``/usdbake/LightProbes``
 (``cloud_records``: world-space positions, irradiance SH, tetrahedra,
@@ -569,10 +570,12 @@ def cloud_from_arrays(positions, sh, tet_vertices, tet_neighbors, tet_blocked=No
                       tetra.tet_neighbors, blocked, tetra, direct_lights, capture)
 
 
-def interpolation_weights(cloud: ProbeCloud, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def interpolation_weights(cloud: ProbeCloud, points: np.ndarray, tracer=None) -> tuple[np.ndarray, np.ndarray]:
     """(N, 4) probe indices and (N, 4) weights at points (N, 3): walk (the device walk of
     ``kernels.probe_lookup``; the float64 one of ``geometry.tetrahedra`` for the points it leaves outside
-    the hull or in a flat tetrahedron of cospherical probes), clamp outside, leak rule."""
+    the hull or in a flat tetrahedron of cospherical probes), clamp outside, then the leak rule; with a
+    ``tracer``, visibility instead: a probe that geometry hides from the point gets no weight
+    (``visible_weights``)."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     tet, bary, inside = ProbeLookup(cloud.tetra).locate(points)
     tet, bary = tet.astype(np.int64), bary.astype(np.float64)
@@ -581,23 +584,43 @@ def interpolation_weights(cloud: ProbeCloud, points: np.ndarray) -> tuple[np.nda
     if redo.any():
         tet[redo], bary[redo], _ = tetrahedra.locate(cloud.tetra, points[redo])
     weights = tetrahedra.clamp_weights(bary)
-    if cloud.tet_blocked is not None and np.any(cloud.tet_blocked):
+    probes = cloud.tet_vertices[tet].astype(np.int64)
+    blocked = cloud.tet_blocked is not None and np.any(cloud.tet_blocked)
+    if tracer is not None and blocked:
+        return probes, visible_weights(tracer, cloud, points, probes, weights,
+                                       tetrahedra.leak_weights(weights, cloud.tet_blocked[tet]))
+    if blocked:
         weights = tetrahedra.leak_weights(weights, cloud.tet_blocked[tet])
-    return cloud.tet_vertices[tet].astype(np.int64), weights
+    return probes, weights
 
 
-def interpolate_sh(cloud: ProbeCloud, points: np.ndarray) -> np.ndarray:
-    """(N, 9, 3) float32 irradiance SH at points (N, 3) in the scene frame."""
-    probes, weights = interpolation_weights(cloud, points)
+def visible_weights(tracer, cloud: ProbeCloud, points: np.ndarray, probes: np.ndarray, weights: np.ndarray,
+                    fallback: np.ndarray) -> np.ndarray:
+    """(N, 4) weights with the probes geometry hides from each point (a ray from the point to the probe's
+    capture position meets something first) set to 0 and the rest renormalized, as a renderer's
+    visibility-tested probe lookup; ``fallback`` (the leak rule's) where every probe with weight is hidden."""
+    at = cloud.probe_positions if cloud.capture_positions is None else cloud.capture_positions
+    targets = at[probes].astype(np.float64).reshape(-1, 3)
+    origins = np.repeat(points, 4, axis=0)
+    hidden = segment_blocked(tracer, origins, targets).reshape(-1, 4)
+    kept = np.where(hidden, 0.0, weights)
+    total = kept.sum(axis=1, keepdims=True)
+    return np.where(total > 0, kept / np.maximum(total, 1e-300), fallback)
+
+
+def interpolate_sh(cloud: ProbeCloud, points: np.ndarray, tracer=None) -> np.ndarray:
+    """(N, 9, 3) float32 irradiance SH at points (N, 3) in the scene frame (``interpolation_weights``)."""
+    probes, weights = interpolation_weights(cloud, points, tracer)
     return np.einsum("nv,nvkc->nkc", weights, cloud.probe_sh[probes].astype(np.float64)).astype(np.float32)
 
 
 def irradiance_at(cloud: ProbeCloud, points: np.ndarray, normals: np.ndarray, *, tracer=None,
                   scene: Scene | None = None, light_samples: int = LIGHT_SAMPLES) -> np.ndarray:
-    """(N, 3) float32 irradiance E(n) = sum_k c_k Y_k(n) (W/m^2) at points (scene frame) with unit normals;
-    for a cloud baked with direct_lights=lookup and a ``tracer`` and ``scene``, plus the lights' direct
-    light at the points (``direct_light_irradiance``, ``light_samples`` per area light)."""
-    sh = interpolate_sh(cloud, points).astype(np.float64)
+    """(N, 3) float32 irradiance E(n) = sum_k c_k Y_k(n) (W/m^2) at points (scene frame) with unit normals.
+    With a ``tracer``: probes hidden from a point do not count (``visible_weights``, clouds with leak
+    fixing); with a ``scene`` too, a cloud baked with direct_lights=lookup gets the lights' direct light
+    at the points (``direct_light_irradiance``, ``light_samples`` per area light)."""
+    sh = interpolate_sh(cloud, points, tracer).astype(np.float64)
     basis = sh_basis_np(np.asarray(normals, np.float64).reshape(-1, 3))
     e = np.einsum("nk,nkc->nc", basis, sh)
     if not cloud.direct_lights and tracer is not None and scene is not None:

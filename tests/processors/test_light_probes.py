@@ -275,6 +275,25 @@ def test_leak_fix_with_a_wall_synthetic_values():
     assert (mixed[0, 2] > 0.05) and (mixed[2, 0] > 0.05)  # without the fix, light leaks through
 
 
+def test_visibility_keeps_a_query_on_its_side_where_the_weight_rule_cannot():
+    """Left probes red at x = -1, right probes blue at x = +0.2: a query at x = -0.1 has most of its
+    barycentric weight on the right, so the blocked-edge rule takes the wrong side; with a tracer the
+    lookup drops the probes the wall hides and is pure red."""
+    scene = wall_scene(light_left=False)
+    tracer = Tracer.from_scene(scene)
+    positions = WALL_PROBES * np.where(WALL_PROBES[:, :1] < 0, 1.0, [0.2, 1.0, 1.0])
+    values = np.zeros((len(positions), 9, 3), np.float32)
+    left = positions[:, 0] < 0
+    values[left, 0, 0] = 1.0
+    values[~left, 0, 2] = 1.0
+    cloud = lp.build_cloud(positions, values, tracer, leak_fix=True)
+    queries = np.array([[-0.1, 0.2, 0.1], [-0.05, -0.5, 0.4], [0.1, -0.2, 0.3]])
+    by_rule = lp.interpolate_sh(cloud, queries)[:, 0]
+    assert by_rule[0, 2] > 0.5  # the rule puts the first query on the right
+    seen = lp.interpolate_sh(cloud, queries, tracer)[:, 0]
+    np.testing.assert_allclose(seen, [[1, 0, 0], [1, 0, 0], [0, 0, 1]], atol=FLOAT32_STORAGE)
+
+
 def test_leak_fix_with_a_wall_captured_light():
     """A lamp left of the wall: right of the wall, interpolated irradiance stays dark with the fix."""
     scene = wall_scene(light_left=True)
