@@ -10,8 +10,12 @@ layer on disk never names a file that is not there.
 
 Sidecar files (textures, .dds, .npz, stream files) are named
 ``<layer stem>_<record name>_<content hash>.<ext>``: no output can overwrite
-another's, and a re-bake removes the files its previous version named and
-the new one does not. Temporary files are named
+another's. The provenance records each with the SHA-256 of the bytes written
+(``sidecars``, ``sidecarDigests``), and a re-bake removes a file the previous
+version recorded and the new one does not only if it is still that file: in
+the output's own folder, named as usdbake names sidecars, a plain file (not a
+link) with the recorded digest. Nothing a layer says can make a bake delete
+anything else; a layer without digests removes nothing. Temporary files are named
 ``.<output name>.usdbake-tmp-<pid>-<token>...`` and removed on failure; a
 later bake into the same output removes those a killed process left.
 
@@ -25,6 +29,7 @@ import hashlib
 import os
 import re
 import secrets
+import stat
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -70,8 +75,9 @@ def author(layer: Sdf.Layer, outputs: list, provenance: dict, *, texture_dir: st
     (absolute for an anonymous layer). The files are written under temporary names before any USD
     edit. With ``commit`` (an in-memory layer: its edits are live at once) they are renamed into
     place before the layer names them, and the sidecars the layer named before and no longer does
-    are removed after; without, the caller commits the returned StagedFiles once the layer is saved
-    (see save_atomically). The sidecars are listed in the provenance under ``sidecars``.
+    are removed after (only files it still owns: ``owned_sidecars``); without, the caller commits the
+    returned StagedFiles once the layer is saved (see save_atomically). The sidecars are listed in the
+    provenance under ``sidecars``, with the SHA-256 of each file's bytes under ``sidecarDigests``.
     """
     check_topology(outputs)
     directory = Path(texture_dir or Path(layer.realPath or ".").parent).resolve()
@@ -79,7 +85,7 @@ def author(layer: Sdf.Layer, outputs: list, provenance: dict, *, texture_dir: st
     prefix = sidecar_prefix or (Path(layer.realPath).stem if layer.realPath else "usdbake")
     outputs, sidecars = assign_sidecars(outputs, prefix, directory, anchor)
     prepared = _prepare(outputs)  # convert every value first: a bad record fails before any edit
-    previous = referenced_sidecars(layer) if is_bake_layer(layer) else set()
+    previous = owned_sidecars(layer, folder=directory, prefix=prefix) if is_bake_layer(layer) else {}
     staged = StagedFiles(owner or prefix)
     try:
         for sidecar in sidecars:
@@ -87,7 +93,9 @@ def author(layer: Sdf.Layer, outputs: list, provenance: dict, *, texture_dir: st
         if commit:
             staged.commit()
         # string[] (Vt.StringArray): a Python list would be a VtValue vector, which usdc cannot store
-        provenance = {**provenance, "sidecars": Vt.StringArray([sidecar.asset_path for sidecar in sidecars])}
+        provenance = {**provenance,
+                      "sidecars": Vt.StringArray([sidecar.asset_path for sidecar in sidecars]),
+                      "sidecarDigests": Vt.StringArray([staged.digests[sidecar.path] for sidecar in sidecars])}
         with Sdf.ChangeBlock():
             if is_bake_layer(layer):
                 _clear_opinions(layer)
@@ -104,7 +112,7 @@ def author(layer: Sdf.Layer, outputs: list, provenance: dict, *, texture_dir: st
             data[PROVENANCE_KEY] = _sanitize(provenance)
             layer.customLayerData = data
         if commit:
-            remove_sidecars(previous - staged.finals, base=directory)
+            remove_sidecars({path: sha for path, sha in previous.items() if path not in staged.finals})
     except BaseException:  # KeyboardInterrupt too: no temporary file outlives a failed bake
         staged.discard()
         if commit:
@@ -208,6 +216,8 @@ class StagedFiles:
         """Final paths committed."""
         self.created: set[Path] = set()
         """Final paths that did not exist before commit (what to take back if the layer never lands)."""
+        self.digests: dict[Path, str] = {}
+        """SHA-256 (hex) of each written file's bytes, by final path."""
 
     def write(self, sidecar: Sidecar) -> None:
         sidecar.path.parent.mkdir(parents=True, exist_ok=True)
@@ -217,6 +227,7 @@ class StagedFiles:
             _write_image(sidecar.record.pixels, temp)
         else:
             temp.write_bytes(sidecar.record.data)
+        self.digests[sidecar.path] = file_sha256(temp)
 
     def commit(self) -> None:
         while self.pending:
@@ -277,61 +288,86 @@ def _process_alive(pid: int) -> bool:
     return True
 
 
-def referenced_sidecars(layer: Sdf.Layer, folder: Path | None = None) -> set[Path]:
-    """The sidecar files a bake layer names, as absolute paths: its provenance's ``sidecars``, or
-    (an output written before that list existed) every asset-valued attribute. Relative names are
-    anchored at ``folder`` (default: the layer's own folder; none for an anonymous layer)."""
-    if folder is None and layer.realPath:
+def file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def sidecar_pattern(prefix: str) -> re.Pattern:
+    """The names ``sidecar_name`` gives with ``prefix``: ``<prefix>_<record>_<hash8>[.<ext>]``."""
+    return re.compile(rf"{re.escape(prefix)}_[A-Za-z0-9_.-]+_[0-9a-f]{{8}}(\.[A-Za-z0-9]+)?")
+
+
+def owned_sidecars(layer: Sdf.Layer, *, folder: Path | None = None, prefix: str | None = None) -> dict[Path, str]:
+    """{absolute path: recorded SHA-256} of the sidecars a bake layer recorded that it may own.
+
+    A recorded name counts only when it lies directly in ``folder`` (default: the layer's own
+    folder; none for an anonymous layer), carries the sidecar name with ``prefix`` (default: the
+    layer's file stem) and has a recorded digest. ``..``, absolute paths elsewhere, subfolders, other
+    names and a layer written without digests give nothing: a layer's provenance is user-editable
+    text, and what it names is not ours to delete or serve unless all of these hold. Whether the
+    file is still the one written (not replaced, not a link) is checked where it is used
+    (``is_owned_file``).
+    """
+    if folder is None:
+        if not layer.realPath:
+            return {}
         folder = Path(layer.realPath).resolve().parent
-    names = dict(dict(layer.customLayerData).get(PROVENANCE_KEY, {})).get("sidecars")
-    if names is None:
-        names = []
-
-        def visit(path: Sdf.Path) -> None:
-            spec = layer.GetAttributeAtPath(path) if path.IsPropertyPath() else None
-            if spec is not None and spec.typeName == Sdf.ValueTypeNames.Asset and spec.default:
-                names.append(spec.default.path)
-
-        layer.Traverse(Sdf.Path.absoluteRootPath, visit)
-    found = set()
-    for name in names:
-        path = Path(str(name))
-        if not path.is_absolute():
-            if folder is None:
-                continue
-            path = folder / path
-        found.add(Path(os.path.normpath(path)))
-    return found
+    if prefix is None:
+        if not layer.realPath:
+            return {}
+        prefix = Path(layer.realPath).stem
+    provenance = dict(dict(layer.customLayerData).get(PROVENANCE_KEY, {}))
+    names, digests = provenance.get("sidecars"), provenance.get("sidecarDigests")
+    if names is None or digests is None or len(names) != len(digests):
+        return {}
+    folder, pattern = Path(folder), sidecar_pattern(prefix)
+    owned = {}
+    for name, sha in zip(names, digests):
+        if not isinstance(name, str) or not isinstance(sha, str) or not re.fullmatch(r"[0-9a-f]{64}", sha):
+            continue
+        path = Path(os.path.normpath(folder / name))  # an absolute name replaces folder
+        if path.parent == folder and pattern.fullmatch(path.name):
+            owned[path] = sha
+    return owned
 
 
-def _referenced_by_file(path: Path) -> set[Path]:
-    """Sidecars the bake layer at ``path`` names (nothing when it is missing or not a bake layer)."""
+def is_owned_file(path: Path, sha256: str) -> bool:
+    """True when ``path`` is a plain file (a link is never followed) whose bytes hash to ``sha256``."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    except OSError:
+        return False
+    with os.fdopen(fd, "rb") as file:
+        if not stat.S_ISREG(os.fstat(file.fileno()).st_mode):
+            return False
+        digest = hashlib.sha256()
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest() == sha256
+
+
+def _owned_by_file(path: Path) -> dict[Path, str]:
+    """The sidecars the bake layer at ``path`` owns (nothing when it is missing or not a bake layer)."""
     if not path.is_file():
-        return set()
+        return {}
     try:
         layer = Sdf.Layer.OpenAsAnonymous(str(path), metadataOnly=True)
-        if layer is None or not is_bake_layer(layer):
-            return set()
-        if "sidecars" not in dict(dict(layer.customLayerData)[PROVENANCE_KEY]):
-            layer = Sdf.Layer.OpenAsAnonymous(str(path))  # an older output: read its asset attributes
-        return referenced_sidecars(layer, folder=path.resolve().parent)
     except Tf.ErrorException:
-        return set()
+        return {}
+    if layer is None or not is_bake_layer(layer):
+        return {}
+    return owned_sidecars(layer, folder=path.resolve().parent, prefix=path.stem)
 
 
-def remove_sidecars(paths, *, base: Path) -> None:
-    """Delete sidecar files no bake layer names any more (never a layer file); a subfolder of
-    ``base`` they leave empty (an older output's texture folder) goes too."""
-    for path in paths:
-        path = Path(path)
-        if path.suffix.lower() in (*LAYER_SUFFIXES, ".usdz") or not path.is_file():
-            continue
-        path.unlink(missing_ok=True)
-        if path.parent != base and base in path.parent.parents:
-            try:
-                path.parent.rmdir()  # only if empty
-            except OSError:
-                pass
+def remove_sidecars(owned: dict[Path, str]) -> None:
+    """Delete the files of ``owned`` ({path: recorded SHA-256}) that are still what the bake wrote."""
+    for path, sha in owned.items():
+        if is_owned_file(path, sha):
+            path.unlink(missing_ok=True)
 
 
 def _siblings(out: Path) -> list[Path]:
@@ -426,7 +462,7 @@ def save_atomically(out_path: str, source_path: str, outputs: list, provenance: 
                         owner=out.name, commit=False)
         if not layer.Save():
             raise UsageError(f"{out_path}: could not be written")
-        previous = _referenced_by_file(out)
+        previous = _owned_by_file(out)
         if staged is not None:
             staged.commit()
         os.replace(temp, out)
@@ -434,8 +470,9 @@ def save_atomically(out_path: str, source_path: str, outputs: list, provenance: 
         reloaded = Sdf.Layer.Find(str(out))
         if reloaded is not None:  # a stale copy from an earlier bake in this process
             reloaded.Reload(force=True)
-        kept = set().union(*(_referenced_by_file(sibling) for sibling in _siblings(out)))
-        remove_sidecars(previous - (staged.finals if staged is not None else set()) - kept, base=out.parent)
+        kept = set().union(*(_owned_by_file(sibling) for sibling in _siblings(out)))
+        written = staged.finals if staged is not None else set()
+        remove_sidecars({path: sha for path, sha in previous.items() if path not in written and path not in kept})
     finally:
         if staged is not None:
             staged.discard()

@@ -168,10 +168,10 @@ def test_rebake_keeps_sidecars_another_output_of_the_same_stem_names(tmp_path, s
     assert_output_valid(tmp_path / "a.usdc", 2)
 
 
-def test_rebake_removes_the_sidecars_of_an_output_written_before_the_naming(tmp_path, stage_in, cache,
-                                                                           sidecar_processor):
-    """An older output named its textures by prim path in a subfolder and listed no sidecars: its
-    asset attributes say which files it owns."""
+def test_rebake_of_an_output_without_recorded_digests_removes_nothing(tmp_path, stage_in, cache,
+                                                                     sidecar_processor):
+    """An older output listed no digests (or no sidecars at all, naming textures by prim path in a
+    subfolder): nothing proves which files are its own, so the re-bake leaves every one of them."""
     out = tmp_path / "out.usda"
     old_texture = tmp_path / "displacement_fields" / "World_Ground.png"
     old_texture.parent.mkdir()
@@ -187,8 +187,17 @@ def test_rebake_removes_the_sidecars_of_an_output_written_before_the_naming(tmp_
     layer.Save()
     assert bake(stage_in, out, 3, cache) == 0
     files = assert_output_valid(out, 3)
-    assert folder_files(tmp_path) == sorted(["in.usda", "out.usda", *(p.name for p in files.values())])
-    assert not old_texture.parent.exists()
+    assert folder_files(tmp_path) == sorted(["in.usda", "out.usda", "usdbake_radiosity_0123456789.dds",
+                                             *(p.name for p in files.values())])
+    assert old_texture.read_bytes() == b"old png"
+
+
+def test_sidecar_digests_are_recorded(tmp_path, stage_in, cache, sidecar_processor):
+    out = tmp_path / "out.usda"
+    assert bake(stage_in, out, 5, cache) == 0
+    provenance = dict(Sdf.Layer.OpenAsAnonymous(str(out)).customLayerData)["usdbake"]
+    recorded = dict(zip(provenance["sidecars"], provenance["sidecarDigests"]))
+    assert recorded == {name: digest(tmp_path / name) for name in provenance["sidecars"]} and recorded
 
 
 def test_interrupt_while_renaming_leaves_the_previous_output_and_no_file_behind(tmp_path, stage_in, cache,
