@@ -172,6 +172,12 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_FAILED
 
 
+def table_console() -> Console:
+    """Where the tables of list, plan and inspect go: stdout (``usdbake list | grep weather``); progress,
+    warnings and errors go to the stderr console ``main`` makes."""
+    return Console(soft_wrap=True)
+
+
 def _quiet_warp(device: str) -> None:
     """Keep stdout clean for --json (Warp logs info messages such as module load times to stdout;
     our own progress goes to stderr) and start Warp with no CUDA notice unless CUDA was asked for."""
@@ -329,7 +335,8 @@ def cmd_plan(args, console: Console) -> int:
     from ..stages.composition import quiet_composition_warnings
     from ..stages.extract import extract_scene
 
-    names, params = resolve_options(args, default=sorted(registry.registry()))  # plan: every processor
+    asked, params = resolve_options(args, default=())
+    names = asked or sorted(registry.registry())  # plan without -p: every processor
     pipeline = Pipeline.build(names, params, device=args.device, cache_dir=args.cache, force=args.force,
                               threads=args.threads, allow_conflicts=True)
     check_run_options(args, pipeline, console)
@@ -338,13 +345,13 @@ def cmd_plan(args, console: Console) -> int:
     scene = extract_scene(stage, time=args.time, allow_missing=args.allow_missing, deinstance=args.deinstance)
     for warning in scene.warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(warning)}", highlight=False)
-    for conflict in pipeline.conflicts():  # bake refuses these before any compute
+    for conflict in pipeline.conflicts() if asked else ():  # bake refuses these before any compute
         console.print(f"[yellow]conflict:[/yellow] {escape(conflict)}", highlight=False)
     steps = pipeline.plan(scene)
     if args.json:
         print(json.dumps([step.report() for step in steps], indent=2, default=str))
     else:
-        console.print(_summary_table([step.report() for step in steps], planned=True))
+        table_console().print(_summary_table([step.report() for step in steps], planned=True))
         if all(step.action == "skip" for step in steps):
             console.print("nothing to bake: every processor would be skipped; bake would write no output",
                           highlight=False)
@@ -521,7 +528,7 @@ def cmd_list(args, console: Console) -> int:
             table.add_column(column, overflow="fold")  # a long default (a time interval) wraps, never cut
         for cells in cls.Params.table_rows():
             table.add_row(*cells)
-        console.print(table)
+        table_console().print(table)
     return EXIT_OK
 
 
@@ -537,10 +544,11 @@ def cmd_inspect(args, console: Console) -> int:
     if args.json:
         print(json.dumps(report, indent=2, default=str))
         return EXIT_OK
-    console.print(f"{args.output}: baked by usdbake {report['provenance'].get('version', '?')} "
-                  f"from {report['provenance'].get('source', '?')}", highlight=False)
+    out = table_console()
+    out.print(f"{args.output}: baked by usdbake {report['provenance'].get('version', '?')} "
+              f"from {report['provenance'].get('source', '?')}", highlight=False)
     for sidecar in report["provenance"].get("sidecars", []):
-        console.print(f"sidecar file: {sidecar}", highlight=False)
+        out.print(f"sidecar file: {sidecar}", highlight=False)
     table = Table()
     table.add_column("property", overflow="fold", ratio=1)  # long prim paths wrap instead of being cut
     for column in ("type", "interpolation", "elementSize", "values", "time samples"):
@@ -548,7 +556,7 @@ def cmd_inspect(args, console: Console) -> int:
     for row in report["properties"]:
         table.add_row(row["path"], row["type"], row["interpolation"], str(row["element_size"]),
                       str(row["values"]), str(row["time_samples"]))
-    console.print(table)
+    out.print(table)
     return EXIT_OK
 
 

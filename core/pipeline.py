@@ -52,6 +52,8 @@ class Step:
     key: str = ""
     after: tuple[str, ...] = ()
     """A mesh refiner this step runs after, on its refined Scene (Processor.follows_refinement)."""
+    requested: bool = True
+    """Asked for by name (or a default), not only pulled in as another step's dependency."""
     action: str = "run"
     """'run', 'cached' (up to date) or 'skip' (not applicable)."""
     reason: str = ""
@@ -91,7 +93,8 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
                                  f"{name!r}")
             producers[product] = name
 
-    wanted, pending = [], list(names or DEFAULT_PROCESSORS)
+    requested = set(names or DEFAULT_PROCESSORS)
+    wanted, pending = [], list(requested)
     graph: dict[str, set[str]] = {}
     while pending:
         name = pending.pop()
@@ -119,7 +122,8 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
     for name in order:
         cls = registry[name]
         step_params = cls.Params.from_dict(params.get(name, {}))
-        steps.append(Step(name, cls(step_params), step_params, after=(after[name],) if name in after else ()))
+        steps.append(Step(name, cls(step_params), step_params, after=(after[name],) if name in after else (),
+                          requested=name in requested))
     return steps
 
 
@@ -239,7 +243,20 @@ class Pipeline:
                 step.action, step.reason = "run", "forced" if self.force else why
             if step.action == "skip":
                 skipped.add(step.name)
+        self._skip_unneeded_dependencies()
         return self.steps
+
+    def _skip_unneeded_dependencies(self) -> None:
+        """Skip a step nobody asked for whose every consumer is skipped: its work would be thrown away
+        (form_factors for a radiosity that does not apply, displacement_fields for a skipped instance_ao)."""
+        for step in reversed(self.steps):
+            if step.requested or step.action == "skip":
+                continue
+            consumers = [other for other in self.steps if step.name in other.after
+                         or set(step.processor.provides) & set(other.processor.requires)]
+            if consumers and all(other.action == "skip" for other in consumers):
+                names = ", ".join(other.name for other in consumers)
+                step.action, step.reason = "skip", f"needed only by {names} (skipped)"
 
     def run(self, scene: Scene, *, on_progress: Callable[[str, float], None] | None = None,
             before_compute: Callable[[list[Step]], None] | None = None) -> list[Step]:
@@ -258,7 +275,12 @@ class Pipeline:
             started = time.perf_counter()
             if on_progress:
                 on_progress(step.name, 0.0)
-            result = self.cache.load(step.name, step.key) if step.action == "cached" else None
+            result = None
+            if step.action == "cached":  # checked against the topology its records go on (refined, once refined)
+                fit = products[RefinedScene].scene if RefinedScene in products else scene
+                result = self.cache.load(step.name, step.key, scene=fit, provides=step.processor.provides)
+                if result is None:
+                    step.reason = "cache entry unusable (see the warning); recomputed"
             if result is None:
                 step.action = "run"
                 step_scene = products[RefinedScene].scene if step.after and RefinedScene in products else scene

@@ -68,7 +68,8 @@ def face_means(values: np.ndarray, weights: np.ndarray, face: np.ndarray, face_c
         return np.where(weight > 0, total / weight, 1.0).astype(np.float32)
 
 
-NO_RECEIVERS = "no writable meshes (all instanced, bake:skip or empty)"
+NO_RECEIVERS = ("no writable meshes (all instanced, bake:skip or empty); bake natively instanced meshes per "
+                "vertex with --deinstance (hook: deinstance=True)")
 """Why a processor that writes to receiver meshes does not apply."""
 
 

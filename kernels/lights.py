@@ -428,8 +428,9 @@ def emissive_lights(scene: Scene, mode: str = "auto") -> bool:
     return mode == "on" or (mode == "auto" and len(scene.lights) == 0)
 
 
-NO_LIGHTS = ("no lights (no UsdLux light with radiance and no emissive triangle): add a UsdLux DomeLight for "
-             "sky light, a DistantLight for the sun, or an emissive material")
+NO_LIGHTS = ("no lights (no UsdLux light with radiance and no emissive triangle): add a sky and sun with "
+             "'usdbake sky STAGE -o STAGE.sky.usda' and bake that layer, or add a UsdLux DomeLight, a DistantLight "
+             "or an emissive material")
 """Why a processor that needs light does not apply, and how to give the scene some."""
 
 

@@ -418,6 +418,8 @@ class InstanceAO(Processor):
         seed: int = param(0, "random seed (the same rays as ambient_occlusion with this seed)", low=0)
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
+        if ctx.params.instances and len(ctx.scene.instances):  # AO at the instances' own vertices
+            return True, ""
         reason = missing_receivers(ctx.scene)
         return not reason, reason
 

@@ -76,7 +76,7 @@ def test_list_prints_the_same_cells_as_the_docs(capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "240")  # wide enough that no cell wraps, so each reads as one string
     capsys.readouterr()
     assert main(["list"]) == 0
-    printed = capsys.readouterr().err
+    printed = capsys.readouterr().out
     for name, type_name, default, allowed, _ in registry.get("ambient_occlusion").Params.table_rows():
         assert name in printed and default in printed and allowed in printed
 

@@ -41,11 +41,21 @@ def plan(stage: Usd.Stage, names, params=None, cache_dir=None) -> dict:
     return {step.name: (step.action, step.reason) for step in pipeline.plan(extract_scene(stage))}
 
 
+NO_RECEIVERS = ("not applicable: no writable meshes (all instanced, bake:skip or empty); bake natively instanced "
+                "meshes per vertex with --deinstance (hook: deinstance=True)")
+
+
 def test_no_writable_meshes():
-    assert plan(instancer_stage(3), ["progressive_mesh"])["progressive_mesh"] == (
-        "skip", "not applicable: no writable meshes (all instanced, bake:skip or empty)")
+    assert plan(instancer_stage(3), ["progressive_mesh"])["progressive_mesh"] == ("skip", NO_RECEIVERS)
     assert plan(instancer_stage(3), ["ambient_occlusion"], {"ambient_occlusion": {"instances": "skip"}})[
-        "ambient_occlusion"] == ("skip", "not applicable: no writable meshes (all instanced, bake:skip or empty)")
+        "ambient_occlusion"] == ("skip", NO_RECEIVERS)
+
+
+def test_instance_ao_with_instances_applies_to_a_scene_of_instances_only():
+    params = {"displacement_fields": {"force": "tri", "positional_samples": 16, "direction_map_size": 4}}
+    assert plan(instancer_stage(3), ["instance_ao"], params)["instance_ao"] == ("skip", NO_RECEIVERS)
+    steps = plan(instancer_stage(3), ["instance_ao"], {**params, "instance_ao": {"instances": True}})
+    assert steps["instance_ao"][0] == "run"
 
 
 def test_instances_alone_are_baked_by_ambient_occlusion():
@@ -56,6 +66,14 @@ def test_no_instanced_prototypes_and_dependents_follow():
     steps = plan(quad_stage(light=True), ["instance_ao"])
     assert steps["displacement_fields"] == ("skip", "not applicable: no instanced prototypes")
     assert steps["instance_ao"] == ("skip", "requires displacement_fields (skipped)")
+
+
+def test_dependencies_of_a_skipped_processor_do_not_run():
+    """radiosity without light is skipped, so form_factors, which only radiosity needs, is too."""
+    steps = plan(quad_stage(light=False), ["radiosity"])
+    assert steps["radiosity"][0] == "skip"
+    assert steps["form_factors"] == ("skip", "needed only by radiosity (skipped)")
+    assert plan(quad_stage(light=False), ["radiosity", "form_factors"])["form_factors"][0] == "run"  # asked for
 
 
 def closed_box_stage(*, opening: bool) -> Usd.Stage:
@@ -83,8 +101,9 @@ def test_no_sky_visible_faces():
 def test_no_lights():
     action, reason = plan(quad_stage(light=False), ["radiosity"])["radiosity"]
     assert action == "skip" and reason == ("not applicable: no lights (no UsdLux light with radiance and no emissive "
-                                           "triangle): add a UsdLux DomeLight for sky light, a DistantLight for the "
-                                           "sun, or an emissive material")
+                                           "triangle): add a sky and sun with 'usdbake sky STAGE -o STAGE.sky.usda' "
+                                           "and bake that layer, or add a UsdLux DomeLight, a DistantLight or an "
+                                           "emissive material")
     assert plan(quad_stage(light=True), ["radiosity"])["radiosity"][0] == "run"
 
 
