@@ -26,7 +26,9 @@ except PackageNotFoundError:  # running from a source tree that was never instal
 def bake(stage, processors=None, params=None, **options):
     """Bake into an open Usd.Stage; see usdbake.stages.hook.bake."""
     from .stages.hook import bake as _bake
+    from .stages.inputs import check_device
 
+    check_device(options.get("device", "cpu"), option="device=")  # before Warp starts on a device it may lack
     init_warp(options.get("device", "cpu"))
     return _bake(stage, processors=processors, params=params, **options)
 

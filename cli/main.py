@@ -33,7 +33,7 @@ from ..core import registry
 from ..core.errors import UsageError
 from ..core.params import TABLE_COLUMNS
 from ..core.pipeline import DEFAULT_PROCESSORS, Pipeline, ProcessorFailed
-from ..stages.inputs import open_source
+from ..stages.inputs import check_cache_folder, check_device, open_source
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -41,6 +41,32 @@ EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # argparse exits 2 already; keep it to one line
         raise UsageError(message)
+
+
+def _number(low: float, high: float):
+    """An argparse type: a finite number in [low, high] (NaN, inf and out-of-range values are one-line errors).
+    Irradiance bounds: the solar constant is 1361 W/m^2, so no measured DNI exceeds 1500 nor DHI 1000."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not low <= value <= high:  # False for NaN too
+            raise argparse.ArgumentTypeError(f"{text} is outside {low:g}..{high:g}")
+        return value
+    return parse
+
+
+def _instant(text: str) -> str:
+    """An argparse type: an ISO 8601 date-time (``2026-06-21T12:00``), checked here rather than after the stage
+    is read."""
+    from ..kernels.solar import parse_times
+
+    try:
+        parse_times(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return text
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -107,18 +133,20 @@ def make_parser() -> argparse.ArgumentParser:
                      "sky of the hour holding --time (its year ignored)")
     sky.add_argument("--model", choices=("preetham", "perez", "overcast"),
                      help="sky model (default: perez with --weather, else preetham)")
-    sky.add_argument("--time", default="2026-06-21T12:00", help="ISO 8601 local standard time")
-    sky.add_argument("--latitude", type=float, help=f"degrees north (default {SKY_SITE[0]}, or the weather file's)")
-    sky.add_argument("--longitude", type=float, help=f"degrees east (default {SKY_SITE[1]}, or the weather file's)")
-    sky.add_argument("--timezone", type=float, help=f"hours east of UTC (default {SKY_SITE[2]:g}, or the weather "
-                     "file's)")
-    sky.add_argument("--north", type=float, default=0.0, help="degrees from the stage's default north")
-    sky.add_argument("--turbidity", type=float, default=3.0, help="Preetham turbidity")
-    sky.add_argument("--dni", type=float, help="Perez: direct normal irradiance, W/m^2 (default 600, or the "
+    sky.add_argument("--time", default="2026-06-21T12:00", type=_instant, help="ISO 8601 local standard time")
+    sky.add_argument("--latitude", type=_number(-90, 90), help=f"degrees north (default {SKY_SITE[0]}, or the "
                      "weather file's)")
-    sky.add_argument("--dhi", type=float, help="Perez: diffuse horizontal irradiance, W/m^2 (default 150, or the "
+    sky.add_argument("--longitude", type=_number(-180, 180), help=f"degrees east (default {SKY_SITE[1]}, or the "
                      "weather file's)")
-    sky.add_argument("--ground-albedo", type=float, default=0.2, help="the grey ground below the horizon")
+    sky.add_argument("--timezone", type=_number(-12, 14), help=f"hours east of UTC (default {SKY_SITE[2]:g}, or "
+                     "the weather file's)")
+    sky.add_argument("--north", type=_number(-360, 360), default=0.0, help="degrees from the stage's default north")
+    sky.add_argument("--turbidity", type=_number(1, 64), default=3.0, help="Preetham turbidity")
+    sky.add_argument("--dni", type=_number(0, 1500), help="Perez: direct normal irradiance, W/m^2 (default 600, "
+                     "or the weather file's)")
+    sky.add_argument("--dhi", type=_number(0, 1000), help="Perez: diffuse horizontal irradiance, W/m^2 (default "
+                     "150, or the weather file's)")
+    sky.add_argument("--ground-albedo", type=_number(0, 1), default=0.2, help="the grey ground below the horizon")
     serve = commands.add_parser("serve", help="serve a baked stage's progressive mesh and irradiance-grid streams "
                                 "over HTTP (range requests, ETags)")
     serve.add_argument("input", help="a baked stage (usdbake bake -p progressive_mesh and/or -p irradiance_grid)")
@@ -292,11 +320,7 @@ def check_run_options(args, pipeline: Pipeline, console: Console) -> None:
             console.print(f"[yellow]warning:[/yellow] {escape(message)}", highlight=False)
     check_device(args.device)
     if args.cache:
-        from ..stages.inputs import check_writable_folder
-
-        if Path(args.cache).exists() and not Path(args.cache).is_dir():
-            raise UsageError(f"--cache {args.cache}: is a file, not a folder")
-        check_writable_folder(Path(args.cache), what=f"--cache {args.cache}")
+        check_cache_folder(args.cache)
 
 
 def _thread_count(text: str) -> int:
@@ -308,23 +332,6 @@ def _thread_count(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number of threads, at least 1")
     return value
-
-
-def check_device(device: str) -> None:
-    """'cpu', or a CUDA device Warp can see ('cuda', 'cuda:N'); Warp is asked only for a CUDA one."""
-    import re
-
-    if device == "cpu":
-        return
-    if not re.fullmatch(r"cuda(:\d+)?", device):
-        raise UsageError(f"--device {device}: expected cpu or cuda:N")
-    import warp as wp
-
-    try:
-        wp.get_device(device)
-    except (ValueError, RuntimeError):
-        available = ", ".join(str(d.alias) for d in wp.get_devices())
-        raise UsageError(f"--device {device}: no such Warp device here (available: {available})") from None
 
 
 # ---------------------------------------------------------------------------
@@ -594,7 +601,6 @@ SKY_SITE = (41.98, 2.82, 1.0)
 
 
 def cmd_sky(args, console: Console) -> int:
-    from ..stages.inputs import open_source
     from ..stages.sky_dome import make_sky, weather_hour
 
     site = dict(zip(("latitude", "longitude", "timezone"), SKY_SITE))

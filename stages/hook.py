@@ -29,7 +29,7 @@ from ..core.params import ParamError
 from ..core.pipeline import Pipeline
 from ..core.records import File, Texture
 from .bake_layer import PROVENANCE_KEY, author, is_bake_layer
-from .inputs import empty_bake_message
+from .inputs import check_cache_folder, check_device, check_writable_folder, empty_bake_message
 from .extract import extract_scene
 from .refined_mesh import complete_outputs, refinement_guard
 
@@ -61,8 +61,8 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     -------
     The Sdf.Layer holding the results. On failure nothing is authored.
     """
-    if threads is not None and (not isinstance(threads, int) or threads < 1):
-        raise ValueError(f"threads={threads!r}: expected a whole number of at least 1")
+    processors = check_arguments(stage, processors, params, layer=layer, device=device, cache_dir=cache_dir,
+                                 texture_dir=texture_dir, threads=threads)
     pipeline = Pipeline.build(processors, params, device=device, cache_dir=cache_dir, force=force, threads=threads)
     check_param_targets(params or {}, [step.name for step in pipeline.steps])
     target = layer if layer is not None else _session_bake_layer(stage)
@@ -86,6 +86,47 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     for message in scene.warnings:
         warnings.warn(f"usdbake: {message}", stacklevel=2)
     return target
+
+
+def check_arguments(stage, processors, params, *, layer, device, cache_dir, texture_dir, threads) -> list | None:
+    """Refuse, before the stage is read, arguments that would fail later or harm a layer; returns the
+    processor names as a list (one name given as a string is one processor). Raises UsageError
+    (ParamError for params) with the one-line messages the command prints."""
+    if not isinstance(stage, Usd.Stage):
+        raise UsageError(f"stage={_shown(stage)}: expected an open Usd.Stage (Usd.Stage.Open(path))")
+    if isinstance(processors, str):
+        processors = [processors]
+    elif processors is not None:
+        if not isinstance(processors, (list, tuple)) or not all(isinstance(name, str) for name in processors):
+            raise UsageError(f"processors={_shown(processors)}: expected a processor name or a list of names")
+        processors = list(processors)
+    if params is not None and (not isinstance(params, dict) or not all(
+            isinstance(name, str) and isinstance(values, dict) for name, values in params.items())):
+        raise ParamError(f"params={_shown(params)}: expected {{processor: {{param: value}}}}, e.g. "
+                         f"{{'ambient_occlusion': {{'samples': 64}}}}")
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise UsageError(f"threads={_shown(threads)}: expected a whole number of at least 1")
+    check_device(device, option="device=")
+    if cache_dir is not None:
+        check_cache_folder(cache_dir, option="cache_dir=")
+    if texture_dir is not None:
+        if Path(texture_dir).exists() and not Path(texture_dir).is_dir():
+            raise UsageError(f"texture_dir={texture_dir}: is a file, not a folder")
+        check_writable_folder(Path(texture_dir), what=f"texture_dir={texture_dir}")
+    if layer is not None:
+        if not isinstance(layer, Sdf.Layer):
+            raise UsageError(f"layer={_shown(layer)}: expected an Sdf.Layer (or None for the session layer's)")
+        own = {used.identifier for used in stage.GetLayerStack(includeSessionLayers=False)}
+        if layer.identifier in own and not is_bake_layer(layer) or layer == stage.GetRootLayer():
+            raise UsageError(f"layer={layer.identifier}: a layer of the stage's own content; a bake replaces "
+                             f"everything in its layer, so give a new layer (Sdf.Layer.CreateAnonymous()) or none")
+    return processors
+
+
+def _shown(value) -> str:
+    """A value as an error line shows it: short, one line."""
+    text = repr(value).replace("\n", " ")
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def last_report(layer: Sdf.Layer) -> list[dict]:

@@ -6,6 +6,7 @@ One line naming the problem for each (a UsageError, exit 2 on the command line).
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -87,6 +88,34 @@ def check_writable_folder(folder: Path, *, what: str) -> None:
         raise UsageError(f"{what}: cannot write in {ancestor} ({error.strerror})") from None
     os.close(handle)
     os.unlink(probe)
+
+
+def check_device(device, *, option: str = "--device") -> None:
+    """'cpu', or a CUDA device Warp can see ('cuda', 'cuda:N'); Warp is asked only for a CUDA one."""
+    if device == "cpu":
+        return
+    if not isinstance(device, str) or not re.fullmatch(r"cuda(:\d+)?", device):
+        raise UsageError(f"{_given(option, device)}: expected cpu or cuda:N")
+    import warp as wp
+
+    try:
+        wp.get_device(device)
+    except (ValueError, RuntimeError):
+        available = ", ".join(str(d.alias) for d in wp.get_devices())
+        raise UsageError(f"{_given(option, device)}: no such Warp device here (available: {available})") from None
+
+
+def _given(option: str, value) -> str:
+    """How an error line names a value: ``--cache DIR`` for the command, ``cache_dir=DIR`` for the hook."""
+    return f"{option}{value}" if option.endswith("=") else f"{option} {value}"
+
+
+def check_cache_folder(folder, *, option: str = "--cache") -> None:
+    """A result-cache folder that exists as a folder, or can be created, and can be written."""
+    what = _given(option, folder)
+    if Path(folder).exists() and not Path(folder).is_dir():
+        raise UsageError(f"{what}: is a file, not a folder")
+    check_writable_folder(Path(folder), what=what)
 
 
 def empty_bake_message(steps) -> str:
