@@ -1,9 +1,10 @@
 """Smoke run of every benchmark's quick sweep (issue #6): ``python -m usdbake.benchmarks --quick --results DIR``.
 
-Checks that every bench_*.py runs to completion, writes its JSON with finite figures, stays within the
-issue's 3-minute budget for ``--quick``, leaves the committed results (benchmarks/results/*.json,
+Checks that every bench_*.py runs to completion, writes its JSON with finite figures, leaves the committed results (benchmarks/results/*.json,
 docs/benchmarks.md) untouched, and meets the few error bounds that are properties of correctness
-(not tuning targets): AO converges to its 16x reference, form-factor rows sum to at most 1.
+(not tuning targets): AO converges to its 16x reference, form-factor rows sum to at most 1. Its time
+is printed against the 3-minute budget for ``--quick``, not asserted: a busy CI machine must not
+refuse a correct submission (issue 27).
 
 Measured on the 2-core dev machine: 47 s with warm caches, 68 s cold (no reference cache in
 benchmarks/cache, empty Warp kernel cache).
@@ -25,7 +26,9 @@ from tolerances import AO_RMS_BOUND, FLOAT32_STORAGE
 
 
 QUICK_BUDGET_S = 180.0
-"""The issue's limit for ``--quick`` (measured 47-68 s here, so the margin covers a busy machine)."""
+"""The budget for ``--quick`` the run's time is printed against (measured 47-136 s on the 2-core machine)."""
+HANG_GUARD_S = 1800
+"""Only a hung run is stopped: far above any time measured, loaded or not."""
 
 
 def _numbers(value, path=""):
@@ -57,11 +60,11 @@ def test_quick_benchmarks_run_and_write_finite_figures(tmp_path):
 
     started = time.perf_counter()
     run = subprocess.run([sys.executable, "-m", "benchmarks", "--quick", "--results", str(tmp_path)],
-                         check=False, cwd=REPO, capture_output=True, text=True, timeout=600)
+                         check=False, cwd=REPO, capture_output=True, text=True, timeout=HANG_GUARD_S)
     elapsed = time.perf_counter() - started
     print(run.stdout[-4000:])
     assert run.returncode == 0, f"python -m usdbake.benchmarks --quick failed:\n{run.stderr[-4000:]}"
-    assert elapsed < QUICK_BUDGET_S, f"--quick took {elapsed:.0f} s (budget {QUICK_BUDGET_S:.0f} s)"
+    print(f"benchmark smoke run: --quick took {elapsed:.0f} s (budget {QUICK_BUDGET_S:.0f} s)")
     assert _digest(committed) == before, "a quick run modified the committed benchmark results or report"
     assert (tmp_path / "benchmarks.md").is_file(), "the report was not written to --results"
 
