@@ -20,6 +20,7 @@ import signal
 import sys
 import threading
 import tomllib
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -30,10 +31,10 @@ from rich.table import Table
 
 from .. import init_warp
 from ..core import registry
-from ..core.errors import UsageError
+from ..core.errors import OutputError, UsageError
 from ..core.params import TABLE_COLUMNS
 from ..core.pipeline import DEFAULT_PROCESSORS, Pipeline, ProcessorFailed
-from ..stages.inputs import check_cache_folder, check_device, open_source
+from ..stages.inputs import check_cache_folder, check_device, open_source, undecodable
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -60,10 +61,10 @@ def _number(low: float, high: float):
 def _instant(text: str) -> str:
     """An argparse type: an ISO 8601 date-time (``2026-06-21T12:00``), checked here rather than after the stage
     is read."""
-    from ..kernels.solar import parse_times
+    from ..stages.sky_dome import check_sky_time
 
     try:
-        parse_times(text)
+        check_sky_time(text)
     except ValueError as error:
         raise argparse.ArgumentTypeError(str(error)) from None
     return text
@@ -152,7 +153,9 @@ def make_parser() -> argparse.ArgumentParser:
     serve.add_argument("input", help="a baked stage (usdbake bake -p progressive_mesh and/or -p irradiance_grid)")
     serve.add_argument("--host", default="127.0.0.1", help="address to listen on (default: this machine only)")
     serve.add_argument("--port", type=int, default=8642)
-    serve.add_argument("--max-clients", type=int, default=64, help="requests handled at once; more get 503")
+    serve.add_argument("--max-clients", type=int, default=64, help="stream requests handled at once; more get 503")
+    serve.add_argument("--max-per-peer", type=int, default=8, help="stream requests one address may hold once half "
+                       "of --max-clients are taken")
     preview = commands.add_parser("preview", help="render a (baked) stage to an image: AO, daylight, irradiance")
     preview.add_argument("input", help="stage to render, e.g. a usdbake output")
     preview.add_argument("-o", "--output", required=True, help="image to write (.png, or .exr for float data)")
@@ -187,7 +190,9 @@ def main(argv: list[str] | None = None) -> int:
         args = make_parser().parse_args(argv)
         if hasattr(args, "device") or args.command == "bench":  # --help, list and inspect never load Warp
             _quiet_warp(getattr(args, "device", "cpu"))
-        with _interrupts(console, args.command):
+        with _interrupts(console, args.command), warnings.catch_warnings():
+            warnings.showwarning = lambda message, *_: console.print(  # one line each (a CacheWarning, ...)
+                f"[yellow]warning:[/yellow] {escape(str(message))}", highlight=False)
             return COMMANDS[args.command](args, console)
     except KeyboardInterrupt:  # save_atomically removed its temporary files on the way out
         console.print(f"[red]{_interrupted_line(getattr(args, 'command', ''))}[/red]", highlight=False)
@@ -197,6 +202,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     except ProcessorFailed as error:
         console.print(f"[red]usdbake: {escape(str(error))}[/red]; no output was written", highlight=False)
+        return EXIT_FAILED
+    except OutputError as error:
+        console.print(f"[red]usdbake: error:[/red] {escape(str(error))}", highlight=False)
         return EXIT_FAILED
 
 
@@ -272,6 +280,8 @@ def resolve_options(args, default=DEFAULT_PROCESSORS) -> tuple[list[str], dict[s
             raise UsageError(f"{args.config}: {error.strerror}") from None
         except tomllib.TOMLDecodeError as error:
             raise UsageError(f"{args.config}: not valid TOML ({error})") from None
+        except UnicodeDecodeError as error:  # tomllib decodes the file as UTF-8 before it parses
+            raise UsageError(f"{args.config}: not valid TOML ({undecodable(error)}; TOML is UTF-8 text)") from None
         listed = config.pop("processors", [])
         if not isinstance(listed, list) or not all(isinstance(name, str) for name in listed):
             raise UsageError(f"{args.config}: processors must be a list of names, e.g. "
@@ -638,13 +648,16 @@ def cmd_sky(args, console: Console) -> int:
 
 
 def cmd_serve(args, console: Console) -> int:
-    from ..stages.serve import serve
+    from ..stages.serve import Limits, serve
 
     if args.max_clients < 1:
         raise UsageError(f"--max-clients {args.max_clients}: at least 1")
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port {args.port}: not a TCP port (0..65535)")
-    serve(args.input, host=args.host, port=args.port, max_clients=args.max_clients,
+    if args.max_per_peer < 1:
+        raise UsageError(f"--max-per-peer {args.max_per_peer}: at least 1")
+    serve(args.input, host=args.host, port=args.port,
+          limits=Limits(max_clients=args.max_clients, max_per_peer=args.max_per_peer),
           log=lambda line: console.print(line, highlight=False))
     return EXIT_OK
 

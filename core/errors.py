@@ -5,6 +5,11 @@ class UsageError(ValueError):
     """Bad input: a missing file, an unparseable layer, an unknown processor, a bad value."""
 
 
+class OutputError(RuntimeError):
+    """The output could not be written (a full disk, a quota, an I/O error): not the user's input, so the
+    command exits 1; the previous output and its files are unchanged."""
+
+
 class StageError(UsageError):
     """A prim holds a value usdbake cannot bake; the message names prim, attribute and value."""
 

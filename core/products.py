@@ -142,7 +142,7 @@ class DisplacementField:
     prototype: str
     """Prototype prim path."""
     center: np.ndarray
-    """(3,) float64 bounding-sphere centre in prototype space."""
+    """(3,) float64 bounding-sphere centre in the field's frame (prototype space unless ``frame`` says)."""
     radius: float
     """Bounding-sphere radius in prototype space."""
     side: int
@@ -161,6 +161,10 @@ class DisplacementField:
     """(P, 3) float32 prototype-space vertices the field was built from (instance_ao traces self-occlusion)."""
     prototype_triangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int32))
     """(T, 3) int32 triangles of prototype_points."""
+    frame: np.ndarray = field(default_factory=lambda: np.eye(4))
+    """(4, 4) float64 row-vector rigid motion from the frame the field was built in (that of ``center``, the
+    texels and prototype_points) to this prototype's space: the identity unless the field is shared with a
+    moved copy of its prototype (``processors.displacement_fields.ShapeIndex``)."""
 
     @property
     def nbytes(self) -> int:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
@@ -24,6 +25,9 @@ def _readonly(array: np.ndarray) -> np.ndarray:
     array = np.ascontiguousarray(array)
     array.flags.writeable = False
     return array
+
+
+_NO_DOME_TEXTURE = _readonly(np.zeros((0, 0, 3), np.float32))
 
 
 @dataclass(frozen=True)
@@ -41,11 +45,22 @@ class Lights:
     """(L, 3) float32 unit emission direction (the light's -Z axis in world space)."""
     light_size: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     """(L, 2) float32 radius (sphere, disk), width/height (rect) or angle in degrees (distant)."""
-    dome_texture: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3), np.float32))
-    """(H, W, 3) float32 linear RGB lat-long map of the (first) textured DomeLight, empty if none: it
-    modulates the domes' radiance by direction (OpenEXR lat-long layout, +Y the pole of the dome)."""
+    dome_source: Any = None
+    """Where ``dome_texture`` comes from: None (no textured dome), an (H, W, 3) float32 array, or a
+    zero-argument callable that reads it on first use and keeps it (``stages.sky_dome.DomeTexture``), so
+    a run whose processors never read the lights (ambient occlusion) never reads the file."""
     dome_to_local: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float64))
     """(3, 3) float64 rotation taking a world direction into the textured dome's frame (row vectors)."""
+
+    @property
+    def dome_texture(self) -> np.ndarray:
+        """(H, W, 3) float32 linear RGB lat-long map of the (first) textured DomeLight, empty if none: it
+        modulates the domes' radiance by direction (OpenEXR lat-long layout, +Y the pole of the dome).
+        Read-only; read from ``dome_source`` on first access (the lights facet's fingerprint reads it)."""
+        source = self.dome_source
+        if source is None:
+            return _NO_DOME_TEXTURE
+        return _readonly(np.asarray(source() if callable(source) else source, np.float32))
 
     def __len__(self) -> int:
         return len(self.light_paths)

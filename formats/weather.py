@@ -2,8 +2,10 @@
 
 pvlib (``pvlib.iotools.read_epw`` / ``read_tmy3``) parses the files; before it
 does, the layout is checked here line by line (row count, column count, numeric
-irradiance), because a broken file should fail with one line naming the file
-and the line, not with a pandas traceback. Times are local standard time at the
+irradiance, and dates that are days of the calendar: month 1..12, a day of that
+month, hour 1..24, 29 February only in a leap year), because a broken file
+should fail with one line naming the file, the line, the field and its value,
+not with a pandas traceback. Times are local standard time at the
 middle of each hour (both formats give the hour *ending* at the stamp).
 """
 
@@ -138,35 +140,100 @@ def _site(path: Path, latitude: float, longitude: float, timezone: float) -> Non
 
 
 _DAYS_BEFORE_MONTH = np.cumsum([0, 31, 28, 31, 30, 31, 30, 31, 31, 30, 31, 30])
+_DAYS_IN_MONTH = (31, 28, 31, 30, 31, 30, 31, 31, 30, 31, 30, 31)
+MONTHS = ("January", "February", "March", "April", "May", "June", "July", "August", "September", "October",
+          "November", "December")
 
 
-def _fields(path: Path, header: int, rows: list[list[str]], read) -> list[tuple]:
-    """``read(row)`` for every data row; a row it cannot read is named by its line."""
-    values = []
-    for index, row in enumerate(rows):
-        try:
-            values.append(read(row))
-        except (ValueError, IndexError):
-            raise UsageError(f"{path}, line {header + index + 1}: the date and time cannot be read") from None
-    return values
+def _whole(path: Path, line: int, text: str, said: str) -> int:
+    """``text`` as a whole number; else UsageError naming the file, the line, the field (``said``, e.g.
+    ``field 2 (month) is``) and its text."""
+    try:
+        return int(text.strip())
+    except ValueError:
+        raise UsageError(f"{path}, line {line}: {said} {text.strip()!r}, not a whole number") from None
+
+
+def _check_date(path: Path, line: int, year: int, month: int, day: int, hour: float, described) -> None:
+    """Refuse a row whose date is not one of the calendar, naming the file, the line and the field:
+    ``described(name, value)`` says where ``name`` (year, month, day, hour) came from, e.g. ``field 2 (month)
+    is 13``. Hours end at the stamp (1..24, 0 < hour <= 24 with minutes); 29 February needs a leap year."""
+    where = f"{path}, line {line}: "
+    if not 1000 <= year <= 9999:
+        raise UsageError(f"{where}{described('year', year)}, not a four-digit year")
+    if not 1 <= month <= 12:
+        raise UsageError(f"{where}{described('month', month)}, not a month (1..12)")
+    leap = month == 2 and (year % 4 == 0 and (year % 100 != 0 or year % 400 == 0))
+    last = _DAYS_IN_MONTH[month - 1] + leap
+    if not 1 <= day <= last:
+        of = f"{MONTHS[month - 1]} {year}" if month == 2 and day == 29 else MONTHS[month - 1]
+        raise UsageError(f"{where}{described('day', day)}, not a day of {of} (1..{last})")
+    if not 0 < hour <= 24:
+        raise UsageError(f"{where}{described('hour', f'{hour:g}')}, not an hour of the day (1..24, the hour "
+                         f"ending at the stamp)")
+
+
+def _epw_time(path: Path, line: int, row: list[str]) -> tuple[int, int, float]:
+    """(month, day, hour ending) of an EPW data row, from its fields 1-4: year, month, day, hour (1..24)."""
+    names = ("year", "month", "day", "hour")
+    year, month, day, hour = (_whole(path, line, row[k], f"field {k + 1} ({names[k]}) is") for k in range(4))
+    _check_date(path, line, year, month, day, hour,
+                lambda name, value: f"field {names.index(name) + 1} ({name}) is {value}")
+    return month, day, float(hour)
+
+
+def _tmy3_time(path: Path, line: int, row: list[str]) -> tuple[int, int, float]:
+    """(month, day, hour ending) of a TMY3 data row, from field 1 (date, MM/DD/YYYY) and 2 (time, HH:MM)."""
+    date, time = row[0].strip(), row[1].strip()
+    parts, clock = date.split("/"), time.split(":")
+    if len(parts) != 3:
+        raise UsageError(f"{path}, line {line}: field 1 (date) is {date!r}, not MM/DD/YYYY")
+    if len(clock) != 2:
+        raise UsageError(f"{path}, line {line}: field 2 (time) is {time!r}, not HH:MM")
+    month, day, year = (_whole(path, line, part, f"field 1 (date) {date!r} has {name}")
+                        for part, name in zip(parts, ("month", "day", "year")))
+    hours, minutes = (_whole(path, line, part, f"field 2 (time) {time!r} has {name}")
+                      for part, name in zip(clock, ("hours", "minutes")))
+    if not 0 <= minutes < 60:
+        raise UsageError(f"{path}, line {line}: field 2 (time) {time!r} has minutes {minutes}, not 0..59")
+
+    def described(name: str, value) -> str:
+        field = "field 2 (time)" if name == "hour" else "field 1 (date)"
+        return f"{field} {time if name == 'hour' else date!r} has {name} {value}"
+
+    hour = hours + minutes / 60.0
+    _check_date(path, line, year, month, day, hour, described)
+    return month, day, hour
+
+
+def _times(path: Path, header: int, rows: list[list[str]], read) -> list[tuple]:
+    """``read(path, line, row)`` -> (month, day, hour ending) for every data row, checked before pvlib
+    parses the file (which raises a pandas error on a date that is not one)."""
+    return [read(path, header + index + 1, row) for index, row in enumerate(rows)]
 
 
 def _year(path: Path, header: int, months: list[int], days: list[int], hours: list[float],
           frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mid-hour local times, DNI, DHI, file lines): times from each row's month, day and hour ending (1..24), in
     one non-leap year (typical years mix source years, some leap: 29 February is dropped), irradiance
-    from pvlib's frame, row for row."""
+    from pvlib's frame, row for row. The dates are checked already (``_check_date``)."""
     months, days, hours = np.asarray(months), np.asarray(days), np.asarray(hours, np.float64)
-    bad = np.flatnonzero((months < 1) | (months > 12) | (days < 1) | (days > 31) | (hours <= 0) | (hours > 24))
-    if len(bad):
-        raise UsageError(f"{path}, line {header + bad[0] + 1}: month {months[bad[0]]}, day {days[bad[0]]}, hour "
-                         f"{hours[bad[0]]:g} is not a time of the year")
     keep = ~((months == 2) & (days == 29))
     day = _DAYS_BEFORE_MONTH[months[keep] - 1] + days[keep] - 1
     minutes = np.rint((day * 24 + hours[keep] - 0.5) * 60).astype(np.int64)
     times = np.datetime64("2025-01-01T00:00", "m") + minutes.astype("timedelta64[m]")
     lines = header + 1 + np.flatnonzero(keep)
     return times, frame["dni"].to_numpy(np.float64)[keep], frame["dhi"].to_numpy(np.float64)[keep], lines
+
+
+def _pvlib_frame(path: Path, read, **kwargs):
+    """pvlib's data frame of the file; a failure left after the checks here is still one line, naming the file."""
+    try:
+        frame, _ = read(str(path), **kwargs)
+    except (ValueError, KeyError, IndexError) as error:
+        reason = " ".join(str(error).split("\n")[0].split())
+        raise UsageError(f"{path}: pvlib cannot read it ({reason})") from None
+    return frame
 
 
 def _pvlib_reader(name: str):
@@ -192,9 +259,8 @@ def _read_epw(path: Path) -> Weather:
     except ValueError:
         raise UsageError(f"{path}, line 1: latitude, longitude, time zone and elevation must be numbers") from None
     _site(path, latitude, longitude, timezone)
-    when = _fields(path, EPW_HEADER_LINES, rows[EPW_HEADER_LINES:],
-                   lambda row: (int(row[1]), int(row[2]), float(row[3])))
-    frame, _ = read_epw(str(path))
+    when = _times(path, EPW_HEADER_LINES, rows[EPW_HEADER_LINES:], _epw_time)
+    frame = _pvlib_frame(path, read_epw)
     times, dni, dhi, lines = _year(path, EPW_HEADER_LINES, *zip(*when), frame)
     return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation, lines)
 
@@ -210,9 +276,7 @@ def _read_tmy3(path: Path) -> Weather:
         raise UsageError(f"{path}, line 1: expected 'USAF,name,state,timezone,latitude,longitude,elevation'") \
             from None
     _site(path, latitude, longitude, timezone)
-    when = _fields(path, TMY3_HEADER_LINES, rows[TMY3_HEADER_LINES:],
-                   lambda row: (int(row[0].split("/")[0]), int(row[0].split("/")[1]),
-                                int(row[1].split(":")[0]) + int(row[1].split(":")[1]) / 60.0))
-    frame, _ = read_tmy3(str(path), map_variables=True)
+    when = _times(path, TMY3_HEADER_LINES, rows[TMY3_HEADER_LINES:], _tmy3_time)
+    frame = _pvlib_frame(path, read_tmy3, map_variables=True)
     times, dni, dhi, lines = _year(path, TMY3_HEADER_LINES, *zip(*when), frame)
     return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation, lines)

@@ -11,7 +11,8 @@ the slab boundary of least surface-area cost
 or becomes a leaf when that is cheaper and it holds at most ``max_leaf`` primitives. All nodes of a
 tree level are split at once with array operations, so the Python loop runs once per level. The
 binary tree is then collapsed into 8-wide nodes (Wald, Benthin & Boulos, "Getting rid of packets",
-RT 2008): a node adopts the children of its largest internal child until it has eight.
+RT 2008): a node adopts the children of its largest internal child until it has eight. Zero-area
+triangles and all but the first of each set of copies of a triangle are left out (``build_triangle_bvh``).
 
 Node layout (``NODE_FLOATS`` float32 per node, read by ``kernels.traversal``)::
 
@@ -220,12 +221,53 @@ class TriangleBvh:
     """(P, PACKET) int32 triangle index of each lane, -1 for an empty lane."""
 
 
+def first_copies(corners: np.ndarray) -> np.ndarray:
+    """(K,) int64 ascending indices of the first triangle of each set of copies among ``corners`` (T, 3, 3)
+    float32: copies have the same three corners, bit for bit (-0 = +0), in the same cyclic order (the same
+    face with the same winding; a back-to-back twin is not a copy).
+
+    O(T log T): each row is rotated to the least of its three cyclic rotations, hashed, sorted by hash
+    (stably, so the first copy comes first) and compared with its sorted neighbour. A hash collision only
+    keeps a copy it could have dropped; it never drops a distinct triangle.
+    """
+    corners = np.asarray(corners, np.float32).reshape(-1, 3, 3) + np.float32(0.0)  # -0.0 + 0.0 is +0.0
+    if len(corners) < 2:
+        return np.arange(len(corners), dtype=np.int64)
+    bits = corners.view(np.uint32).reshape(-1, 9)
+    rows = bits
+    for shift in (3, 6):  # the least rotation, comparing words in order
+        rotated = np.roll(bits, -shift, axis=1)
+        rows = np.where(_less(rotated, rows)[:, None], rotated, rows)
+    digest = np.zeros(len(rows), np.uint64)
+    for k in range(9):  # FNV-1a over the nine words (uint64 arithmetic wraps)
+        digest = (digest ^ rows[:, k].astype(np.uint64)) * np.uint64(0x100000001B3)
+    order = np.argsort(digest, kind="stable")
+    ranked = rows[order]
+    copy = np.zeros(len(rows), bool)
+    copy[1:] = (ranked[1:] == ranked[:-1]).all(axis=1)
+    return np.sort(order[~copy])
+
+
+def _less(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(T,) bool: row a[t] < row b[t] lexicographically (word by word)."""
+    differ = a != b
+    first = np.argmax(differ, axis=1)
+    pick = np.arange(len(a))
+    return differ[pick, first] & (a[pick, first] < b[pick, first])
+
+
 def build_triangle_bvh(points: np.ndarray, tri_vertices: np.ndarray) -> TriangleBvh:
-    """Wide BVH of triangles; leaves hold up to two packets of PACKET triangles."""
+    """Wide BVH of triangles; leaves hold up to two packets of PACKET triangles.
+
+    Zero-area triangles are left out (the watertight test would see a sliver of rounding error in them), and
+    so are copies of a triangle (``first_copies``): a ray meets every copy at the same t, so the first one
+    stands for them all (the closest hit names it), and the neighbourhood query of ``surface_origin`` would
+    otherwise visit all N copies from each of their 3N vertices: N^2 work on N stacked copies (issue 27).
+    """
     corners = np.asarray(points, np.float32)[np.asarray(tri_vertices, np.int64)]
-    # Zero-area triangles are left out: the watertight test would see a sliver of rounding error in them.
     edges = corners[:, 1:].astype(np.float64) - corners[:, :1]
     traced = np.flatnonzero(np.abs(np.cross(edges[:, 0], edges[:, 1])).max(axis=1) > 0)
+    traced = traced[first_copies(corners[traced])]
     if len(traced) == 0:  # nothing to hit: one empty leaf
         return TriangleBvh(_empty_nodes(), np.zeros((1, 9, PACKET), np.float32), np.full((1, PACKET), -1, np.int32))
     tree = build_binary(corners[traced].min(axis=1), corners[traced].max(axis=1), max_leaf=2 * PACKET, packet=PACKET)

@@ -14,7 +14,9 @@ unwelded crease of a flat-shaded box, the floor a box's vertex rests on). The
 Scene stores points relative to its own centre (Scene.origin), so
 coordinates never exceed the scene's own size and one epsilon proportional
 to the scene diagonal is safe at 1e-3 scale and 1e6 units from the world
-origin alike.
+origin alike. A scene far from unit size (outside TRACE_SCALE_RANGE) is
+stored in the ray core scaled by a power of two (``trace_scale``), an exact
+operation, so its rays meet what the unscaled scene's rays meet.
 """
 
 from __future__ import annotations
@@ -22,12 +24,12 @@ from __future__ import annotations
 import os
 import weakref
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import warp as wp
 
-from .bvh_build import TraceArrays, build_triangle_bvh, single_level, two_level
+from .bvh_build import CHILD_OFFSET, TraceArrays, build_triangle_bvh, single_level, two_level
 from .trace_instances import instanced_arrays
 from .traversal import TraceScene, surface_origin, trace_any, trace_closest
 
@@ -43,6 +45,12 @@ CPU_BLOCK_DIM = 1
 
 FAR = 3.0e38
 """Ray length that means "no limit" in float32 kernels (float32 max is 3.4e38)."""
+
+TRACE_SCALE_RANGE = (2.0 ** -20, 2.0 ** 20)
+"""Scene diagonals (stage units) traced as they are: a scene outside this is traced scaled by a power of
+two (``trace_scale``) to a diagonal near 1. Within it the watertight test's products of three coordinates
+stay far inside float32 (2^60 and 2^-60 against 2^128 and 2^-126); outside it they overflow past ~7e12
+units and lose precision in denormals below ~2e-13 (a 1e12-scaled Cornell box baked AO = 1 everywhere)."""
 
 MIN_CHUNK = 4096
 """Smallest work item per thread: below this, thread overhead beats the gain."""
@@ -107,13 +115,16 @@ def triangle_origin(scene: TraceScene, a: wp.vec3, b: wp.vec3, c: wp.vec3, x: wp
                     epsilon: float) -> wp.vec3:
     """Ray origin for point x of triangle abc (unit normal n): x + epsilon n when x lies more than 2 epsilon
     from every edge (another face can pass through it only where geometry interpenetrates), else
-    ``surface_origin`` with the tangent towards the triangle's centroid as ``inward``. Stage units."""
+    ``surface_origin`` with the tangent towards the triangle's centroid as ``inward``. Stage units; the
+    edge test runs in the ray core's scaled space (``TraceScene.scale``), where its products of two
+    lengths neither overflow nor fall into denormals (exactly as before for a scene of ordinary size)."""
     near_edge = False
+    s = scene.scale
     for k in range(3):
-        start = wp.where(k == 0, a, wp.where(k == 1, b, c))
-        edge = wp.where(k == 0, b, wp.where(k == 1, c, a)) - start
+        start = wp.where(k == 0, a, wp.where(k == 1, b, c)) * s
+        edge = wp.where(k == 0, b, wp.where(k == 1, c, a)) * s - start
         length = wp.length(edge)
-        if length <= 0.0 or wp.length(wp.cross(edge, x - start)) < 2.0 * epsilon * length:
+        if length <= 0.0 or wp.length(wp.cross(edge, x * s - start)) < 2.0 * (epsilon * s) * length:
             near_edge = True
     if not near_edge:
         return x + n * epsilon
@@ -202,8 +213,10 @@ class Tracer:
         if arrays is None:
             arrays = single_level(build_triangle_bvh(*_nonempty(points, tri_vertices)))
         self.arrays = arrays
-        self.scene = self._upload(arrays)
         extent = points.max(axis=0).astype(np.float64) - points.min(axis=0) if len(points) else np.zeros(3)
+        self.scale = trace_scale(float(np.linalg.norm(extent)))
+        """The power of two the traced arrays are stored multiplied by (TraceScene.scale; 1 for most scenes)."""
+        self.scene = self._upload(scaled_arrays(arrays, self.scale))
         self.epsilon = max(RAY_EPSILON_RELATIVE * float(np.linalg.norm(extent)), 1e-30)
         self.rays_cast = 0
 
@@ -238,6 +251,7 @@ class Tracer:
             self._device_arrays[name] = array
             setattr(scene, name, array.ptr)
         scene.top_root = arrays.top_root
+        scene.scale = self.scale
         return scene
 
     @property
@@ -282,6 +296,29 @@ class Tracer:
         if origins.shape != directions.shape:
             raise ValueError(f"origins {origins.shape} and directions {directions.shape} differ")
         return self.array(origins, wp.vec3), self.array(directions, wp.vec3), len(origins)
+
+
+def trace_scale(diagonal: float) -> float:
+    """1 for a scene diagonal within TRACE_SCALE_RANGE (or none), else the power of two that brings it
+    near 1: multiplying float32 coordinates by it is exact, so hits scale back exactly."""
+    low, high = TRACE_SCALE_RANGE
+    if not np.isfinite(diagonal) or diagonal <= 0.0 or low <= diagonal <= high:
+        return 1.0
+    return float(2.0 ** -round(np.log2(diagonal)))
+
+
+def scaled_arrays(arrays: TraceArrays, scale: float) -> TraceArrays:
+    """``arrays`` with every coordinate multiplied by ``scale`` (a power of two): node bounds, triangle
+    packets and the instances' translations (their linear parts map scaled space to scaled space)."""
+    if scale == 1.0:
+        return arrays
+    nodes = arrays.nodes.copy()
+    nodes[:, :CHILD_OFFSET] *= np.float32(scale)  # the bounds; children and counts are ints in float slots
+    to_object, to_world = arrays.instance_to_object.copy(), arrays.instance_to_world.copy()
+    to_object[..., 3] *= np.float32(scale)
+    to_world[..., 3] *= np.float32(scale)
+    return replace(arrays, nodes=nodes, packets=arrays.packets * np.float32(scale),
+                   instance_to_object=to_object, instance_to_world=to_world)
 
 
 def _nonempty(points: np.ndarray, tri_vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

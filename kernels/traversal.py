@@ -70,6 +70,12 @@ class TraceScene:
     """int32 (I,): instances in top-level leaf order; a top-level leaf addresses a run of this array."""
     top_root: int
     """Root of the top-level tree, or -1: one identity instance (0), traced without the top level."""
+    scale: float
+    """Power of two the arrays' coordinates are stored multiplied by (``kernels.tracer.trace_scale``): 1 for
+    a scene of ordinary size. Ray origins and lengths are multiplied by it on the way in and distances
+    divided by it on the way out, all exact, so a scene 1e15 or 1e-14 units across is traced as one a
+    unit across (the watertight test's t carries products of three coordinates, which overflow float32
+    beyond ~7e12 units and underflow below ~2e-13) and an ordinary one bit for bit as before."""
 
 
 @wp.struct
@@ -306,8 +312,9 @@ struct Bottom {
 };
 // Closest (ANY = false) or any (ANY = true) hit along org + t dir, 0 <= t < tmax: the whole scene, or
 // only instance `only` when only >= 0.
-Ray world; world.init(&org[0], &dir[0]);
-Best best; best.t = tmax; best.lane = -1; best.instance = 0; best.u = best.v = best.det = 0.0f;
+const float scaled_org[3] = {org[0] * scene.scale, org[1] * scene.scale, org[2] * scene.scale};
+Ray world; world.init(scaled_org, &dir[0]);
+Best best; best.t = tmax * scene.scale; best.lane = -1; best.instance = 0; best.u = best.v = best.det = 0.0f;
 bool hit = false;
 if (scene.top_root < 0 && only <= 0) {
   hit = Bottom::walk(NODES, PACKETS, world, ROOT[0], 0, ANY, best);
@@ -342,7 +349,7 @@ bool mirrored = MIRRORED[best.instance] != 0;
 if (mirrored) u = 1.0f - u - v;
 int face = FACE[best.instance] + LANES[best.lane];
 bool front = best.det > 0.0f;  // a mirrored instance's re-wound triangles flip the test's sign back
-return wp::vec4(best.t, u, v, USDBAKE_BITS_FLOAT(face * 2 + (front ? 1 : 0)));
+return wp::vec4(best.t / scene.scale, u, v, USDBAKE_BITS_FLOAT(face * 2 + (front ? 1 : 0)));
 """
 
 
@@ -403,8 +410,13 @@ const int* ROOT = (const int*)scene.instance_root;
 const int* FACE = (const int*)scene.instance_face;
 const int* MIRRORED = (const int*)scene.instance_mirrored;
 const int* TOP_INSTANCES = (const int*)scene.top_instances;
+// In the arrays' scaled space (TraceScene.scale) throughout; the origin is scaled back on return.
+const float epsilon = epsilon_units * scene.scale;
 float q[3], o[3], nn[3];
-for (int k = 0; k < 3; ++k) { nn[k] = n[k]; q[k] = p[k] + inward[k] * epsilon; o[k] = q[k] + nn[k] * epsilon; }
+for (int k = 0; k < 3; ++k) {
+  const float pk = p[k] * scene.scale;  // its own statement: q's expression contracts as it did unscaled
+  nn[k] = n[k]; q[k] = pk + inward[k] * epsilon; o[k] = q[k] + nn[k] * epsilon;
+}
 struct Overlap {
   // Push the children of node nd whose boxes overlap the box centre +- half.
   CUDA_CALLABLE static void push(const float* nd, const float* centre, const float* half, int* stack, int& size) {
@@ -500,16 +512,17 @@ for (int sweep = 0; sweep < 2; ++sweep) {  // a second sweep, after a move, sett
   }
   if (!moved) break;
 }
-return wp::vec3(o[0], o[1], o[2]);
+return wp::vec3(o[0] / scene.scale, o[1] / scene.scale, o[2] / scene.scale);
 """.replace("STACK_SIZE", str(STACK_SIZE)).replace("COUNT_OFFSET", str(COUNT_OFFSET))
 
 
 @wp.func_native(_SURFACE_ORIGIN)
-def surface_origin(scene: TraceScene, p: wp.vec3, n: wp.vec3, inward: wp.vec3, epsilon: float) -> wp.vec3:
+def surface_origin(scene: TraceScene, p: wp.vec3, n: wp.vec3, inward: wp.vec3, epsilon_units: float) -> wp.vec3:
     """Ray origin for point p on a surface with unit normal n. ``inward`` is a unit tangent pointing into
     the point's own surface (zero inside a face or a smooth region): at an unwelded crease it takes the
     origin off the crease line, to the side where its own face lies. The origin is q + epsilon n,
     q = p + epsilon inward, then moved to at least epsilon in front of every other face through q whose
     normal is not opposite n (the face a T-junction vertex rests on, a wall the point touches; their
-    winding side, the outside of a solid). A ray from it meets no face through p at t <= 0. Stage units."""
+    winding side, the outside of a solid). A ray from it meets no face through p at t <= 0. Stage units
+    (``epsilon_units``, the tracer's ``epsilon``), whatever ``TraceScene.scale``."""
     ...

@@ -32,6 +32,14 @@ Prototypes are those of PointInstancers and of native instancing (``Scene.instan
 prototype, named by what its instances reference); a native prototype's field is authored on every
 instance root, its USD prototype being read-only, all naming one texture.
 
+Prototypes of one shape share one field: same topology, and points that a rigid motion (rotation and
+translation, no scale or mirror) takes onto the first one's within ``RIGID_MATCH_RELATIVE`` of its size
+(``ShapeIndex``, ``geometry.transforms.rigid_alignment``), so copies re-authored in another frame or
+rounded differently by their instancers build one field, not one each. The shared field keeps the frame
+it was built in; ``DisplacementField.frame`` is the motion from that frame to the prototype's, which
+``instance_ao`` composes with each instance's transform. In USD, the prototype's centre is written in its
+own space and, when the frame is turned, ``bake:field:orientation`` says how.
+
 USD written (bake layer), per prototype with a field:
 
 =============================== ======== =======================================================
@@ -46,6 +54,9 @@ bake:field:directionMapSize     int2     (M, M)
 bake:field:encoding             token    uint8 | bit1
 bake:field:positionMapping      token    octahedralEqualArea
 bake:field:directionMapping     token    concentricMalley
+bake:field:orientation          quatf    only on a prototype sharing the field of a turned copy: the
+                                         rotation (real, i, j, k; as ``xformOp:orient``) from the
+                                         texture's frame to the prim's space (fallback: identity)
 =============================== ======== =======================================================
 
 The texture (8-bit grey PNG, written with OpenImageIO) is an atlas of n x n
@@ -71,7 +82,7 @@ import warp as wp
 from ..core import Attribute, Context, ParamError, Params, Prim, Processor, Result, Texture, param
 from ..core.products import DisplacementField, DisplacementFieldSet
 from ..core.scene import Scene
-from ..geometry.transforms import invertible
+from ..geometry.transforms import invertible, rigid_alignment, rotation_quaternion
 from ..kernels.displacement_field import (
     DIRECTION_MAPPING,
     POSITION_MAPPING,
@@ -145,21 +156,73 @@ def bounding_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
     return center, radius * (1.0 + SPHERE_INFLATION)
 
 
-CONTENT_GRID_RELATIVE = 1e-5
-"""Prototype points are compared on a grid of this fraction of their bounding box: the same prototype
-recovered from two instances differs by float rounding of the inverse transform."""
+RIGID_MATCH_RELATIVE = 1e-5
+"""Two prototypes of one topology are one shape when a rigid motion takes one's points onto the other's within
+this fraction of its bounding-box size: float rounding of the inverse instance transform, or of points
+re-authored in another frame, lies far below it (1e-7 for float32), the field's distance step (2R / 508) far
+above it."""
 
 
-def content_key(points: np.ndarray, triangles: np.ndarray) -> str:
-    """Hash of a prototype's shape (its triangles and its points on a CONTENT_GRID_RELATIVE grid), so
-    identical prototypes of different instancers or native instances share one field."""
-    points = np.asarray(points, np.float64)
-    size = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
-    step = max(size * CONTENT_GRID_RELATIVE, 1e-30)
-    digest = hashlib.sha256(f"{size:.5e}".encode())  # the size itself: a scaled copy is another shape
-    digest.update(np.round(points / step).astype(np.int64).tobytes())
+def topology_key(points: np.ndarray, triangles: np.ndarray) -> str:
+    """Hash of what a rigid motion leaves exactly as it is: the point count and the triangles (vertex order
+    included). Prototypes with one key are compared point by point (``ShapeIndex``)."""
+    digest = hashlib.sha256(f"{len(points)}".encode())
     digest.update(np.ascontiguousarray(triangles, np.int32).tobytes())
     return digest.hexdigest()
+
+
+def spread(points: np.ndarray) -> np.ndarray:
+    """(3,) descending RMS extents of centred points along their principal axes (singular values / sqrt(P)):
+    unchanged by a rigid motion, and moved by at most 2 d when no point moves more than d (Weyl's inequality
+    for singular values), so shapes whose spreads differ by more cannot match within d."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    centred = points - points.mean(axis=0)
+    return np.linalg.svd(centred, compute_uv=False) / np.sqrt(max(len(points), 1))
+
+
+class ShapeIndex:
+    """Prototypes seen so far, found again up to a rigid motion and float rounding (``RIGID_MATCH_RELATIVE``).
+
+    Candidates share the topology key and a spread within the tolerance; the match itself is
+    ``geometry.transforms.rigid_alignment``, point for point. A prototype costs O(P) for its key and spread,
+    one spread comparison per stored prototype of its topology, and O(P) per one whose spread agrees.
+    """
+
+    def __init__(self):
+        self._shapes: dict[str, list] = {}
+
+    def find(self, points: np.ndarray, triangles: np.ndarray):
+        """(value, S) of a stored shape whose points S takes onto ``points`` ([stored, 1] @ S, row vectors), or
+        None."""
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        tolerance = RIGID_MATCH_RELATIVE * (float(np.ptp(points, axis=0).max()) if len(points) else 0.0)
+        mine = spread(points)
+        for stored, stored_spread, value in self._shapes.get(topology_key(points, triangles), []):
+            if np.abs(stored_spread - mine).max() > 2.0 * tolerance:
+                continue
+            motion = rigid_alignment(stored, points, tolerance=tolerance)
+            if motion is not None:
+                return value, motion
+        return None
+
+    def add(self, points: np.ndarray, triangles: np.ndarray, value) -> None:
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        self._shapes.setdefault(topology_key(points, triangles), []).append((points, spread(points), value))
+
+
+def shared_field(field: DisplacementField, prototype: str, motion: np.ndarray) -> DisplacementField:
+    """``field`` (built from another prototype) for ``prototype``, whose points are [built, 1] @ motion: the same
+    texels, the frame composed with ``motion`` (instance_ao folds it into the instances' transforms)."""
+    return dataclasses.replace(field, prototype=prototype, frame=np.asarray(field.frame, np.float64) @ motion)
+
+
+def describe_motion(motion: np.ndarray) -> str:
+    """'' for the identity, else how far a shared field is turned and moved (for the messages)."""
+    rotation, translation = motion[:3, :3], motion[3, :3]
+    angle = math.degrees(math.acos(float(np.clip((np.trace(rotation) - 1) / 2, -1.0, 1.0))))
+    parts = ([f"rotated {angle:.3g} degrees"] if not np.array_equal(rotation, np.eye(3)) else []) + \
+            ([f"moved {float(np.linalg.norm(translation)):.3g}"] if translation.any() else [])
+    return ", ".join(parts)
 
 
 def prototype_geometry(scene: Scene, prototype: int) -> tuple[np.ndarray, np.ndarray, int]:
@@ -243,11 +306,14 @@ def field_records(field: DisplacementField, targets: tuple[str, ...] | None = No
     ``shared_from``: the prototype whose texture (in the same outputs) this field reuses."""
     file_name = field_file_name(shared_from or field.prototype)
     records: list = [] if shared_from else [Texture(file_name, field_atlas(field)[:, :, None])]
+    frame = np.asarray(field.frame, np.float64)
+    center = np.r_[np.asarray(field.center, np.float64), 1.0] @ frame  # in the prim's space
+    turned = not np.array_equal(frame[:3, :3], np.eye(3))
     for path in targets or (field.prototype,):
         records += [
             Prim(path, api_schemas=("DisplacementFieldAPI",)),
             Attribute(path, "bake:field:file", f"./{file_name}", "asset"),
-            Attribute(path, "bake:field:center", np.asarray(field.center, np.float32), "point3f"),
+            Attribute(path, "bake:field:center", center[:3].astype(np.float32), "point3f"),
             Attribute(path, "bake:field:radius", float(field.radius), "float"),
             Attribute(path, "bake:field:positionalSamples", int(field.side * field.side), "int"),
             Attribute(path, "bake:field:directionMapSize", np.array([field.map_size] * 2, np.int32), "int2"),
@@ -255,6 +321,9 @@ def field_records(field: DisplacementField, targets: tuple[str, ...] | None = No
             Attribute(path, "bake:field:positionMapping", POSITION_MAPPING, "token"),
             Attribute(path, "bake:field:directionMapping", DIRECTION_MAPPING, "token"),
         ]
+        if turned:  # the texture is laid out in a turned frame: say how (module docstring)
+            records.append(Attribute(path, "bake:field:orientation",
+                                     rotation_quaternion(frame[:3, :3]).astype(np.float32), "quatf"))
     return records
 
 
@@ -298,7 +367,7 @@ def choose_prototypes(scene: Scene, p) -> tuple[list[int], list[str]]:
 
 class DisplacementFields(Processor):
     name = "displacement_fields"
-    version = "1"
+    version = "2"
     summary = "Per-prototype presampled visibility (displacement fields) for instance_ao."
     facets = ("geometry", "instancers")
     writes = ("bake:field:",)
@@ -345,20 +414,23 @@ class DisplacementFields(Processor):
         device = ctx.device
         result = Result(products={DisplacementFieldSet: DisplacementFieldSet({})}, messages=messages)
         rays = 0
-        built: dict[str, DisplacementField] = {}
+        built = ShapeIndex()
         for step, index in enumerate(chosen):
             path = scene.instances.prototype_paths[index]
             points, triangles, instance = prototype_geometry(scene, index)
             if instance < 0:
                 result.messages.append(f"{path}: no field (no instance with triangles and an invertible transform)")
                 continue
-            key = content_key(points, triangles)
-            if key in built:  # the same shape as a prototype already done: share its field
-                field = dataclasses.replace(built[key], prototype=path)
+            match = built.find(points, triangles)
+            if match is not None:  # the same shape as a prototype already done, maybe moved: share its field
+                source, motion = match
+                field = shared_field(source, path, motion)
                 result.products[DisplacementFieldSet].fields[path] = field
                 result.outputs.extend(field_records(field, scene.instances.targets(index),
-                                                    shared_from=built[key].prototype))
-                result.messages.append(f"{path}: shares the field of {built[key].prototype} (same shape)")
+                                                    shared_from=source.prototype))
+                how = describe_motion(motion)
+                result.messages.append(f"{path}: shares the field of {source.prototype} (same shape"
+                                       f"{', ' + how if how else ''})")
                 continue
             try:
                 field = build_field(points, triangles, prototype=path, positional_samples=p.positional_samples,
@@ -368,7 +440,7 @@ class DisplacementFields(Processor):
                 result.messages.append(f"{path}: no field ({error})")
                 continue
             rays += field.side ** 2 * field.map_size ** 2
-            built[key] = field
+            built.add(points, triangles, field)
             result.products[DisplacementFieldSet].fields[path] = field
             result.outputs.extend(field_records(field, scene.instances.targets(index)))
             result.stats[f"bytes:{path}"] = float(field.nbytes)

@@ -205,7 +205,8 @@ class InstanceSpheres:
         self.update(transforms)
 
     def update(self, transforms: np.ndarray) -> None:
-        """Point the instances at new (I, 4, 4) prototype-to-world matrices: arrays rewritten, BVH refitted."""
+        """Point the instances at new (I, 4, 4) field-to-world matrices (row vectors: prototype-to-world ones
+        after the field's ``frame``, ``field_slots``): arrays rewritten, BVH refitted."""
         transforms = np.asarray(transforms, np.float64).reshape(-1, 4, 4)
         count = max(1, len(self.instance_field))
         linear = np.zeros((count, 3, 3), np.float32)
@@ -274,17 +275,49 @@ def compute_instance_ao(tracer: Tracer, spheres: InstanceSpheres, positions: np.
     ])
 
 
+def field_slots(prototype_paths, fields_by_path: dict) -> tuple[list, np.ndarray, np.ndarray]:
+    """The distinct fields, and where each prototype finds its own.
+
+    Prototypes that share a field (``displacement_fields.ShapeIndex``: one shape, perhaps moved) share one
+    slot, so its texels and its prototype BVH are on the device once.
+
+    Returns
+    -------
+    fields : the DisplacementFields of the slots, in first-use order
+    proto_field : (K,) int32 slot of each prototype, -1 without a field
+    proto_frame : (K, 4, 4) float64 row-vector motion from the slot's frame to the prototype's space
+        (``DisplacementField.frame``): [x_slot, 1] @ frame @ instance transform is the world position
+    """
+    fields, slot_of = [], {}
+    proto_field = np.full(len(prototype_paths), -1, np.int32)
+    proto_frame = np.tile(np.eye(4), (len(prototype_paths), 1, 1))
+    for k, path in enumerate(prototype_paths):
+        field = fields_by_path.get(path)
+        if field is None:
+            continue
+        key = id(field.texels)  # shared fields hold the very texels of the field they share
+        if key not in slot_of:
+            slot_of[key] = len(fields)
+            fields.append(field)
+        slot = fields[slot_of[key]]
+        proto_field[k] = slot_of[key]
+        # Both frames start where the texels were built: the slot's frame back to there, then this one's.
+        proto_frame[k] = np.linalg.inv(np.asarray(slot.frame, np.float64)) @ np.asarray(field.frame, np.float64)
+    return fields, proto_field, proto_frame
+
+
 def query_field(field, transform: np.ndarray, origins: np.ndarray, directions: np.ndarray, *,
                 max_distance: float = math.inf, interpolation: str = "nearest", device: str = "cpu",
                 tracer: Tracer | None = None) -> np.ndarray:
     """(N,) float32 visibility in [0, 1] of world rays (unit directions) through one instance of ``field``
     (Gaitatzes et al. 2008, Section 3.2; ``field_query_kernel``).
 
-    ``transform`` is the (4, 4) prototype-to-world matrix (row-vector convention); ``max_distance`` in
-    stage units.
+    ``transform`` is the (4, 4) prototype-to-world matrix (row-vector convention), composed here with the
+    field's ``frame``; ``max_distance`` in stage units.
     """
     fieldset = FieldSet([field], device)
-    spheres = InstanceSpheres(fieldset, np.zeros(1, np.int32), np.asarray(transform, np.float64)[None])
+    to_world = np.asarray(field.frame, np.float64) @ np.asarray(transform, np.float64)
+    spheres = InstanceSpheres(fieldset, np.zeros(1, np.int32), to_world[None])
     origins = np.ascontiguousarray(origins, np.float32).reshape(-1, 3)
     directions = np.ascontiguousarray(directions, np.float32).reshape(-1, 3)
     visibility = wp.zeros(len(origins), dtype=float, device=device)
@@ -428,12 +461,11 @@ class InstanceAO(Processor):
         inst = scene.instances
         frames = parse_frames(p.frames, inst.instance_times)
         fields_by_path = ctx.products.get(DisplacementFieldSet, DisplacementFieldSet({})).fields
-        paths = [path for path in inst.prototype_paths if path in fields_by_path]
-        fields = [fields_by_path[path] for path in paths]
-        proto_field = np.array([paths.index(path) if path in paths else -1 for path in inst.prototype_paths],
-                               np.int32)
+        fields, proto_field, proto_frame = field_slots(inst.prototype_paths, fields_by_path)
         instance_field = proto_field[inst.instance_prototype] if len(inst) else np.zeros(0, np.int32)
         instance_field = np.where(invertible(inst.instance_transforms), instance_field, -1).astype(np.int32)
+        # Field frame -> world: a shared field's frame folded into the transforms of its prototype's instances.
+        instance_frame = proto_frame[inst.instance_prototype] if len(inst) else np.zeros((0, 4, 4))
         # Triangles without a usable field go through the BVH (built once, also for every frame).
         tri_field = np.where(scene.tri_instance >= 0, instance_field[np.maximum(scene.tri_instance, 0)]
                              if len(inst) else -1, -1)
@@ -450,14 +482,14 @@ class InstanceAO(Processor):
         if frames is not None and moving:
             result.messages.append(f"{moving} instance(s) without a field keep their extraction-time position in "
                                    f"every frame")
-        spheres = InstanceSpheres(fieldset, instance_field, inst.instance_transforms)
+        spheres = InstanceSpheres(fieldset, instance_field, instance_frame @ inst.instance_transforms)
         on_instances = InstancePoints(scene, normals, inward, instance_field) if p.instances and len(inst) else None
         by_frame, by_frame_instances = {}, {}
         for step, frame in enumerate(frames or [None]):
             transforms = inst.instance_transforms
             if frame is not None:
                 transforms = inst.instance_transforms_at_times[int(np.abs(inst.instance_times - frame).argmin())]
-                spheres.update(transforms)
+                spheres.update(instance_frame @ transforms)
             if on_instances is not None:
                 positions, instance_normals, instance_inward = on_instances.at(transforms)
                 ao_instances = compute_instance_ao(

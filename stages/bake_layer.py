@@ -25,6 +25,8 @@ replaces its content, it never nests or duplicates.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import os
 import re
@@ -36,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Tf, Vt
 
-from ..core.errors import UsageError
+from ..core.errors import OutputError, UsageError
 from ..core.records import Attribute, Block, File, Prim, Primvar, RefinedMesh, Texture
 
 PROVENANCE_KEY = "usdbake"
@@ -49,7 +51,15 @@ TEMP_TAG = ".usdbake-tmp-"
 
 
 def is_bake_layer(layer: Sdf.Layer) -> bool:
-    return PROVENANCE_KEY in dict(layer.customLayerData)
+    """The layer's customLayerData holds usdbake's provenance dictionary (something else under that key,
+    written by hand or corrupted, does not make a layer ours)."""
+    return isinstance(dict(layer.customLayerData).get(PROVENANCE_KEY), dict)
+
+
+def provenance_of(layer: Sdf.Layer) -> dict:
+    """The provenance dictionary of a bake layer ({} for any other layer)."""
+    value = dict(layer.customLayerData).get(PROVENANCE_KEY)
+    return dict(value) if isinstance(value, dict) else {}
 
 
 def bake_source(path: str) -> str:
@@ -320,9 +330,10 @@ def owned_sidecars(layer: Sdf.Layer, *, folder: Path | None = None, prefix: str 
         if not layer.realPath:
             return {}
         prefix = Path(layer.realPath).stem
-    provenance = dict(dict(layer.customLayerData).get(PROVENANCE_KEY, {}))
+    provenance = provenance_of(layer)
     names, digests = provenance.get("sidecars"), provenance.get("sidecarDigests")
-    if names is None or digests is None or len(names) != len(digests):
+    if not all(isinstance(value, (list, tuple, Vt.StringArray)) for value in (names, digests)) \
+            or len(names) != len(digests):
         return {}
     folder, pattern = Path(folder), sidecar_pattern(prefix)
     owned = {}
@@ -457,28 +468,42 @@ def save_atomically(out_path: str, source_path: str, outputs: list, provenance: 
     temp = temp_path(out.parent, out.name, out.name)  # ends in the output's suffix: Sdf needs it
     staged, replaced = None, False
     try:
-        layer = new_output_layer(str(temp), source_path, str(out))
-        staged = author(layer, outputs, provenance, texture_dir=str(out.parent), sidecar_prefix=out.stem,
-                        owner=out.name, commit=False)
-        if not layer.Save():
-            raise UsageError(f"{out_path}: could not be written")
-        previous = _owned_by_file(out)
-        if staged is not None:
+        with write_failures(out_path):
+            layer = new_output_layer(str(temp), source_path, str(out))
+            staged = author(layer, outputs, provenance, texture_dir=str(out.parent), sidecar_prefix=out.stem,
+                            owner=out.name, commit=False)
+            if not layer.Save():
+                raise OSError(errno.EIO, "USD could not save the layer")
+            previous = _owned_by_file(out)
             staged.commit()
-        os.replace(temp, out)
+            os.replace(temp, out)
         replaced = True
         reloaded = Sdf.Layer.Find(str(out))
         if reloaded is not None:  # a stale copy from an earlier bake in this process
             reloaded.Reload(force=True)
         kept = set().union(*(_owned_by_file(sibling) for sibling in _siblings(out)))
-        written = staged.finals if staged is not None else set()
-        remove_sidecars({path: sha for path, sha in previous.items() if path not in written and path not in kept})
+        remove_sidecars({path: sha for path, sha in previous.items() if path not in staged.finals and path not in kept})
     finally:
         if staged is not None:
             staged.discard()
             if not replaced:  # sidecars renamed into place for a layer that never landed
                 staged.take_back()
         temp.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def write_failures(target: str):
+    """Turn a failed write (OSError: a full disk, ``ulimit -f``, a quota; USD's Tf error from a failed
+    save) into one OutputError line naming ``target`` and the reason."""
+    try:
+        yield
+    except OSError as error:
+        raise OutputError(f"{target}: could not be written ({error.strerror or error}); the previous output "
+                          f"is unchanged") from None
+    except Tf.ErrorException as error:
+        found = re.search(r"Error occurred writing file: ([^']+)", str(error))
+        reason = found.group(1) if found else "USD could not save the layer"
+        raise OutputError(f"{target}: could not be written ({reason}); the previous output is unchanged") from None
 
 
 def write_texture(texture: Texture, directory: str) -> str:
@@ -500,12 +525,14 @@ def _write_image(pixels: np.ndarray, path: Path) -> None:
     spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], fmt)
     output = oiio.ImageOutput.create(str(path))
     if output is None or not output.open(str(path), spec):
-        raise UsageError(f"{path}: OpenImageIO cannot write it ({oiio.geterror()})")
-    try:
-        if not output.write_image(pixels):
-            raise UsageError(f"{path}: could not be written ({output.geterror()})")
-    finally:
-        output.close()
+        raise OSError(errno.EIO, f"OpenImageIO cannot write {path.name}: {oiio.geterror()}")
+    # write_image can return True after short writes (a full disk): its error text is the only sign
+    written = output.write_image(pixels)
+    error = output.geterror()
+    closed = output.close()
+    error = error or output.geterror()
+    if not written or not closed or error:
+        raise OSError(errno.EIO, f"OpenImageIO: {error.splitlines()[0] if error else 'the image was not written'}")
 
 
 def _author_prim(layer: Sdf.Layer, record: Prim) -> None:

@@ -74,7 +74,13 @@ def composition_faults(stage: Usd.Stage) -> list[CompositionFault]:
     for error in stage.GetCompositionErrors():
         if error.errorType in FAULT_TYPES:
             # Whitespace is collapsed: a parser message inside Pcp's text may end in a newline.
-            faults.add(_fault(" ".join(str(error).split()), root))
+            try:
+                faults.add(_fault(" ".join(str(error).split()), root))
+            except UnicodeDecodeError:  # it quotes an asset's bytes that are not UTF-8
+                from .inputs import undecodable_asset
+
+                what = undecodable_asset(stage) or "an asset cannot be read (USD's message is not UTF-8 text)"
+                faults.add(_fault(f"{what}, asked for at {error.rootSite.path}", root))
     return sorted(faults, key=lambda f: (f.arc != "sublayer", f.layer != root, f.layer, f.prim, f.asset, f.problem))
 
 

@@ -19,8 +19,8 @@ from pxr import Gf, Usd, UsdGeom, UsdLux
 from ..core.errors import StageError
 from ..core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_RECT, LIGHT_SPHERE, Instances, Lights, Scene
 from .composition import check_composition
-from .materials import MaterialReader, read_rgb
-from .sky_dome import SKY_LAYER_KEY
+from .materials import MaterialReader
+from .sky_dome import SKY_LAYER_KEY, DomeTexture
 from .triangulate import triangulate_corners
 
 RENDERABLE_PURPOSES = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
@@ -137,6 +137,7 @@ def _renderable(prim: Usd.Prim, timecode: Usd.TimeCode) -> bool:
 def _read_mesh(prim: Usd.Prim, timecode: Usd.TimeCode, materials: "MaterialReader", warnings: list) -> LocalMesh:
     mesh = UsdGeom.Mesh(prim)
     path = str(prim.GetPath())
+    _check_time_sampled(path, mesh, timecode)
     points = np.asarray(mesh.GetPointsAttr().Get(timecode) or [], np.float64).reshape(-1, 3)
     counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(timecode) or [], np.int64)
     indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(timecode) or [], np.int64)
@@ -162,10 +163,22 @@ def _read_mesh(prim: Usd.Prim, timecode: Usd.TimeCode, materials: "MaterialReade
     )
 
 
+def _check_time_sampled(path: str, mesh: UsdGeom.Mesh, timecode: Usd.TimeCode) -> None:
+    """Topology read at the default time from attributes that hold only time samples is empty: say so."""
+    if not timecode.IsDefault():
+        return
+    for attribute in (mesh.GetPointsAttr(), mesh.GetFaceVertexCountsAttr(), mesh.GetFaceVertexIndicesAttr()):
+        times = attribute.GetTimeSamples()
+        if times and attribute.Get(timecode) is None:
+            raise StageError(path, attribute.GetName(), f"has {len(times)} time samples ({times[0]:g}..{times[-1]:g}) "
+                                                        f"and no default value; bake one frame with --time T "
+                                                        f"(hook: time=T)")
+
+
 def _validate_mesh(path: str, points: np.ndarray, counts: np.ndarray, indices: np.ndarray) -> None:
     bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
     if len(bad):
-        raise StageError(path, "points", f"point {bad[0]} is {tuple(points[bad[0]])} "
+        raise StageError(path, "points", f"point {bad[0]} is {tuple(float(v) for v in points[bad[0]])} "
                                          f"({len(bad)} non-finite points); fix or remove them")
     if counts.sum() != len(indices):
         raise StageError(path, "faceVertexCounts", f"sum {int(counts.sum())} != len(faceVertexIndices) "
@@ -247,15 +260,20 @@ def _add_point_instancer(prim, timecode, xforms, local_mesh, builder: _Builder, 
     proto_indices = np.asarray(instancer.GetProtoIndicesAttr().Get(timecode) or [], np.int64)
     if len(proto_indices) == 0:
         return
+    if not targets:
+        raise StageError(path, "prototypes", f"targets nothing, but protoIndices names {len(proto_indices)} instances")
     bad = np.flatnonzero((proto_indices < 0) | (proto_indices >= len(targets)))
     if len(bad):
-        raise StageError(path, "protoIndices", f"index {int(proto_indices[bad[0]])} at instance {bad[0]} "
-                                               f"but only {len(targets)} prototypes")
+        count = f"{len(targets)} target" + ("s" if len(targets) > 1 else "")
+        raise StageError(path, "protoIndices", f"index {int(proto_indices[bad[0]])} at instance {bad[0]}, but "
+                                               f"prototypes has {count} (0..{len(targets) - 1})")
+    builder.warnings.extend(check_instancer_arrays(prim, timecode, len(proto_indices)))
     matrices = instancer.ComputeInstanceTransformsAtTime(
         timecode, timecode, UsdGeom.PointInstancer.IncludeProtoXform, UsdGeom.PointInstancer.IgnoreMask)
     if matrices is None or len(matrices) != len(proto_indices):
         raise StageError(path, "positions", "instance transforms could not be computed (positions, "
                                             "orientations and protoIndices must have matching lengths)")
+    _check_finite_transforms(path, np.array(matrices, np.float64).reshape(-1, 4, 4))
     mask = instancer.ComputeMaskAtTime(timecode) or [True] * len(proto_indices)
     instancer_world = np.array(xforms.GetLocalToWorldTransform(prim), np.float64)
     instancer_index = instances.instancer(path, len(proto_indices), native=False)
@@ -277,6 +295,59 @@ def _add_point_instancer(prim, timecode, xforms, local_mesh, builder: _Builder, 
             builder.add(mesh, relative @ to_world, writable=False, instance=instance)
 
 
+INSTANCE_ARRAYS = ("positions", "orientations", "orientationsf", "scales")
+"""PointInstancer arrays read per instance with no length check: OpenUSD's transform computation warns
+about short ``orientations`` or ``scales`` and then reads past their end (different garbage each run),
+and fails on short ``positions``. Each must hold one value per protoIndices entry (or none, but
+positions): refused otherwise."""
+
+DROPPED_INSTANCE_ARRAYS = ("velocities", "angularVelocities", "accelerations")
+"""PointInstancer arrays OpenUSD drops, with a warning, when their length is wrong (the instances are placed
+as if they were zero): usdbake does the same and says so."""
+
+
+def check_instancer_arrays(prim: Usd.Prim, timecode: Usd.TimeCode, count: int, *, when: str = "") -> list[str]:
+    """Warnings for the per-instance arrays OpenUSD ignores; StageError, before any transform is computed,
+    for a per-instance array whose length is not ``count`` (the protoIndices), for non-finite values,
+    and for ``ids`` that cannot mask the instances (a wrong length while invisibleIds or inactiveIds
+    select instances by id). ``when``: ' at time T' for a time sample other than the bake's."""
+    path = str(prim.GetPath())
+    warnings = []
+    for name in ("positions", *INSTANCE_ARRAYS[1:], *DROPPED_INSTANCE_ARRAYS):
+        attr = prim.GetAttribute(name)
+        value = attr.Get(timecode) if attr and attr.HasAuthoredValue() else None
+        if value is None or (len(value) == 0 and name != "positions"):
+            continue
+        if len(value) != count:
+            reference = "protoIndices" if name == "positions" else "positions"
+            if name in DROPPED_INSTANCE_ARRAYS:
+                warnings.append(f"{path}.{name}: {len(value)} values for {count} {reference}{when}; ignored, as "
+                                f"OpenUSD does (the instances are placed as if every value were zero)")
+                continue
+            rule = "one per instance" if name == "positions" else "one per instance, or none"
+            raise StageError(path, name, f"{len(value)} values for {count} {reference}{when} ({rule})")
+        values = np.array(value, np.float64).reshape(len(value), -1)  # quaternions: (i, j, k, real)
+        bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+        if len(bad):
+            shown = tuple(float(x) for x in values[bad[0]])
+            raise StageError(path, name, f"value {bad[0]} is {shown}{when} ({len(bad)} non-finite values)")
+    masking = bool(prim.GetMetadata("inactiveIds")) or bool(prim.GetAttribute("invisibleIds").Get(timecode))
+    ids = prim.GetAttribute("ids").Get(timecode) if prim.GetAttribute("ids") else None
+    if masking and ids is not None and len(ids) and len(ids) != count:
+        raise StageError(path, "ids", f"{len(ids)} values for {count} protoIndices{when} (invisibleIds and "
+                                      f"inactiveIds name instances by id: one id per instance)")
+    return warnings
+
+
+def _check_finite_transforms(path: str, matrices: np.ndarray, when: str = "") -> None:
+    """StageError naming the first instance whose transform is not finite (an overflow of scales times
+    the prototype's transform, say), before any compute."""
+    bad = np.flatnonzero(~np.isfinite(matrices).all(axis=(1, 2)))
+    if len(bad):
+        raise StageError(path, "positions", f"instance {bad[0]}'s transform is not finite{when} "
+                                            f"({len(bad)} such instances)")
+
+
 def _prototype_meshes(root: Usd.Prim, timecode, xforms, local_mesh) -> list:
     """Renderable meshes under a prototype root, with transforms relative to the root's space."""
     found = []
@@ -293,9 +364,13 @@ def _prototype_meshes(root: Usd.Prim, timecode, xforms, local_mesh) -> list:
 
 def _assemble(stage, builder: _Builder, light_prims, volume_prims, instances: _InstanceTable, xforms, timecode,
               time) -> Scene:
-    world_points = [np.c_[m.points, np.ones(len(m.points))] @ world for m, world, _, _ in builder.meshes]
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflowing transform is named just below
+        world_points = [np.c_[m.points, np.ones(len(m.points))] @ world for m, world, _, _ in builder.meshes]
+    for (mesh, world, _, _), points in zip(builder.meshes, world_points):
+        _check_world_points(mesh.path, world, points[:, :3])
     all_points = np.concatenate([p[:, :3] for p in world_points]) if world_points else np.zeros((0, 3))
     origin = ((all_points.min(axis=0) + all_points.max(axis=0)) / 2) if len(all_points) else np.zeros(3)
+    _check_extent(stage, all_points)
 
     point_start = np.zeros(len(builder.meshes) + 1, np.int64)
     tri_parts, corner_parts, face_parts, prim_parts = [], [], [], []
@@ -345,6 +420,45 @@ def _assemble(stage, builder: _Builder, light_prims, volume_prims, instances: _I
         source=stage.GetRootLayer().identifier,
         warnings=tuple(builder.warnings),
     )
+
+
+EXTENT_RANGE = (1e-12, 1e15)
+"""Scene extents (bounding-box diagonal, stage units) usdbake bakes; outside it the bake is refused before
+any compute, naming the extent. The Scene and the processors work in float32, and some of their values are
+products of two lengths (areas, squared distances, the light model's 1/d^2 bound of (1e-4 d)^2): at 1e-12
+a feature of 1e-6 of the extent still squares to 1e-36, a normal float32 (they start at 1.2e-38); at 1e15
+the squares reach 1e30, eight decades under float32's 3.4e38 for the sums and radiance products they enter.
+The ray core itself is scale-free (``kernels.tracer.trace_scale``): ambient occlusion, sky visibility,
+radiosity and the irradiance grid of the Cornell box agree from 1e-14 to 1e18 units across."""
+
+
+def _check_extent(stage: Usd.Stage, points: np.ndarray) -> None:
+    """StageError naming the scene's extent when it lies outside EXTENT_RANGE (a scene of one point, or
+    none, has no extent to check)."""
+    if len(points) == 0:
+        return
+    diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    low, high = EXTENT_RANGE
+    if diagonal == 0.0 or low <= diagonal <= high:
+        return
+    where = stage.GetRootLayer().identifier
+    raise StageError(where if stage.GetRootLayer().anonymous else Path(where).name, "",
+                     f"the geometry spans {diagonal:.4g} stage units (bounding-box diagonal); usdbake computes in "
+                     f"float32 and bakes extents from {low:g} to {high:g}: scale the stage (an xformOp:scale on "
+                     f"its root prim, and metersPerUnit to match)")
+
+
+def _check_world_points(path: str, world: np.ndarray, points: np.ndarray) -> None:
+    """StageError naming a mesh whose points are finite but whose world-space points are not: a transform
+    (its own or a parent's) holds a non-finite value, or scales the points past float64."""
+    if not np.isfinite(world).all():
+        raise StageError(path, "", "its world transform holds a non-finite value (an xformOp of the prim or of a "
+                                   "parent is inf or nan)")
+    bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
+    if len(bad):
+        raise StageError(path, "", f"point {bad[0]} overflows to {tuple(float(v) for v in points[bad[0]])} in "
+                                   f"world space ({len(bad)} such points): its transform, or a parent's, scales "
+                                   f"it past float64")
 
 
 def probe_volumes(prims: list, timecode: Usd.TimeCode, origin: np.ndarray) -> np.ndarray:
@@ -442,13 +556,19 @@ def _instance_time_samples(table: _InstanceTable, origin: np.ndarray) -> tuple[n
         for prim, kept, proto_indices, first in table.sources:
             instancer = UsdGeom.PointInstancer(prim)
             indices = np.asarray(instancer.GetProtoIndicesAttr().Get(timecode) or [], np.int64)
+            if not np.array_equal(indices, proto_indices):
+                ok = False
+                break
+            check_instancer_arrays(prim, timecode, len(indices), when=f" at time {t:g}")  # before OpenUSD reads them
             mask = np.asarray(instancer.ComputeMaskAtTime(timecode) or [True] * len(indices), bool)
             matrices = instancer.ComputeInstanceTransformsAtTime(
                 timecode, timecode, UsdGeom.PointInstancer.IncludeProtoXform, UsdGeom.PointInstancer.IgnoreMask)
-            if (matrices is None or len(matrices) != len(proto_indices) or not np.array_equal(indices, proto_indices)
+            if (matrices is None or len(matrices) != len(proto_indices)
                     or not np.array_equal(np.flatnonzero(mask), kept)):
                 ok = False
                 break
+            _check_finite_transforms(str(prim.GetPath()), np.array(matrices, np.float64).reshape(-1, 4, 4),
+                                     f" at time {t:g}")
             world = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(timecode), np.float64)
             local = np.array(matrices, np.float64).reshape(-1, 4, 4)[kept]
             frame[first:first + len(kept)] = local @ world
@@ -487,7 +607,7 @@ def _read_lights(prims: list, xforms, timecode, origin: np.ndarray) -> Lights:
                      direction / norm if norm > 0 else np.array([0.0, 0.0, -1.0]), size))
     texture, to_local = _dome_texture([p for p in prims if p.IsA(UsdLux.DomeLight)], xforms, timecode)
     return Lights(
-        dome_texture=texture, dome_to_local=to_local,
+        dome_source=texture, dome_to_local=to_local,
         light_paths=tuple(r[0] for r in rows),
         light_kind=np.array([r[1] for r in rows], np.int32),
         light_radiance=np.array([r[2] for r in rows], np.float32).reshape(-1, 3),
@@ -497,13 +617,11 @@ def _read_lights(prims: list, xforms, timecode, origin: np.ndarray) -> Lights:
     )
 
 
-DOME_MAP_MAX_WIDTH = 1024
-"""Dome textures wider than this are box-filtered down (the lookups are per ray, not per texel)."""
-
-
-def _dome_texture(domes: list, xforms, timecode) -> tuple[np.ndarray, np.ndarray]:
-    """((H, W, 3) float32 lat-long map, world-to-dome rotation) of the first DomeLight with a texture file;
-    StageError naming the light and the file when it cannot be read or is not a lat-long map."""
+def _dome_texture(domes: list, xforms, timecode) -> tuple[DomeTexture | None, np.ndarray]:
+    """(the texture file of the first DomeLight with one, world-to-dome rotation); the file is opened here
+    (its header: a missing or unreadable file fails before any compute) and its texels read when a
+    processor first reads the lights (``DomeTexture``). StageError naming the light and the file when it
+    cannot be read or is not a lat-long map."""
     for prim in domes:
         dome = UsdLux.DomeLight(prim)
         asset = dome.GetTextureFileAttr().Get(timecode)
@@ -516,17 +634,12 @@ def _dome_texture(domes: list, xforms, timecode) -> tuple[np.ndarray, np.ndarray
                                                             f"(automatic or latlong)")
         if not asset.resolvedPath:
             raise StageError(path, "inputs:texture:file", f"{asset.path}: not found")
-        rgb, error = read_rgb(asset.resolvedPath, srgb=True)
-        if rgb is None:
-            raise StageError(path, "inputs:texture:file", f"{asset.path}: cannot be read ({error})")
-        while rgb.shape[1] > DOME_MAP_MAX_WIDTH and rgb.shape[0] % 2 == 0 and rgb.shape[1] % 2 == 0:
-            rgb = rgb.reshape(rgb.shape[0] // 2, 2, rgb.shape[1] // 2, 2, 3).mean(axis=(1, 3))
-        if not np.isfinite(rgb).all():
-            raise StageError(path, "inputs:texture:file", f"{asset.path}: holds non-finite texels")
+        texture = DomeTexture(path, asset.path, asset.resolvedPath, srgb=True)
+        texture.check()
         rotation = np.array(xforms.GetLocalToWorldTransform(prim), np.float64)[:3, :3]
         rotation /= np.maximum(np.linalg.norm(rotation, axis=1, keepdims=True), 1e-300)  # drop scale
-        return rgb.astype(np.float32), np.linalg.inv(rotation)
-    return np.zeros((0, 0, 3), np.float32), np.eye(3)
+        return texture, np.linalg.inv(rotation)
+    return None, np.eye(3)
 
 
 def _light_size(prim, kind: int, world: np.ndarray, timecode) -> tuple[tuple[float, float], float]:

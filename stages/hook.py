@@ -28,7 +28,7 @@ from ..core.errors import UsageError
 from ..core.params import ParamError
 from ..core.pipeline import Pipeline
 from ..core.records import File, Texture
-from .bake_layer import PROVENANCE_KEY, author, is_bake_layer
+from .bake_layer import PROVENANCE_KEY, author, is_bake_layer, provenance_of, write_failures
 from .inputs import check_cache_folder, check_device, check_writable_folder, empty_bake_message
 from .extract import extract_scene
 from .refined_mesh import complete_outputs, refinement_guard
@@ -81,8 +81,9 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     if texture_dir is None and any(isinstance(record, (Texture, File)) for record in outputs):
         texture_dir = _default_texture_dir(stage)  # only when needed: it may create a temp folder
     report = {"source": scene.source, "warnings": Vt.StringArray(list(scene.warnings))}  # string[]: usdc stores it
-    author(target, outputs, pipeline.provenance(report), texture_dir=texture_dir,
-           sidecar_prefix=_sidecar_prefix(stage, target))
+    with write_failures(texture_dir or target.identifier):
+        author(target, outputs, pipeline.provenance(report), texture_dir=texture_dir,
+               sidecar_prefix=_sidecar_prefix(stage, target))
     for message in scene.warnings:
         warnings.warn(f"usdbake: {message}", stacklevel=2)
     return target
@@ -131,13 +132,13 @@ def _shown(value) -> str:
 
 def last_report(layer: Sdf.Layer) -> list[dict]:
     """What the last bake into ``layer`` did, one dict per processor, from the layer's provenance."""
-    provenance = dict(layer.customLayerData).get(PROVENANCE_KEY, {})
+    provenance = provenance_of(layer)
     return [{"processor": name, **info} for name, info in provenance.get("processors", {}).items()]
 
 
 def last_warnings(layer: Sdf.Layer) -> list[str]:
     """The warnings of the last bake into ``layer`` (missing assets allowed, unreadable textures), one line each."""
-    return list(dict(layer.customLayerData).get(PROVENANCE_KEY, {}).get("warnings", []))
+    return list(provenance_of(layer).get("warnings", []))
 
 
 def _session_bake_layer(stage: Usd.Stage) -> Sdf.Layer:

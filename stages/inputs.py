@@ -24,16 +24,76 @@ def open_source(path: str):
         source = bake_source(path)
         stage = Usd.Stage.Open(source)
     except Tf.ErrorException as error:
-        raise UsageError(f"{path}: cannot be read as USD ({usd_reason(error)})") from None
+        raise UsageError(f"{path}: cannot be read as USD ({usd_reason(error, path)})") from None
     if stage is None:
         raise UsageError(f"{path}: cannot be read as USD")
     return source, stage
 
 
-def usd_reason(error: Exception) -> str:
-    """The human part of a Tf error: the text after the last ' : ', without the quotes."""
+def usd_reason(error: Exception, path: str | Path | None = None) -> str:
+    """The human part of a Tf error: the text after the last ' : ', without the quotes.
+
+    A parser error quotes the line it stopped at; when that line holds bytes that are not UTF-8, the
+    message cannot be turned into text at all (``str(error)`` raises UnicodeDecodeError), so the
+    reason is found in ``path`` instead: the line and the bytes, printed with backslash escapes.
+    """
+    try:
+        text = str(error)
+    except UnicodeDecodeError:
+        where = not_utf8(path) if path is not None and _is_text_layer(path) else ""
+        return f"{where}; a .usda layer is UTF-8 text" if where else "USD's message about it is not UTF-8 text"
     # Whitespace is collapsed first: a parser message can end in a newline inside its quotes.
-    return " ".join(str(error).split()).rsplit(" : ", 1)[-1].strip("'\" ")
+    return " ".join(text.split()).rsplit(" : ", 1)[-1].strip("'\" ")
+
+
+def undecodable_asset(stage: Usd.Stage) -> str:
+    """``<asset> cannot be read (line N: byte 0x.. is not UTF-8, in: <the line>; ...)`` for the first text
+    layer the stage's layers ask for (sublayer, reference, payload) holding bytes that are not UTF-8; '' if none.
+
+    Pcp's message about such an asset quotes the parser's, bytes and all, and cannot be turned into
+    text (``str(error)`` raises UnicodeDecodeError): this says which asset it was instead.
+    """
+    for layer in stage.GetUsedLayers():
+        for asset in layer.GetCompositionAssetDependencies():
+            path = layer.ComputeAbsolutePath(asset)
+            where = not_utf8(path) if _is_text_layer(path) else ""
+            if where:
+                return f"{asset} cannot be read ({where}; a .usda layer is UTF-8 text)"
+    return ""
+
+
+def _is_text_layer(path: str | Path) -> bool:
+    """Whether ``path`` is a .usda text layer (by its first bytes, whatever its extension)."""
+    try:
+        with open(path, "rb") as handle:
+            return handle.read(5) == b"#usda"
+    except OSError:
+        return False
+
+
+def not_utf8(path: str | Path) -> str:
+    """Where a file first holds bytes that are not UTF-8: ``line 3: byte 0xe9 is not UTF-8, in: <the line>``
+    (the line printed with backslash escapes, so it always prints); '' when it is UTF-8 or unreadable."""
+    try:
+        data = Path(path).read_bytes()
+        data.decode("utf-8")
+    except OSError:
+        return ""
+    except UnicodeDecodeError as error:
+        return undecodable(error)
+    return ""
+
+
+def undecodable(error: UnicodeDecodeError, *, width: int = 80) -> str:
+    """``line N: byte 0x.. is not UTF-8, in: <the line>`` for the bytes a UTF-8 decode stopped at."""
+    data = bytes(error.object)
+    start = data.rfind(b"\n", 0, error.start) + 1
+    end = data.find(b"\n", error.start)
+    line = data[start:end if end >= 0 else len(data)].decode("utf-8", errors="backslashreplace").strip()
+    shown = line if len(line) <= width else line[:width - 3] + "..."
+    bad = " ".join(f"0x{byte:02x}" for byte in data[error.start:error.end])
+    number = data.count(b"\n", 0, error.start) + 1
+    return f"line {number}: byte {bad} is not UTF-8, in: {shown}"
 
 
 def check_output(out_path: str, source_path: str | None = None, used_layers=()) -> Path:
@@ -111,11 +171,10 @@ def _given(option: str, value) -> str:
 
 
 def check_cache_folder(folder, *, option: str = "--cache") -> None:
-    """A result-cache folder that exists as a folder, or can be created, and can be written."""
-    what = _given(option, folder)
+    """Refuse a result-cache path that is a file. A folder that cannot be written is no error: the cache
+    is an optimisation, so a read-only shared cache is still read and the bake warns once (core.cache)."""
     if Path(folder).exists() and not Path(folder).is_dir():
-        raise UsageError(f"{what}: is a file, not a folder")
-    check_writable_folder(Path(folder), what=what)
+        raise UsageError(f"{_given(option, folder)}: is a file, not a folder")
 
 
 def empty_bake_message(steps) -> str:

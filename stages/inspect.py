@@ -7,7 +7,7 @@ from pathlib import Path
 from pxr import Sdf, Tf
 
 from ..core.errors import UsageError
-from .bake_layer import PROVENANCE_KEY, is_bake_layer
+from .bake_layer import PROVENANCE_KEY, is_bake_layer, provenance_of
 from .inputs import usd_reason
 
 
@@ -20,7 +20,7 @@ def inspect_layer(path: str) -> dict:
     try:
         layer = Sdf.Layer.FindOrOpen(path)
     except Tf.ErrorException as error:
-        raise UsageError(f"{path}: cannot be read as USD ({usd_reason(error)})") from None
+        raise UsageError(f"{path}: cannot be read as USD ({usd_reason(error, path)})") from None
     if layer is None:
         raise UsageError(f"{path}: cannot be read as USD")
     if not is_bake_layer(layer):
@@ -45,7 +45,7 @@ def inspect_layer(path: str) -> dict:
 
     layer.Traverse(Sdf.Path.absoluteRootPath, visit)
     properties.sort(key=lambda row: row["path"])
-    return {"provenance": _plain(dict(layer.customLayerData[PROVENANCE_KEY])), "properties": properties,
+    return {"provenance": _plain(provenance_of(layer)), "properties": properties,
             "sublayers": list(layer.subLayerPaths)}
 
 

@@ -6,6 +6,12 @@ diffuseColor texture read with OpenImageIO), else ``primvars:displayColor``
 (constant, uniform or the mean of other interpolations), else 0.5 grey.
 Connections are followed through node graphs and material interface inputs.
 
+A ``displayColor`` OpenUSD gives no colour to (UsdGeomGprim declares it ``color3f[]``: a string,
+token, int or other non-colour value, a length that does not fit its interpolation, indices
+outside its values) is what a renderer ignores: the 0.5 grey is used, with one warning line naming
+the prim, the value and the fallback, as for a texture that cannot be used. The values of any
+precision (``color3d[]``, ``float3[]``, ...) are colours, and one value may be a scalar.
+
 A texture that cannot be used (file not found or unreadable, no file, UDIM,
 or a source shader other than UsdUVTexture) gives the texture's authored
 ``inputs:fallback`` (what Hydra shows), else the UsdPreviewSurface default
@@ -15,10 +21,16 @@ the texture, the shader input and the value used.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
+from .images import image_mean
+
 DEFAULT_ALBEDO = (0.5, 0.5, 0.5)
+COLOR_TYPE = re.compile(r"^(color3[fdh]|(float|double|half)3)$")
+"""Scalar types whose values are RGB colours (displayColor is declared color3f[])."""
 PREVIEW_SURFACE = "UsdPreviewSurface"
 UV_TEXTURE = "UsdUVTexture"
 
@@ -59,13 +71,69 @@ class MaterialReader:
 
     def _display_color(self, prim: Usd.Prim, face_count: int) -> np.ndarray:
         primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
-        values = primvar.ComputeFlattened(self.timecode) if primvar and primvar.HasValue() else None
+        if not primvar or not primvar.HasValue():
+            return np.array(DEFAULT_ALBEDO, np.float32)
+        values, problem = self._display_color_values(prim, primvar, face_count)
+        if problem:
+            warning = (f"{prim.GetPath()}.primvars:displayColor: {problem}; using the fallback albedo "
+                       f"({', '.join(f'{v:g}' for v in DEFAULT_ALBEDO)})")
+            if warning not in self.warnings:
+                self.warnings.append(warning)
+            return np.array(DEFAULT_ALBEDO, np.float32)
         if values is None or len(values) == 0:
             return np.array(DEFAULT_ALBEDO, np.float32)
-        values = np.asarray(values, np.float32).reshape(-1, 3)
         if primvar.GetInterpolation() == UsdGeom.Tokens.uniform and len(values) == face_count:
             return values
         return values.mean(axis=0)
+
+    def _display_color_values(self, prim: Usd.Prim, primvar: UsdGeom.Primvar,
+                              face_count: int) -> tuple[np.ndarray | None, str]:
+        """((N, 3) float32 colours, '') or (None, why OpenUSD gives the value no colour)."""
+        authored = primvar.GetAttr().Get(self.timecode)
+        declared = authored_type(primvar.GetAttr())
+        value = f"{declared} {_plain(authored)}"
+        if not COLOR_TYPE.match(str(declared.scalarType)):
+            return None, f"{value} is not a colour (UsdGeom declares displayColor color3f[])"
+        interpolation = primvar.GetInterpolation()
+        count = self._element_count(prim, interpolation, face_count)
+        if count is None:
+            return None, (f"interpolation {interpolation!r} is not one of OpenUSD's (constant, uniform, varying, "
+                          f"vertex, faceVarying)")
+        indices = primvar.GetIndicesAttr()
+        if indices and indices.HasAuthoredValue():
+            if authored_type(indices) != Sdf.ValueTypeNames.IntArray:
+                return None, f"indices of type {authored_type(indices)} (indices must be int[])"
+            index = np.asarray(indices.Get(self.timecode) or [], np.int64)
+            held = len(authored or []) // max(1, primvar.GetElementSize())
+            outside = np.flatnonzero((index < 0) | (index >= held))
+            if len(outside):  # found here, before ComputeFlattened prints a warning of its own
+                first = int(outside[0])
+                return None, (f"index {int(index[first])} in its indices (position {first}) is outside its "
+                              f"{held} values (0..{held - 1})")
+        flattened = primvar.ComputeFlattened(self.timecode)
+        if flattened is None:
+            return None, ""
+        values = np.asarray(flattened if declared.isArray else [flattened], np.float32).reshape(-1, 3)
+        expected = count * max(1, primvar.GetElementSize())
+        if len(values) and len(values) != expected:
+            if interpolation == UsdGeom.Tokens.constant:
+                return None, f"{value}: {len(values)} constant values (one is needed)"
+            noun = {"uniform": "faces", "faceVarying": "face-vertices"}.get(interpolation, "points")
+            return None, f"{value}: {len(values)} {interpolation} values for {count} {noun}"
+        return values, ""
+
+    def _element_count(self, prim: Usd.Prim, interpolation: str, face_count: int) -> int | None:
+        """Values a primvar of ``interpolation`` holds on ``prim`` (elementSize 1); None if not an interpolation."""
+        mesh = UsdGeom.Mesh(prim)
+        if interpolation == UsdGeom.Tokens.constant:
+            return 1
+        if interpolation == UsdGeom.Tokens.uniform:
+            return face_count
+        if interpolation in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
+            return len(mesh.GetPointsAttr().Get(self.timecode) or [])
+        if interpolation == UsdGeom.Tokens.faceVarying:
+            return len(mesh.GetFaceVertexIndicesAttr().Get(self.timecode) or [])
+        return None
 
     def _shading(self, material: UsdShade.Material) -> tuple[np.ndarray | None, np.ndarray, str]:
         key = str(material.GetPath())
@@ -136,6 +204,32 @@ class MaterialReader:
         return (mean * scale + bias).astype(np.float32), ""
 
 
+def authored_type(attribute: Usd.Attribute) -> Sdf.ValueTypeName:
+    """The type the strongest layer declares. A schema attribute (``normals``, ``primvars:displayColor``)
+    reports its schema's type whatever a layer wrote, but holds the value the layer wrote."""
+    stack = attribute.GetPropertyStack(Usd.TimeCode.Default())
+    return Sdf.ValueTypeNames.Find(str(stack[0].typeName)) if stack else attribute.GetTypeName()
+
+
+def _plain(value, *, limit: int = 4) -> str:
+    """A USD value as a person writes it: ``"red"``, ``7``, ``0.5``, ``(1, 0, 0)``, ``[1, 2, ...] (9 values)``."""
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, (bool, np.bool_)):
+        return str(bool(value)).lower()
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return f"{float(value):g}"
+    if not hasattr(value, "__len__"):
+        return str(value)
+    items = list(value)
+    shown = ", ".join(_plain(item, limit=limit) for item in items[:limit])
+    if "Array" not in type(value).__name__ and not isinstance(value, list):
+        return f"({shown})"  # a Gf vector
+    return f"[{shown}, ...] ({len(items)} values)" if len(items) > limit else f"[{shown}]"
+
+
 def _value_of(shader_input: UsdShade.Input | None, timecode):
     """An input's value, following connections to interface inputs; None if it has none."""
     if not shader_input:
@@ -152,29 +246,9 @@ def _vec_input(shader: UsdShade.Shader, name: str, fallback, timecode) -> np.nda
     return np.array(value if value is not None else fallback, np.float64)
 
 
-def image_mean(path: str, *, srgb: bool) -> np.ndarray | None:
-    """Mean RGB of an image read through OpenImageIO (None if it cannot be read); 8-bit sRGB data is
-    linearized first."""
-    return _read_image_mean(path, srgb=srgb)[0]
-
-
 def _read_image_mean(path: str, *, srgb: bool) -> tuple[np.ndarray | None, str]:
-    """(mean RGB, '') or (None, OpenImageIO's error)."""
-    rgb, error = read_rgb(path, srgb=srgb)
-    return (None, error) if rgb is None else (rgb.reshape(-1, 3).mean(axis=0), "")
-
-
-def read_rgb(path: str, *, srgb: bool) -> tuple[np.ndarray | None, str]:
-    """((H, W, 3) float64 RGB, '') or (None, OpenImageIO's error); grey images are repeated into RGB, and
-    8-bit data is linearized from sRGB when ``srgb``."""
-    import OpenImageIO as oiio
-
-    image = oiio.ImageBuf(path)
-    if image.has_error:
-        return None, " ".join(image.geterror().split()) or "OpenImageIO cannot read it"
-    spec = image.spec()
-    pixels = np.asarray(image.get_pixels(oiio.FLOAT), np.float64).reshape(spec.height, spec.width, image.nchannels)
-    rgb = pixels[..., :3] if image.nchannels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
-    if srgb and spec.format == oiio.UINT8:
-        rgb = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
-    return rgb, ""
+    """(mean RGB, '') or (None, OpenImageIO's error); the file is read strip by strip (stages.images)."""
+    try:
+        return image_mean(path, srgb=srgb), ""
+    except ValueError as error:
+        return None, str(error)

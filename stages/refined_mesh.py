@@ -22,9 +22,13 @@ holes                       cleared: hole faces are not part of the refined mesh
 =========================== ============================================================
 
 Every time sample is carried, and elementSize respected. What cannot be carried is refused
-before any compute (``check_refinable``): time-sampled points (the bake reads one time) and
-vertex/varying/faceVarying primvars of a type that has no barycentric mean (int, bool, string,
-token, quaternion, ...).
+before any compute (``check_refinable``), naming the prim, the attribute and the value:
+time-sampled points (the bake reads one time); vertex/varying/faceVarying primvars of a type that
+has no barycentric mean (int, bool, string, token, quaternion, ...); and data OpenUSD itself
+holds invalid, which has no meaning to carry: a value that is not an array, a length that does not
+fit the interpolation and topology (one value per point, face-vertex or face, times elementSize),
+indices that are not ``int[]``, not one per element or outside the values, an interpolation that is
+not one of OpenUSD's, and normals that are not 3-vectors.
 """
 
 from __future__ import annotations
@@ -32,22 +36,29 @@ from __future__ import annotations
 import re
 
 import numpy as np
-from pxr import Usd, UsdGeom
+from pxr import Sdf, Usd, UsdGeom
 
 from ..core.errors import StageError
 from ..core.products import RefinedScene
 from ..core.records import Attribute, Block, Prim, Primvar, RefinedMesh
 from ..core.scene import Scene
+from .materials import authored_type
 
 INTERPOLABLE = re.compile(r"^(float|double|half|(color|normal|point|vector|texCoord)\d[fdh]|(float|double|half)\d|"
                           r"matrix\dd)$")
 """Scalar USD types with a barycentric mean."""
 
-PER_POINT = ("vertex", "varying")
-"""Interpolations with one value per point (for a polygon mesh, varying is per point too)."""
-
 POINT_ATTRIBUTES = ("points", "velocities", "accelerations")
 """Per-point attributes of UsdGeom.PointBased carried like vertex primvars."""
+
+THREE_VECTOR = re.compile(r"^((normal|vector|point|color)3[fdh]|(float|double|half)3)$")
+"""Scalar USD types that can hold a normal (UsdGeom declares normals as normal3f[])."""
+
+ELEMENT = {"vertex": ("point", "points"), "varying": ("point", "points"),
+           "faceVarying": ("face-vertex", "face-vertices"), "uniform": ("face", "faces")}
+"""What one value of each carried interpolation belongs to (singular, plural), for messages."""
+
+REMEDY = "mark the prim bake:skip = true, or bake it without sky_visibility/daylight"
 
 
 def refinement_guard(stage: Usd.Stage, scene: Scene):
@@ -62,24 +73,95 @@ def refinement_guard(stage: Usd.Stage, scene: Scene):
 def check_refinable(stage: Usd.Stage, scene: Scene) -> None:
     """Refuse, before any compute, a receiver mesh whose authored data cannot be carried onto refined faces.
 
-    Raises StageError naming the prim, the attribute and why; the remedy is in the message.
+    Raises StageError naming the prim, the attribute, the value and why; the remedy is in the message.
+    Everything ``carried_records`` will map is checked here, at every time sample it will carry.
     """
     has_faces = np.bincount(scene.tri_prim, minlength=len(scene.prim_paths)) > 0
+    timecode = _timecode(scene.time_code)
     for prim_index in np.flatnonzero(scene.prim_writable & ~scene.prim_skip & has_faces):
         path = scene.prim_paths[prim_index]
         prim = stage.GetPrimAtPath(path)
-        remedy = "mark the prim bake:skip = true, or bake it without sky_visibility/daylight"
         samples = prim.GetAttribute("points").GetNumTimeSamples()
         if samples > 1:
             raise StageError(path, "points", f"{samples} time samples: a refined mesh is computed at one time "
-                                             f"and cannot follow animated points; {remedy}")
+                                             f"and cannot follow animated points; {REMEDY}")
+        geom = UsdGeom.Mesh(prim)
+        span = scene.prim_points(prim_index)
+        corners = geom.GetFaceVertexIndicesAttr().Get(timecode)
+        counts = {"vertex": span.stop - span.start, "varying": span.stop - span.start,
+                  "faceVarying": len(corners) if corners is not None else 0,
+                  "uniform": int(scene.prim_face_count[prim_index])}
         for primvar in UsdGeom.PrimvarsAPI(prim).GetPrimvarsWithAuthoredValues():
             interpolation = primvar.GetInterpolation()
             type_name = str(primvar.GetTypeName().scalarType)
-            if interpolation in (*PER_POINT, "faceVarying") and not INTERPOLABLE.match(type_name):
+            if interpolation == "constant":
+                continue  # not carried: one value for the whole mesh, whatever its topology
+            if interpolation not in ELEMENT:
+                raise StageError(path, primvar.GetAttr().GetName(),
+                                 f"interpolation {interpolation!r} is not one of OpenUSD's (constant, uniform, "
+                                 f"varying, vertex, faceVarying); fix it, {REMEDY}")
+            if interpolation != "uniform" and not INTERPOLABLE.match(type_name):
                 raise StageError(path, primvar.GetAttr().GetName(),
                                  f"{interpolation} {type_name} values cannot be interpolated onto refined faces "
-                                 f"(no barycentric mean for {type_name}); {remedy}")
+                                 f"(no barycentric mean for {type_name}); {REMEDY}")
+            indices = primvar.GetIndicesAttr()
+            _check_carried(path, primvar.GetAttr(), interpolation, counts[interpolation],
+                           element_size=max(1, primvar.GetElementSize()),
+                           indices=indices if indices and indices.HasAuthoredValue() else None,
+                           vectors=primvar.GetPrimvarName() == "normals")
+        normals = geom.GetNormalsAttr()
+        if normals.HasAuthoredValue() and geom.GetNormalsInterpolation() in ELEMENT:  # constant: not carried
+            interpolation = geom.GetNormalsInterpolation()
+            _check_carried(path, normals, interpolation, counts[interpolation], vectors=True)
+        for name in POINT_ATTRIBUTES[1:]:
+            attribute = prim.GetAttribute(name)
+            if attribute and attribute.HasAuthoredValue():
+                _check_carried(path, attribute, "vertex", counts["vertex"], vectors=True)
+
+
+def _check_carried(path: str, attribute: Usd.Attribute, interpolation: str, expected: int, *, element_size: int = 1,
+                   indices: Usd.Attribute | None = None, vectors: bool = False) -> None:
+    """Refuse values OpenUSD holds invalid for ``interpolation`` on a mesh with ``expected`` elements of it:
+    not an array, not 3-vectors where ``vectors``, a length that does not fit, indices that are not int[],
+    not one per element or outside the values. Every time sample the carrier maps is read."""
+    name, type_name = attribute.GetName(), authored_type(attribute)
+    scalar = str(type_name.scalarType)
+    one, many = ELEMENT[interpolation]
+    fix = f"fix it, {REMEDY}"
+    if vectors and not THREE_VECTOR.match(scalar):
+        raise StageError(path, name, f"{type_name} values; {'normals' if 'normals' in name else name} must be "
+                                     f"3-vectors ({'normal3f[]' if 'normals' in name else 'vector3f[]'}); {fix}")
+    if not type_name.isArray:
+        raise StageError(path, name, f"a single {scalar} value, not an array ({scalar}[]): {interpolation} "
+                                     f"needs one per {one}; {fix}")
+    if indices is not None and authored_type(indices) != Sdf.ValueTypeNames.IntArray:
+        raise StageError(path, indices.GetName(), f"{authored_type(indices)} values; primvar indices must be "
+                                                  f"int[]; {fix}")
+    per = f"one per {one}" if element_size == 1 else f"elementSize {element_size}: {element_size} per {one}"
+    for time in _samples(attribute, indices):
+        at = "" if time is None else f"at time {time:g}, "
+        values = attribute.Get(_timecode(time))
+        if values is None or len(values) == 0:
+            continue  # blocked (the carrier blocks it at that time too) or empty (left as authored)
+        if indices is None:
+            if len(values) != expected * element_size:
+                raise StageError(path, name, f"{at}{len(values)} {interpolation} values for {expected} {many} "
+                                             f"({per}); {fix}")
+            continue
+        if len(values) % element_size:
+            raise StageError(path, name, f"{at}{len(values)} values, not a whole number of elements of "
+                                         f"elementSize {element_size}; {fix}")
+        index = np.asarray(indices.Get(_timecode(time)) or [], np.int64)
+        if len(index) != expected:
+            raise StageError(path, indices.GetName(), f"{at}{len(index)} indices for {expected} {many} "
+                                                      f"({interpolation}: one per {one}); {fix}")
+        count = len(values) // element_size
+        outside = np.flatnonzero((index < 0) | (index >= count))
+        if len(outside):
+            first = int(outside[0])
+            raise StageError(path, indices.GetName(), f"{at}index {int(index[first])} at position {first} is "
+                                                      f"outside 0..{count - 1} ({name} holds {count} "
+                                                      f"{'values' if element_size == 1 else 'elements'}); {fix}")
 
 
 def complete_outputs(stage: Usd.Stage, outputs: list) -> list:
@@ -195,11 +277,16 @@ class _Carrier:
         return np.concatenate([values[:self.mesh.point_count], mixed.astype(values.dtype)])
 
     def attribute(self, attribute: Usd.Attribute, interpolation: str, *, unit: bool = False) -> list:
-        if not attribute or not attribute.HasAuthoredValue():
-            return []
+        if not attribute or not attribute.HasAuthoredValue() or interpolation == "constant":
+            return []  # a constant value (normals may be) holds for the refined faces as it is
         records = []
         for time in _samples(attribute):
-            values = np.asarray(attribute.Get(_timecode(time)))
+            value = attribute.Get(_timecode(time))
+            if value is None:  # a blocked time sample stays blocked
+                records.append(Attribute(self.path, attribute.GetName(), Block(), str(attribute.GetTypeName()),
+                                         time=time))
+                continue
+            values = np.asarray(value)
             if len(values) == 0:
                 continue
             mapped = _unit(self.map(values, interpolation)) if unit else self.map(values, interpolation)
@@ -216,7 +303,12 @@ class _Carrier:
         type_name = str(primvar.GetTypeName().scalarType)
         records = []
         for time in _samples(primvar.GetAttr(), primvar.GetIndicesAttr()):
-            values = np.asarray(primvar.ComputeFlattened(_timecode(time)))
+            flattened = primvar.ComputeFlattened(_timecode(time))
+            if flattened is None:  # a blocked time sample stays blocked (bad indices were refused before compute)
+                records.append(Attribute(self.path, f"primvars:{name}", Block(), str(primvar.GetTypeName()),
+                                         time=time))
+                continue
+            values = np.asarray(flattened)
             if len(values) == 0:
                 continue
             grouped = values.reshape(len(values) // element_size, element_size, *values.shape[1:])

@@ -7,21 +7,28 @@ writes a layer over the input holding a DomeLight whose lat-long texture (OpenEX
 read back through the one light model's ``sky_texel``) is the model's sky radiance above the
 horizon and a grey ground below it (albedo x global horizontal irradiance / pi), and a
 DistantLight of the sun's 0.53 degree disk carrying the model's direct normal irradiance.
+
+The other way round, ``DomeTexture`` reads a DomeLight's lat-long file for the light model: when a
+processor first asks for it (an ambient-occlusion bake never does), strip by strip through OpenImageIO,
+reduced to at most ``DOME_MAP_MAX_HEIGHT`` x ``DOME_MAP_MAX_WIDTH`` texels by an area average that keeps
+the radiant power of every output texel's patch of sky (``reduce_latlong``), in float32.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
-from ..core.errors import UsageError
+from ..core.errors import StageError, UsageError
 from ..core.records import Texture
 from .bake_layer import write_texture
+from .images import RgbRows
 
 SKY_PRIM = "/SkyLights"
 MODELS = ("preetham", "perez", "overcast")
@@ -53,6 +60,149 @@ def texel_directions(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     edges = 0.5 * np.pi - np.arange(height + 1) * np.pi / height
     solid = (np.sin(edges[:-1]) - np.sin(edges[1:]))[:, None] * np.full(width, 2.0 * np.pi / width)
     return directions, solid
+
+
+DOME_MAP_MAX_HEIGHT, DOME_MAP_MAX_WIDTH = 512, 1024
+"""Largest dome map kept (rows, columns): 0.35 degree texels. The light model looks up one texel per
+ray (``sky_texel``, nearest), so finer texels add memory, not accuracy, to a few thousand rays per
+point; a larger file is reduced by ``reduce_latlong``."""
+
+
+def reduce_latlong(height: int, width: int, strips, *, out_height: int, out_width: int) -> np.ndarray:
+    """(out_height, out_width, 3) float64 area average of a lat-long map given as ``strips``, an iterable of
+    (first row, (r, width, 3) float rows) in row order, holding one strip in memory at a time; sums in
+    float64.
+
+    Each output texel is the mean radiance over its own patch of the sphere: columns are averaged over
+    the exact fractions of the input texels they cover (longitude is uniform), rows over the fractions
+    weighted by their solid angle, cos(latitude) d(latitude) integrated exactly (sin(a) - sin(b)). So
+    sum(L_out * Omega_out) equals sum(L_in * Omega_in) over every output texel's patch: the dome's radiant
+    power, and each region's, is kept, whatever the ratio. ImageBufAlgo.resize does not do this: its box
+    filter weights whole source texels by their centres (a 1000 x 1000 map resized to 1024 x 512 lost
+    1.6% of its power), it knows no solid angles, its default lanczos3 rings (negative texels around a
+    sun), and it needs the whole source in memory at once. Axes already small enough are copied.
+    """
+    out = np.zeros((out_height, out_width, 3), np.float64)
+    weight = np.zeros(out_height, np.float64)
+    for first, rows in strips:
+        rows = _average_columns(rows, out_width)
+        if out_height == height:
+            out[first:first + len(rows)] = rows
+            continue
+        y = np.arange(first, first + len(rows), dtype=np.int64)
+        row = (y * out_height) // height  # the output row holding each input row's top edge (exact integers)
+        boundary = (row + 1) * height / out_height  # that output row's bottom edge, in input rows
+        split = boundary < y + 1
+        top = _latitude_band(y, np.where(split, boundary, y + 1.0), height)
+        bottom = _latitude_band(np.where(split, boundary, y + 1.0), y + 1.0, height)
+        np.add.at(out, row, top[:, None, None] * rows)
+        np.add.at(weight, row, top)
+        np.add.at(out, row[split] + 1, bottom[split, None, None] * rows[split])
+        np.add.at(weight, row[split] + 1, bottom[split])
+    if out_height != height:
+        out /= weight[:, None, None]
+    return out
+
+
+def _average_columns(rows: np.ndarray, out_width: int) -> np.ndarray:
+    """(r, out_width, 3) means of (r, W, 3) ``rows`` over out_width equal spans of columns, each input
+    texel counted by the fraction of it a span covers.
+
+    Span j runs from edge e_j = j W / out_width to e_(j+1); with c = floor(e) and f = e - c, its integral
+    is the sum of columns c_j .. c_(j+1) - 1, less f_j of column c_j, plus f_(j+1) of column c_(j+1).
+    """
+    width = rows.shape[1]
+    if out_width == width:
+        return rows
+    edges = np.arange(out_width + 1, dtype=np.float64) * width / out_width
+    column = np.minimum(edges.astype(np.int64), width)
+    part = edges - column  # 0 at the last edge (column = width: no texel there)
+    whole = np.add.reduceat(rows, column[:-1], axis=1, dtype=np.float64)
+    last = np.minimum(column[1:], width - 1)
+    spans = whole - part[:-1, None] * rows[:, column[:-1]] + part[1:, None] * rows[:, last]
+    return spans * (out_width / width)
+
+
+def _latitude_band(start: np.ndarray, end: np.ndarray, height: int) -> np.ndarray:
+    """Solid angle per radian of longitude between rows ``start`` and ``end`` (fractional rows of a map
+    ``height`` rows tall): sin(lat(start)) - sin(lat(end)) = 2 sin(mid) sin(half), which keeps its
+    precision for thin bands."""
+    a = np.asarray(start, np.float64) * np.pi / height
+    b = np.asarray(end, np.float64) * np.pi / height
+    return 2.0 * np.sin(0.5 * (a + b)) * np.sin(0.5 * (b - a))
+
+
+def read_latlong(path: str, *, srgb: bool, max_height: int = DOME_MAP_MAX_HEIGHT,
+                 max_width: int = DOME_MAP_MAX_WIDTH) -> np.ndarray:
+    """(H, W, 3) float32 linear RGB of the lat-long image at ``path``, at most max_height x max_width.
+
+    Read strip by strip as float32 (``stages.images.RgbRows``: memory stays near its ``STRIP_BYTES``
+    whatever the file's size) and reduced by ``reduce_latlong`` (sums in float64); a map within the
+    bounds is returned texel for texel.
+    Raises ValueError with the reason: OpenImageIO's, or where the first non-finite texel is.
+    """
+    with RgbRows(path, srgb=srgb, dtype=np.float32) as image:
+        strips = image if image.exact_codes else _finite(image)
+        out = reduce_latlong(image.height, image.width, strips, out_height=min(image.height, max_height),
+                             out_width=min(image.width, max_width))
+    return out.astype(np.float32)
+
+
+def _finite(strips):
+    """The strips, checked for NaN and infinity (ValueError naming the first such texel)."""
+    for first, rows in strips:
+        bad = ~np.isfinite(rows)
+        if bad.any():
+            row, column, channel = np.argwhere(bad)[0]
+            raise ValueError(f"holds non-finite texels (row {first + row}, column {column}: "
+                             f"{rows[row, column, channel]})")
+        yield first, rows
+
+
+class DomeTexture:
+    """A DomeLight's lat-long texture file, read by ``read_latlong`` the first time it is called and kept.
+
+    ``stages.extract`` checks at once that the file opens (a bad file fails before any compute); the
+    texels are read only when a processor reads the lights (its fingerprint included), so an ambient
+    occlusion bake of a stage with a 10000 x 10000 sky never reads them. Errors name the light, the
+    attribute and the file: ``/World/Sky.inputs:texture:file: sky.png: holds non-finite texels (...)``.
+    """
+
+    def __init__(self, prim: str, asset: str, resolved: str, *, srgb: bool = True):
+        self.prim, self.asset, self.resolved, self.srgb = prim, asset, resolved, srgb
+        self._texture: np.ndarray | None = None
+        self._lock = threading.Lock()
+
+    def check(self) -> None:
+        """Raise StageError when OpenImageIO cannot open the file (its header only is read)."""
+        try:
+            RgbRows(self.resolved, srgb=self.srgb).close()
+        except ValueError as error:
+            raise StageError(self.prim, "inputs:texture:file", f"{self.asset}: cannot be read ({error})") from None
+
+    def __call__(self) -> np.ndarray:
+        with self._lock:
+            if self._texture is None:
+                try:
+                    texture = read_latlong(self.resolved, srgb=self.srgb)
+                except ValueError as error:
+                    problem = str(error)
+                    problem = problem if problem.startswith("holds ") else f"cannot be read ({problem})"
+                    raise StageError(self.prim, "inputs:texture:file", f"{self.asset}: {problem}") from None
+                texture.flags.writeable = False
+                self._texture = texture
+            return self._texture
+
+    def __getstate__(self) -> dict:  # a lock does not pickle (a Dask scatter of the scene)
+        state = dict(self.__dict__)
+        del state["_lock"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, _lock=threading.Lock())
+
+    def __repr__(self) -> str:
+        return f"DomeTexture({self.prim!r}, {self.asset!r})"
 
 
 def sky_lights(model: str, time: str, *, latitude: float, longitude: float, timezone: float, up_axis: str,
@@ -98,6 +248,14 @@ def sky_lights(model: str, time: str, *, latitude: float, longitude: float, time
     radiance[~above] = ground
     return SkyLights(radiance.reshape(width // 2, width, 3).astype(np.float32), rotate_x,
                      (to_world @ sun_enu) if sun_up else None, sun, float(diffuse[1]))
+
+
+def check_sky_time(text: str) -> None:
+    """Raise ValueError unless ``text`` is an ISO 8601 local time ``usdbake sky`` can place the sun at
+    (checked when the arguments are parsed, before the stage is read)."""
+    from ..kernels.solar import parse_times
+
+    parse_times(text)
 
 
 def weather_hour(path: str, time: str) -> tuple[dict, dict, str]:

@@ -137,3 +137,66 @@ def test_rebake_does_not_follow_a_sidecar_link_out_of_the_folder(baked, tmp_path
     edit_provenance(out, sidecarDigests=Vt.StringArray(digests))
     assert rebake(source, out, "--set", "displacement_fields.positional_samples=81") == 0
     assert outside.read_bytes() == b"outside"
+
+
+# ---------------------------------------------------------------------------
+# A previous output that is corrupt, and an output that cannot be written whole
+
+
+@pytest.mark.parametrize("provenance_text", ['string usdbake = "x"', "dictionary usdbake = {\n int sidecars = 5\n }"],
+                         ids=["provenance-a-string", "sidecars-a-number"])
+def test_a_corrupt_previous_output_is_one_line_or_replaced(tmp_path, capsys, provenance_text):
+    """Provenance that is not usdbake's dictionary: the file is not ours (exit 2, untouched); a
+    dictionary with a nonsense sidecar list is ours and is replaced, removing nothing."""
+    source = tmp_path / "box.usda"
+    source.write_bytes((SAMPLES / "cornell_box.usda").read_bytes())
+    out = tmp_path / "out.usda"
+    out.write_text(f'#usda 1.0\n(\n    customLayerData = {{\n        {provenance_text}\n    }}\n    subLayers = [@box.usda@]\n)\n')
+    before = out.read_bytes()
+    capsys.readouterr()
+    code = main(["bake", str(source), "-o", str(out), "--set", "ambient_occlusion.samples=16"])
+    err = capsys.readouterr().err
+    if provenance_text.startswith("string"):
+        assert code == 2 and out.read_bytes() == before
+        assert err.strip().splitlines()[-1] == (f"usdbake: error: {out}: exists and was not written by usdbake; "
+                                                f"refusing to replace it (remove it or choose another -o)")
+    else:
+        assert code == 0, err
+        assert provenance(out)["processors"]["ambient_occlusion"]["action"] in ("run", "cached")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["box.usda", "out.usda"]
+
+
+LIMITED_BAKE = """
+import resource, sys
+from usdbake.cli.main import main
+resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, resource.RLIM_INFINITY))  # writes past it fail: EFBIG
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("extra, limit", [
+    (["--set", "ambient_occlusion.samples=16"], 1024),
+    ([*FIELDS, "--set", "displacement_fields.positional_samples=256", "--set",
+      "displacement_fields.direction_map_size=16"], 2048),  # the PNGs are written first, each > 2 KB
+], ids=["layer-too-large", "texture-too-large"])
+def test_a_full_disk_is_one_line_exit_1_and_the_previous_output_stays(tmp_path, extra, limit):
+    """A real short write (RLIMIT_FSIZE, as `ulimit -f` or a full disk gives): OpenImageIO reports a
+    short PNG write only in its error text, USD raises; both are one line, exit 1."""
+    import subprocess
+    import sys
+
+    source = tmp_path / "props.usda"
+    source.write_bytes((SAMPLES / "instanced_props.usda").read_bytes())
+    out = tmp_path / "out" / "p.usda"
+    cache = tmp_path / "cache"
+    assert main(["bake", str(source), "-o", str(out), "--cache", str(cache), *FIELDS]) == 0  # kernels compiled
+    before = {p.name: digest(p) for p in out.parent.iterdir()}
+    done = subprocess.run([sys.executable, "-c", LIMITED_BAKE.format(limit=limit), "bake", str(source), "-o",
+                           str(out), "--force", "--cache", str(cache), *extra], capture_output=True, text=True,
+                          timeout=600)
+    last = done.stderr.strip().splitlines()[-1]
+    assert done.returncode == 1, done.stderr[-2000:]
+    assert last.startswith(f"usdbake: error: {out}: could not be written (") and \
+        last.endswith("); the previous output is unchanged"), last
+    assert "Traceback" not in done.stderr
+    assert {p.name: digest(p) for p in out.parent.iterdir()} == before

@@ -45,12 +45,14 @@ def assert_error(code, out, err, expected: str):
 @pytest.fixture
 def no_compute(monkeypatch):
     """Fail the test if the stage is read into a Scene or a processor runs: checks come first."""
+    import usdbake.stages.bake_file as bake_file  # imported first: it binds extract_scene at import
     import usdbake.stages.extract as extract
 
     def forbidden(*args, **kwargs):
         raise AssertionError("compute started before the inputs were checked")
 
     monkeypatch.setattr(extract, "extract_scene", forbidden)
+    monkeypatch.setattr(bake_file, "extract_scene", forbidden)
     monkeypatch.setattr(AmbientOcclusion, "run", forbidden)
 
 

@@ -2,19 +2,25 @@
 
 Entries are tampered with the way someone with write access to a shared cache folder could (pickles
 in every file the cache reads, object arrays behind a matching hash): nothing may run, the step is
-recomputed with a warning, and the entry is rewritten. Concurrent writers of one entry never leave
-a reader a broken or foreign entry.
+recomputed with a warning, and the entry is rewritten. A manifest edited by hand fails the entry's
+hash; one resealed after the edit must still fit the scene (record sizes against points, faces,
+corners and instances). Concurrent writers of one entry never leave a reader a broken or foreign
+entry. A cache that cannot be written (no space, a size limit, a read-only folder) warns once and
+the run completes.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import errno
 import hashlib
 import io
 import json
 import multiprocessing
 import os
 import pickle
+import shutil
+import subprocess
 import threading
 import time
 import warnings
@@ -26,9 +32,10 @@ from repo_paths import SAMPLES
 from stress.stage_builders_stress import FAST_PARAMS
 
 import fake_processors as fakes
+from read_only import ReadOnly
 from usdbake import core
 from usdbake.core import plain_data
-from usdbake.core.cache import STALE_SECONDS, CacheWarning, ResultCache
+from usdbake.core.cache import STALE_SECONDS, CacheWarning, ResultCache, entry_sha256, misfit
 from usdbake.core.pipeline import Pipeline
 from usdbake.core.processor import Processor, Result
 from usdbake.core.products import (AmbientOcclusionProduct, InstanceOcclusionProduct, RefinedScene,
@@ -169,6 +176,12 @@ def manifest_and_arrays(cache_dir, scene):
     return manifest, cache.arrays_path(name, key, digest)
 
 
+def reseal(manifest, content: dict) -> None:
+    """Write ``content`` as the manifest with its entry hash recomputed: what someone who knows the
+    format would plant, so the checks after the hash are what must catch it."""
+    manifest.write_text(json.dumps({**content, "sha256": entry_sha256(content)}))
+
+
 def legacy_pickle(cache_dir, scene, marker):
     """The format before this one, planted before any run."""
     name, key = entry(cache_dir, scene)
@@ -197,14 +210,14 @@ def object_array_behind_a_matching_hash(cache_dir, scene, marker):
     content["arrays_sha256"] = digest
     name, key = content["processor"], content["key"]
     (cache_dir / f"{name}-{key}.{digest[:16]}.npz").write_bytes(data)
-    manifest.write_text(json.dumps(content))
+    reseal(manifest, content)
 
 
 def dataclass_outside_usdbake(cache_dir, scene, marker):
     manifest, _ = manifest_and_arrays(cache_dir, scene)
     content = json.loads(manifest.read_text())
     content["tree"] = {"$": "dataclass", "type": "subprocess:Popen", "fields": {"args": ["touch", str(marker)]}}
-    manifest.write_text(json.dumps(content))
+    reseal(manifest, content)
 
 
 def test_the_planted_payloads_would_run_code(tmp_path):
@@ -262,7 +275,7 @@ def truncated_with_its_hash(manifest, arrays):
     content = json.loads(manifest.read_text())
     content["arrays_sha256"] = hashlib.sha256(data).hexdigest()
     arrays.with_name(f"{content['processor']}-{content['key']}.{content['arrays_sha256'][:16]}.npz").write_bytes(data)
-    manifest.write_text(json.dumps(content))
+    reseal(manifest, content)
 
 
 def one_byte_flipped(manifest, arrays):
@@ -289,7 +302,33 @@ def manifest_of_another_format(manifest, arrays):
 
 def array_of_another_shape(manifest, arrays):
     text = manifest.read_text()
-    manifest.write_text(text.replace('"shape":[', '"shape":[7,', 1))
+    reseal(manifest, json.loads(text.replace('"shape":[', '"shape":[7,', 1)))
+
+
+def a_typo_in_the_manifest(manifest, arrays):
+    """One character, in a field no other check reads: only the entry hash sees it."""
+    text = manifest.read_text()
+    assert text.count('"type_name":"float"') > 1
+    manifest.write_text(text.replace('"type_name":"float"', '"type_name":"flaot"', 1))
+
+
+def values_swapped_between_prims(manifest, arrays):
+    """Two records' arrays exchanged in the tree: each still decodes, every array is the one hashed."""
+    content = json.loads(manifest.read_text())
+    first, second = content["tree"]["fields"]["outputs"][:2]
+    first["fields"]["values"], second["fields"]["values"] = second["fields"]["values"], first["fields"]["values"]
+    manifest.write_text(json.dumps(content))
+
+
+def manifest_without_its_hash(manifest, arrays):
+    content = json.loads(manifest.read_text())
+    del content["sha256"]
+    manifest.write_text(json.dumps(content))
+
+
+def manifest_with_a_number_json_cannot_hold(manifest, arrays):
+    """1e999 parses as inf, which no JSON the cache writes can hold: the hash cannot even be taken."""
+    manifest.write_text(manifest.read_text().replace('"element_size":1', '"element_size":1e999', 1))
 
 
 @pytest.mark.parametrize("corrupt, warned", [
@@ -300,13 +339,20 @@ def array_of_another_shape(manifest, arrays):
     (manifest_of_another_entry, "the manifest is for"),
     (manifest_of_another_format, "format 99"),
     (array_of_another_shape, "cannot decode"),
+    (a_typo_in_the_manifest, "entry hash mismatch (the manifest was edited)"),
+    (values_swapped_between_prims, "entry hash mismatch (the manifest was edited)"),
+    (manifest_without_its_hash, "entry hash mismatch (the manifest was edited)"),
+    (manifest_with_a_number_json_cannot_hold, "entry hash mismatch (the manifest was edited)"),
 ])
 def test_a_corrupt_entry_warns_and_is_recomputed(corrupt, warned, cornell, tmp_path):
     cache_dir = tmp_path / "cache"
     assert bake(cache_dir, cornell) == "run"
     corrupt(*manifest_and_arrays(cache_dir, cornell))
-    with pytest.warns(CacheWarning, match=warned):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         assert bake(cache_dir, cornell) == "run"
+    cache_warnings = [str(w.message) for w in caught if issubclass(w.category, CacheWarning)]
+    assert len(cache_warnings) == 1 and warned in cache_warnings[0], cache_warnings
     with warnings.catch_warnings():
         warnings.simplefilter("error", CacheWarning)
         assert bake(cache_dir, cornell) == "cached"
@@ -317,6 +363,205 @@ def test_a_missing_entry_loads_as_none_silently(tmp_path, no_cache_warnings):
     assert not ResultCache(tmp_path).has("ambient_occlusion", "0" * 32)
     assert ResultCache(None).load("ambient_occlusion", "0" * 32) is None
     assert not ResultCache(None).has("ambient_occlusion", "0" * 32)
+
+
+def test_the_entry_hash_is_of_the_content_not_the_bytes(cornell, tmp_path, no_cache_warnings):
+    """A manifest re-indented (opened and saved by an editor) holds the same entry: still served."""
+    cache_dir = tmp_path / "cache"
+    assert bake(cache_dir, cornell) == "run"
+    manifest, _ = manifest_and_arrays(cache_dir, cornell)
+    content = json.loads(manifest.read_text())
+    manifest.write_text(json.dumps(dict(reversed(list(content.items()))), indent=2))
+    assert bake(cache_dir, cornell) == "cached"
+
+
+# ---------------------------------------------------------------------------
+# A decoded entry must fit the scene: record sizes against points, faces, corners and instances
+
+
+@pytest.fixture(scope="module")
+def cornell_ao(cornell):
+    """A real ambient_occlusion Result on the Cornell box (Floor: 9 points, 4 quads; LightQuad: 4 points)."""
+    return Pipeline.build(["ambient_occlusion"], AO_FAST).run(cornell)[0].result
+
+
+def with_outputs(result: Result, *outputs) -> Result:
+    return dataclasses.replace(result, outputs=list(outputs))
+
+
+FLOOR, LIGHT = "/World/CornellBox/Floor", "/World/CornellBox/LightQuad"
+
+
+def ao(prim: str, values, interpolation: str = "vertex", **fields) -> Primvar:
+    return Primvar(prim, "bake:ao", np.asarray(values, np.float32), "float", interpolation, **fields)
+
+
+@pytest.mark.parametrize("outputs, why", [
+    ([ao(LIGHT, np.ones(9))], f"{LIGHT}: 9 vertex values for 4 points"),  # the Floor's values on the light
+    ([ao(FLOOR, np.ones(8), "constant")], f"{FLOOR}: 8 constant values, not one element"),
+    ([ao(FLOOR, np.ones(3), "uniform")], f"{FLOOR}: 3 uniform values for 4 faces"),
+    ([ao(FLOOR, np.ones(15), "faceVarying")], f"{FLOOR}: 15 faceVarying values for 16 face-vertex corners"),
+    ([ao(FLOOR, np.ones(9), "varying")], ""),
+    ([ao(FLOOR, np.ones(9), element_size=2)], f"{FLOOR}: 9 vertex values of elementSize 2 for 9 points"),
+    ([ao(FLOOR, np.ones(18), element_size=2)], ""),
+    ([ao(FLOOR, np.ones(9), "vertez")], f"{FLOOR}.primvars:bake:ao: interpolation 'vertez'"),
+    ([ao(FLOOR, np.ones(9), element_size=0)], f"{FLOOR}.primvars:bake:ao: elementSize 0"),
+    ([ao(FLOOR, np.ones(9), element_size=True)], f"{FLOOR}.primvars:bake:ao: elementSize True"),
+    ([Primvar(FLOOR, "bake:ao", np.float32(1.0), "float", "constant")],
+     f"{FLOOR}.primvars:bake:ao: its values are not an array"),
+    (["bake:ao"], "outputs[0] is a str, not an output record"),
+    # Prims the Scene holds no topology for: only a constant's size is known.
+    ([ao("/World/Looks/White", np.ones(5))], ""),
+    ([ao("/World/Looks/White", np.ones(2), "constant")], "/World/Looks/White: 2 constant values, not one element"),
+    # A prim a step defines with its own points: measured against them, as the bake layer will be.
+    ([Attribute("/World/Probes", "points", np.zeros((6, 3), np.float32), "point3f[]"),
+      ao("/World/Probes", np.ones(5))], "/World/Probes: 5 vertex values for 6 points"),
+])
+def test_a_result_is_measured_against_the_scene(outputs, why, cornell, cornell_ao):
+    assert misfit(with_outputs(cornell_ao, *outputs), cornell) == why
+
+
+def test_the_real_result_fits_and_its_products_must_be_declared(cornell, cornell_ao):
+    provides = (AmbientOcclusionProduct,)
+    assert misfit(cornell_ao, cornell, provides=provides) == ""
+    ao_product = cornell_ao.products[AmbientOcclusionProduct]
+    foreign = dataclasses.replace(cornell_ao, products={SkyVisibilityProduct: ao_product})
+    assert misfit(foreign, cornell, provides=provides) == \
+        "product 'SkyVisibilityProduct' is not one the processor provides"
+    assert misfit(foreign, cornell) == ""  # no declared products given: not checked
+    listed = dataclasses.replace(cornell_ao, outputs=dict(enumerate(cornell_ao.outputs)))
+    assert misfit(listed, cornell) == "its outputs are a dict, not a list"
+
+
+def test_face_varying_values_are_at_least_the_corners_the_triangles_reach(cornell, cornell_ao):
+    """With a face left out (a hole), the Scene knows only the corners its triangles reach."""
+    floor = cornell.prim_paths.index(FLOOR)
+    last_face = (cornell.tri_prim == floor) & (cornell.tri_face == 3)
+    keep = ~last_face
+    holed = dataclasses.replace(cornell, **{name: getattr(cornell, name)[keep] for name in (
+        "tri_vertices", "tri_normals", "tri_areas", "tri_albedo", "tri_emission", "tri_prim", "tri_face",
+        "tri_instance", "tri_double_sided", "tri_corner")})
+    assert misfit(with_outputs(cornell_ao, ao(FLOOR, np.ones(16), "faceVarying")), holed) == ""
+    assert misfit(with_outputs(cornell_ao, ao(FLOOR, np.ones(11), "faceVarying")), holed) == \
+        f"{FLOOR}: 11 faceVarying values for at least 12 face-vertex corners"
+
+
+def test_a_sealed_entry_that_does_not_fit_is_recomputed_and_rewritten(cornell, tmp_path):
+    """The Floor's 9 values moved onto the LightQuad's 4 points, the manifest resealed: the hash vouches
+    for it, the scene does not."""
+    cache_dir = tmp_path / "cache"
+    assert bake(cache_dir, cornell) == "run"
+    manifest, _ = manifest_and_arrays(cache_dir, cornell)
+    content = json.loads(manifest.read_text())
+    records = content["tree"]["fields"]["outputs"]
+    prims = [record["fields"]["prim"] for record in records]
+    records[prims.index(LIGHT)]["fields"]["values"] = records[prims.index(FLOOR)]["fields"]["values"]
+    reseal(manifest, content)
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        steps = Pipeline.build(["ambient_occlusion"], AO_FAST, cache_dir=cache_dir).run(cornell)
+    assert [str(w.message) for w in caught if issubclass(w.category, CacheWarning)] == [
+        f"usdbake cache: {manifest}: does not fit the scene ({LIGHT}: 9 vertex values for 4 points); recomputing"]
+    assert (steps[0].action, steps[0].reason) == ("run", "cache entry unusable (see the warning); recomputed")
+    light = next(record for record in steps[0].result.outputs if record.prim == LIGHT)
+    assert len(light.values) == 4
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CacheWarning)
+        assert bake(cache_dir, cornell) == "cached"
+
+
+# ---------------------------------------------------------------------------
+# A cache that cannot be written: one warning for the run, which completes
+
+
+class FullDisk(io.FileIO):
+    """A file on a device that fills up after ``room`` bytes: the write that passes it raises ``errno``."""
+
+    room = 100  # less than any entry: the first store fails partway
+    errno = errno.ENOSPC
+
+    def write(self, data) -> int:
+        if self.tell() + len(data) > self.room:
+            raise OSError(self.errno, os.strerror(self.errno))
+        return super().write(data)
+
+
+def failing_open(code: int):
+    """``open`` for core.cache whose files fill up with error ``code`` (reads are the real ones)."""
+    def fake(path, mode="r", *args, **kwargs):
+        if "w" not in mode:
+            return open(path, mode, *args, **kwargs)
+        handle = FullDisk(path, "w")
+        handle.errno = code
+        return handle
+    return fake
+
+
+TWO_STEPS = (["ambient_occlusion", "progressive_mesh"], AO_FAST)
+
+
+def unwritable_warning(folder, strerror: str) -> str:
+    return f"usdbake cache: cannot write in {folder} ({strerror}); results of this run are not cached"
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EFBIG, errno.EROFS, errno.EACCES])
+def test_a_write_that_fails_warns_once_and_the_run_completes(code, cornell, tmp_path, monkeypatch):
+    reference = Pipeline.build(*TWO_STEPS).run(cornell)
+    cache_dir = tmp_path / "cache"
+    monkeypatch.setattr(core.cache, "open", failing_open(code), raising=False)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        pipeline = Pipeline.build(*TWO_STEPS, cache_dir=cache_dir)
+        steps = pipeline.run(cornell)
+    assert [str(w.message) for w in caught if issubclass(w.category, CacheWarning)] == [
+        unwritable_warning(cache_dir, os.strerror(code))]  # two steps, one warning
+    assert actions(steps) == {"ambient_occlusion": "run", "progressive_mesh": "run"}
+    for a, b in zip(reference, steps):
+        assert_same(a.result, b.result, a.name)
+    assert list(cache_dir.iterdir()) == []  # the partial file is gone, nothing else was written
+    monkeypatch.undo()
+    assert actions(Pipeline.build(*TWO_STEPS, cache_dir=cache_dir).run(cornell)) == {
+        "ambient_occlusion": "run", "progressive_mesh": "run"}  # a later run writes again
+    assert actions(Pipeline.build(*TWO_STEPS, cache_dir=cache_dir).run(cornell)) == {
+        "ambient_occlusion": "cached", "progressive_mesh": "cached"}
+
+
+def test_a_cache_folder_that_cannot_be_made_warns_once(cornell, tmp_path):
+    """No fault injected: the folder's parent is a file, so making it fails as it does on a real disk."""
+    (tmp_path / "file").write_text("not a folder")
+    cache_dir = tmp_path / "file" / "cache"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        steps = Pipeline.build(*TWO_STEPS, cache_dir=cache_dir).run(cornell)
+    assert [str(w.message) for w in caught if issubclass(w.category, CacheWarning)] == [
+        unwritable_warning(cache_dir, os.strerror(errno.ENOTDIR))]
+    assert set(actions(steps).values()) == {"run"} and all(step.result.outputs for step in steps)
+
+
+@pytest.fixture
+def read_only(tmp_path):
+    folder = tmp_path / "shared"
+    folder.mkdir()
+    locker = ReadOnly(folder)
+    yield locker
+    locker.unlock()  # else pytest cannot remove tmp_path
+
+
+def test_a_read_only_cache_folder_is_still_read_and_warns_once(cornell, read_only):
+    """A shared cache others fill and we may only read: its entries are served, a new one warns once."""
+    folder = read_only.folder
+    Pipeline.build(["ambient_occlusion"], AO_FAST, cache_dir=folder).run(cornell)  # filled while writable
+    strerror = read_only.lock()
+    before = sorted(folder.iterdir())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        steps = Pipeline.build(*TWO_STEPS, cache_dir=folder).run(cornell)
+    assert [str(w.message) for w in caught if issubclass(w.category, CacheWarning)] == [
+        unwritable_warning(folder, strerror)]
+    assert actions(steps) == {"ambient_occlusion": "cached", "progressive_mesh": "run"}
+    assert steps[1].result.outputs
+    assert sorted(folder.iterdir()) == before
 
 
 # ---------------------------------------------------------------------------

@@ -22,8 +22,9 @@ def tmy3_rows() -> list[list[str]]:
         return list(csv.reader(handle))
 
 
-def write_epw(path: Path, *, latitude="36.10", timezone="-5.0", drop_row=None, short_row=None) -> Path:
-    """An EPW with the TMY3 file's irradiance (fields 15 and 16), other fields zero."""
+def write_epw(path: Path, *, latitude="36.10", timezone="-5.0", drop_row=None, short_row=None, edits=None) -> Path:
+    """An EPW with the TMY3 file's irradiance (fields 15 and 16), other fields zero; ``edits`` maps (data row,
+    0-based field) to the text written there instead."""
     rows = tmy3_rows()[2:]
     lines = [f"LOCATION,Greensboro,NC,USA,TMY3,723170,{latitude},-79.95,{timezone},273.0"]
     lines += [f"HEADER{k}" for k in range(7)]
@@ -36,6 +37,9 @@ def write_epw(path: Path, *, latitude="36.10", timezone="-5.0", drop_row=None, s
         fields[14], fields[15] = row[7], row[10]
         if index == short_row:
             fields = fields[:-1]
+        for (at, field), text in (edits or {}).items():
+            if at == index:
+                fields[field] = text
         lines.append(",".join(fields))
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -73,6 +77,56 @@ def test_broken_epw_is_refused_naming_file_and_line(tmp_path, kwargs, message):
     with pytest.raises(UsageError) as error:
         read_weather(path)
     assert str(error.value) == f"{path}{'' if message.startswith(',') else ': '}{message}"
+
+
+@pytest.mark.parametrize("edits, line, problem", [
+    ({(100, 1): "13"}, 109, "field 2 (month) is 13, not a month (1..12)"),
+    ({(100, 1): "0"}, 109, "field 2 (month) is 0, not a month (1..12)"),
+    ({(100, 2): "45"}, 109, "field 3 (day) is 45, not a day of January (1..31)"),
+    ({(2400, 2): "31"}, 2409, "field 3 (day) is 31, not a day of April (1..30)"),
+    ({(24 * 58, 0): "1999", (24 * 58, 2): "29"}, 8 + 24 * 58 + 1,
+     "field 3 (day) is 29, not a day of February 1999 (1..28)"),
+    ({(100, 3): "99"}, 109, "field 4 (hour) is 99, not an hour of the day (1..24, the hour ending at the stamp)"),
+    ({(100, 3): "0"}, 109, "field 4 (hour) is 0, not an hour of the day (1..24, the hour ending at the stamp)"),
+    ({(100, 3): "12.5"}, 109, "field 4 (hour) is '12.5', not a whole number"),
+    ({(100, 1): "Jan"}, 109, "field 2 (month) is 'Jan', not a whole number"),
+    ({(100, 2): ""}, 109, "field 3 (day) is '', not a whole number"),
+    ({(100, 0): "99"}, 109, "field 1 (year) is 99, not a four-digit year"),
+], ids=["month-13", "month-0", "day-45", "31-april", "29-february-1999", "hour-99", "hour-0", "hour-12.5",
+        "month-Jan", "day-empty", "year-99"])
+def test_an_epw_date_that_is_not_one_names_line_field_and_value(tmp_path, edits, line, problem):
+    """Checked before pvlib reads the file: pvlib (pandas) raised a ValueError on each of these."""
+    path = write_epw(tmp_path / "broken.epw", edits=edits)
+    with pytest.raises(UsageError) as error:
+        read_weather(path)
+    assert str(error.value) == f"{path}, line {line}: {problem}"
+
+
+def test_29_february_of_a_leap_year_is_read_and_left_out(tmp_path):
+    path = write_epw(tmp_path / "leap.epw", edits={(24 * 58, 0): "2000", (24 * 58, 2): "29"})
+    weather = read_weather(path)
+    assert len(weather) == HOURS - 1  # the typical year's hour on 29 February is dropped, as EnergyPlus does
+    assert 8 + 24 * 58 + 1 not in weather.lines
+
+
+@pytest.mark.parametrize("field, text, problem", [
+    (0, "13/01/1988", "field 1 (date) '13/01/1988' has month 13, not a month (1..12)"),
+    (0, "04/31/1988", "field 1 (date) '04/31/1988' has day 31, not a day of April (1..30)"),
+    (0, "01-21-1988", "field 1 (date) is '01-21-1988', not MM/DD/YYYY"),
+    (0, "1/x/1988", "field 1 (date) '1/x/1988' has day 'x', not a whole number"),
+    (1, "25:00", "field 2 (time) '25:00' has hour 25, not an hour of the day (1..24, the hour ending at the stamp)"),
+    (1, "01:75", "field 2 (time) '01:75' has minutes 75, not 0..59"),
+    (1, "noon", "field 2 (time) is 'noon', not HH:MM"),
+], ids=["month-13", "31-april", "dashes", "day-x", "hour-25", "minute-75", "noon"])
+def test_a_tmy3_date_that_is_not_one_names_line_field_and_value(tmp_path, field, text, problem):
+    rows = tmy3_rows()
+    rows[500][field] = text
+    path = tmp_path / "broken.csv"
+    with open(path, "w", newline="") as handle:
+        csv.writer(handle).writerows(rows)
+    with pytest.raises(UsageError) as error:
+        read_weather(path)
+    assert str(error.value) == f"{path}, line 501: {problem}"
 
 
 def test_non_numeric_irradiance_names_the_line(tmp_path):

@@ -7,7 +7,7 @@ import warp as wp
 
 from tolerances import FLOAT32_ACCUMULATED, FLOAT32_STORAGE, GRAZING_RAY_FLIPS
 from usdbake.processors.ambient_occlusion import compute_vertex_ao
-from usdbake.kernels.tracer import MIN_CHUNK, RAY_EPSILON_RELATIVE, Tracer
+from usdbake.kernels.tracer import MIN_CHUNK, RAY_EPSILON_RELATIVE, Tracer, trace_scale
 
 wp.set_module_options({"enable_backward": False})
 
@@ -210,6 +210,42 @@ def test_ao_next_to_box_is_scale_invariant():
     assert results[1.0][0] < 0.6 and results[1.0][-1] > results[1.0][0] + 0.2
     np.testing.assert_allclose(results[1e-3], results[1.0], rtol=0, atol=flip_tol)
     np.testing.assert_allclose(results[1e3], results[1.0], rtol=0, atol=flip_tol)
+
+
+@pytest.mark.parametrize("scale", [2.0 ** -60, 2.0 ** -40, 2.0 ** 40, 2.0 ** 60])
+def test_a_scene_scaled_by_a_power_of_two_is_traced_bit_for_bit_alike(scale):
+    """Issue 27: at 1e12 the watertight test's t (a product of three coordinates) overflowed float32 and AO
+    was 1 everywhere; below ~1e-13 it fell into denormals. The ray core stores a scene far from unit size
+    scaled by a power of two (``trace_scale``), so a scene scaled by one traces exactly as the unscaled one:
+    the same triangles, t scaled, barycentrics and AO equal bit for bit."""
+    points, triangles = floor_and_box(1.0)
+    reference = Tracer(points, triangles)
+    scaled = Tracer(points * np.float32(scale), triangles)
+    assert reference.scale == 1.0 and 0.5 <= scaled.scale * scale * np.linalg.norm([4.0, 4.0, 1.0]) <= 2.0
+    rng = np.random.default_rng(11)  # fixed seed: the same rays every run
+    origins = rng.uniform(-2.5, 2.5, (20000, 3)).astype(np.float32)
+    directions = rng.normal(size=(20000, 3)).astype(np.float32)
+    hits, scaled_hits = reference.closest_hit(origins, directions), scaled.closest_hit(origins * np.float32(scale),
+                                                                                       directions)
+    assert (hits.hit_triangle >= 0).mean() > 0.15  # rays meet the floor or the box, not only misses
+    np.testing.assert_array_equal(scaled_hits.hit_triangle, hits.hit_triangle)
+    np.testing.assert_array_equal(scaled_hits.hit_t, hits.hit_t * np.float32(scale))
+    np.testing.assert_array_equal(scaled_hits.hit_uv, hits.hit_uv)
+    x = np.linspace(0.5, 1.9, 32)  # from the box's wall (an edge: surface_origin's neighbourhood query) outwards
+    receivers = np.column_stack([x, 0.25 * np.ones_like(x), np.zeros_like(x)]).astype(np.float32)
+    normals = np.tile([0.0, 0.0, 1.0], (len(x), 1))
+    ao = compute_vertex_ao(reference, receivers, normals, samples=64, seed=3)
+    assert ao.min() < 0.7
+    np.testing.assert_array_equal(compute_vertex_ao(scaled, receivers * np.float32(scale), normals, samples=64,
+                                                    seed=3), ao)
+
+
+@pytest.mark.parametrize("diagonal, scale", [(0.0, 1.0), (1e-6, 1.0), (960.0, 1.0), (1e6, 1.0), (1e-9, 2.0 ** 30),
+                                             (1e15, 2.0 ** -50), (float("inf"), 1.0)])
+def test_trace_scale_leaves_ordinary_scenes_alone(diagonal, scale):
+    """1 within TRACE_SCALE_RANGE (2^-20 to 2^20: every sample stage traces exactly as before), else the
+    power of two nearest to 1 / diagonal."""
+    assert trace_scale(diagonal) == scale
 
 
 @pytest.mark.parametrize("points", [np.zeros((0, 3)), np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 3.0]])],

@@ -225,3 +225,39 @@ def test_identical_prototypes_share_one_field():
     assert a.texels is b.texels and a.prototype != b.prototype and c.texels is not a.texels
     assert "/World/B/Prototypes/Ball: shares the field of /World/A/Prototypes/Ball (same shape)" in result.messages
     assert result.stats["rays"] == 2 * a.side ** 2 * a.map_size ** 2  # two fields built, not three
+
+
+def test_a_turned_copy_shares_the_field_and_its_records_say_how_it_is_turned():
+    """A prototype authored a second time turned 90 degrees about y and moved (its instances undo it), and a
+    third time with 1e-6 relative noise: one field built; the turned one's records give the shared sphere
+    centre in its own space and the turn as bake:field:orientation (real, i, j, k); the noisy one has none."""
+    ball, ball_tris = icosphere(2)
+    shape = ball * [0.5, 0.3, 0.2] + [0.1, 0.0, 0.0]  # not symmetric about its box centre
+    turn = translate(0.3, 0.2, -0.1, rotate_y=np.pi / 2)
+    rng = np.random.default_rng(5)  # fixed seed: reproducible noise
+    noisy = shape + rng.normal(size=shape.shape) * 1e-6 * np.ptp(shape, axis=0).max()
+    prototypes = [("/World/A/Prototypes/P", shape, ball_tris),
+                  ("/World/B/Prototypes/P", (np.c_[shape, np.ones(len(shape))] @ turn)[:, :3], ball_tris),
+                  ("/World/C/Prototypes/P", noisy, ball_tris)]
+    instances = [(0, translate(0, 0.5, 0)), (1, np.linalg.inv(turn) @ translate(2, 0.5, 0)),
+                 (2, translate(-2, 0.5, 0))]
+    scene = build_scene([("/World/Floor", *grid(4, 4))], prototypes, instances)
+    result = run_processor(DisplacementFields, scene, {"positional_samples": 64, "direction_map_size": 8,
+                                                       "min_instances": 1})
+    fields = result.products[DisplacementFieldSet].fields
+    assert result.stats["rays"] == 64 * 8 * 8  # one field built
+    assert "/World/B/Prototypes/P: shares the field of /World/A/Prototypes/P (same shape, rotated 90 degrees, " \
+           "moved 0.374)" in result.messages
+    assert "/World/C/Prototypes/P: shares the field of /World/A/Prototypes/P (same shape)" in result.messages
+    attributes = {(r.prim, r.name): r.value for r in result.outputs if isinstance(r, core.Attribute)}
+    a = fields["/World/A/Prototypes/P"]
+    np.testing.assert_allclose(attributes["/World/B/Prototypes/P", "bake:field:center"],
+                               (np.r_[a.center, 1.0] @ turn)[:3], atol=FLOAT32_STORAGE)
+    # rotate_y = pi/2 turns x into -z: +90 degrees about +y, q = (cos 45, 0, sin 45, 0) (tests/geometry/
+    # test_transforms.py checks the convention against Gf)
+    half = np.sqrt(0.5)
+    np.testing.assert_allclose(attributes["/World/B/Prototypes/P", "bake:field:orientation"],
+                               [half, 0.0, half, 0.0], atol=FLOAT32_STORAGE)
+    assert ("/World/A/Prototypes/P", "bake:field:orientation") not in attributes
+    assert ("/World/C/Prototypes/P", "bake:field:orientation") not in attributes
+    assert attributes["/World/B/Prototypes/P", "bake:field:file"] == "./displacement_fields/World_A_Prototypes_P.png"

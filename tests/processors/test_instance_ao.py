@@ -9,8 +9,8 @@ from repo_paths import SAMPLES
 import numpy as np
 import pytest
 from instanced_scenes import build_scene, grid, icosphere, run_processor, translate
-from tolerances import (AO_RMS_FIGURE, CELL_BORDER_FLIPS, FLOAT64_AMPLIFIED, INSIDE_RMS, INSTANCE_MEAN_TOL,
-                        RAY_MISMATCH, SYNTHETIC_RMS)
+from tolerances import (AO_RMS_FIGURE, CELL_BORDER_FLIPS, FLOAT32_STORAGE, FLOAT64_AMPLIFIED, INSIDE_RMS,
+                        INSTANCE_MEAN_TOL, RAY_MISMATCH, SHARED_FIELD_RMS, SYNTHETIC_RMS)
 
 from usdbake.core.products import AmbientOcclusionProduct, DisplacementFieldSet, InstanceOcclusionProduct
 from usdbake import core
@@ -306,3 +306,76 @@ def test_instances_receive_self_and_mutual_occlusion_per_frame():
     # balls 0 and 1 (0.1 apart) shade each other at frame 1; at frame 2 ball 1 has moved away from ball 0
     assert per_instance[1.0][0] < per_instance[1.0][2] - 0.02
     assert per_instance[2.0][0] > per_instance[1.0][0] + 0.01
+
+
+# ---------------------------------------------------------------------------
+# One field for copies of a prototype moved rigidly or rounded (issue 27)
+
+
+def lopsided_prototype() -> tuple[np.ndarray, np.ndarray]:
+    """A bent, asymmetric blob (no symmetry a wrong rotation could hide behind): (P, 3) points, triangles."""
+    points, triangles = icosphere(2)
+    points = points * [0.6, 0.35, 0.25]
+    points[:, 0] += 2.4 * np.maximum(points[:, 1], 0) ** 2
+    points[:, 2] += 0.2 * (points[:, 0] > 0.2)
+    return points, triangles
+
+
+def moved_copies_scene(*, fold: bool = False):
+    """A floor with six instances of one lopsided shape, in world space the same shape at six places. Their
+    prototypes: A; B = A turned and moved (its instances undo that motion); C = A with 1e-6 relative noise.
+    ``fold``: the twin scene where every instance is one of A, with B's motion folded into its transforms.
+    Returns (scene, prototypes, motion S with B = [A, 1] @ S)."""
+    a, triangles = lopsided_prototype()
+    rng = np.random.default_rng(7)  # fixed seed: a reproducible turn and noise
+    rotation = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    rotation[:, 0] *= np.sign(np.linalg.det(rotation))  # proper
+    motion = np.eye(4)
+    motion[:3, :3], motion[3, :3] = rotation, [0.4, -0.2, 0.7]
+    b = a @ rotation + motion[3, :3]
+    c = a + rng.normal(size=a.shape) * 1e-6 * np.ptp(a, axis=0).max()
+    prototypes = [("/World/A/Prototypes/P", a, triangles), ("/World/B/Prototypes/P", b, triangles),
+                  ("/World/C/Prototypes/P", c, triangles)]
+    world = [(0, translate(-1.5, 0.4, -1.0, rotate_y=0.3)), (0, translate(1.2, 0.45, 1.3, rotate_y=2.0)),
+             (1, translate(0.0, 0.4, 0.2, rotate_y=1.1)), (1, translate(-1.0, 0.5, 1.6)),
+             (2, translate(1.5, 0.4, -1.2, rotate_y=-0.7)), (2, translate(-2.0, 0.45, 0.3, rotate_y=0.9))]
+    instances = [(k, np.linalg.inv(motion) @ m if k == 1 else m) for k, m in world]
+    if fold:
+        prototypes, instances = prototypes[:1], [(0, motion @ m if k == 1 else m) for k, m in instances]
+    return build_scene([("/World/Floor", *grid(3, 30))], prototypes, instances), prototypes, motion
+
+
+SHARED_FIELD = {"positional_samples": 1089, "direction_map_size": 16, "min_instances": 1}
+
+
+def test_moved_and_rounded_copies_share_one_field_folded_into_their_instances():
+    """B (turned and moved) and C (1e-6 noise) share A's field: one build. instance_ao through it equals the
+    twin scene where B's motion is folded into its instances' transforms (the fold is exact), and agrees
+    with fields built for each copy within SHARED_FIELD_RMS; both stay within SYNTHETIC_RMS of exact AO."""
+    scene, prototypes, motion = moved_copies_scene()
+    fields = run_processor(DisplacementFields, scene, SHARED_FIELD).products[DisplacementFieldSet].fields
+    a, b, c = (fields[path] for path, _, _ in prototypes)
+    assert b.texels is a.texels and c.texels is a.texels
+    np.testing.assert_allclose(b.frame, motion, atol=FLOAT32_STORAGE)  # recovered from float32 scene points
+    assert (c.frame[:3, :3] == np.eye(3)).all()
+    samples = 256
+    shared, _ = field_ao(scene, fields=fields, ao_params={"samples": samples})
+    shared = shared.products[InstanceOcclusionProduct].point_ao_by_frame[None]
+
+    folded_scene, _, _ = moved_copies_scene(fold=True)
+    folded, _ = field_ao(folded_scene, SHARED_FIELD, {"samples": samples})
+    floor = scene.point_prim == 0
+    np.testing.assert_allclose(shared[floor], folded.products[InstanceOcclusionProduct].point_ao_by_frame[None][floor],
+                               atol=1 / samples)  # at most one ray of the 256 flips on float32 rounding
+
+    own = {path: build_field(points, triangles, prototype=path, positional_samples=1089, map_size=16)
+           for path, points, triangles in prototypes}
+    separate, _ = field_ao(scene, fields=own, ao_params={"samples": samples})
+    separate = separate.products[InstanceOcclusionProduct].point_ao_by_frame[None]
+    reference = exact_ao(scene, samples=samples)
+    assert (reference[floor] < 0.9).sum() >= 100  # the copies do shade the floor
+    rms = receiver_rms(scene, shared, separate)
+    print(f"shared vs separately built fields: RMS {rms:.4f}, max {np.abs(shared - separate)[floor].max():.4f}")
+    assert rms <= SHARED_FIELD_RMS
+    assert receiver_rms(scene, shared, reference) <= SYNTHETIC_RMS
+    assert receiver_rms(scene, separate, reference) <= SYNTHETIC_RMS

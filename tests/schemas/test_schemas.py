@@ -62,6 +62,7 @@ API_PROPS = {
         "bake:field:encoding",
         "bake:field:positionMapping",
         "bake:field:directionMapping",
+        "bake:field:orientation",
     },
     "SkyVisibilityAPI": {
         "bake:sky:patchCount",
@@ -179,6 +180,7 @@ AUTHORED = {
     "bake:field:encoding": (Sdf.ValueTypeNames.Token, "bit1"),
     "bake:field:positionMapping": (Sdf.ValueTypeNames.Token, "octahedralEqualArea"),
     "bake:field:directionMapping": (Sdf.ValueTypeNames.Token, "concentricMalley"),
+    "bake:field:orientation": (Sdf.ValueTypeNames.Quatf, [0.5, 0.5, 0.5, 0.5]),
 }
 
 _CHILD = r"""
@@ -190,6 +192,8 @@ def plain(v):
         return v.path
     if isinstance(v, (str, bool, int, float)):
         return v
+    if hasattr(v, "GetReal"):  # a quaternion: (real, i, j, k)
+        return [v.GetReal(), *v.GetImaginary()]
     try:
         return [plain(x) for x in v]
     except TypeError:
@@ -223,6 +227,8 @@ def _as_vt(type_name, value):
         return Gf.Vec3f(*value)
     if type_name == Sdf.ValueTypeNames.Int2:
         return Gf.Vec2i(*value)
+    if type_name == Sdf.ValueTypeNames.Quatf:
+        return Gf.Quatf(*value)
     if type_name in (Sdf.ValueTypeNames.Point3fArray, Sdf.ValueTypeNames.Float3Array):
         return Vt.Vec3fArray([Gf.Vec3f(*v) for v in value])
     if type_name == Sdf.ValueTypeNames.IntArray:

@@ -1,6 +1,7 @@
 """Non-destructive output: the bake layer sublayers the untouched input, holds only
 bake: opinions with provenance, is saved atomically and never nests on re-bake."""
 
+import errno
 import hashlib
 import json
 import os
@@ -12,6 +13,7 @@ from pxr import Sdf, Usd, UsdGeom, UsdShade
 import fake_processors as fakes
 import usdbake
 from usdbake.processors.ambient_occlusion import AmbientOcclusion
+from usdbake.core import OutputError
 from usdbake.stages import bake_layer
 from usdbake.cli.main import main
 
@@ -168,12 +170,14 @@ def test_atomic_save_leaves_no_temp_files(tmp_path, stage_in, cache):
 
 def test_save_that_fails_midway_leaves_no_temp_and_no_output(tmp_path, stage_in, monkeypatch):
     def broken_author(*args, **kwargs):
-        raise OSError("disk full")
+        raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(bake_layer, "author", broken_author)
     out = tmp_path / "out.usda"
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(OutputError) as raised:
         bake_layer.save_atomically(str(out), stage_in, [], {"version": "test"})
+    assert str(raised.value) == (f"{out}: could not be written (No space left on device); the previous output "
+                                 f"is unchanged")
     assert sorted(os.listdir(tmp_path)) == ["in.usda"]
 
 

@@ -121,6 +121,21 @@ def test_face_varying_normals_primvar_on_the_floor(room):
     np.testing.assert_allclose(normals, np.tile([0.0, 1.0, 0.0], (len(normals), 1)), atol=1e-7)
 
 
+def test_constant_normals_are_left_as_authored(tmp_path):
+    """normals may be constant (one for the mesh): it holds for the refined faces as it is (was: indexed as if per
+    point, an IndexError after the whole compute)."""
+    def build(mesh):
+        mesh.CreateNormalsAttr(Vt.Vec3fArray([Gf.Vec3f(0, 1, 0)]))
+        mesh.SetNormalsInterpolation(UsdGeom.Tokens.constant)
+
+    stage, _ = refined_stage(write_floor_with(tmp_path, build))
+    floor = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Floor"))
+    assert len(floor.GetFaceVertexCountsAttr().Get()) == 2 * 4 ** LEVELS  # refined
+    assert list(floor.GetNormalsAttr().Get()) == [Gf.Vec3f(0, 1, 0)]
+    assert floor.GetNormalsInterpolation() == UsdGeom.Tokens.constant
+    assert topology_mismatches(stage) == []
+
+
 def test_uniform_values_and_subsets_follow_their_faces(room):
     colors = authored(room, "/World/Box", "primvars:displayColor")
     stage, _ = refined_stage(room)
@@ -166,6 +181,26 @@ def test_time_samples_and_element_size_are_carried(tmp_path):
     assert xz.GetElementSize() == 2
     np.testing.assert_allclose(np.asarray(xz.Get()).reshape(-1, 2), points[:, [0, 2]], atol=1e-6)
     assert topology_mismatches(stage) == []
+
+
+def test_a_blocked_time_sample_stays_blocked(tmp_path):
+    def build(mesh):
+        points = np.asarray(mesh.GetPointsAttr().Get(), np.float64)
+        temperature = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("temperature", Sdf.ValueTypeNames.FloatArray,
+                                                               UsdGeom.Tokens.vertex)
+        temperature.Set(Vt.FloatArray(points[:, 0].tolist()), 1.0)
+        temperature.Set(Sdf.ValueBlock(), 2.0)
+        velocities = mesh.CreateVelocitiesAttr()
+        velocities.Set(Vt.Vec3fArray([Gf.Vec3f(1, 0, 0)] * 4), 1.0)
+        velocities.Set(Sdf.ValueBlock(), 2.0)
+
+    stage, _ = refined_stage(write_floor_with(tmp_path, build))  # was: TypeError after the whole compute
+    floor = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Floor"))
+    points = np.asarray(floor.GetPointsAttr().Get(), np.float64)
+    temperature = UsdGeom.PrimvarsAPI(floor).GetPrimvar("temperature")
+    np.testing.assert_allclose(np.asarray(temperature.Get(1.0)), points[:, 0], atol=1e-5)
+    assert temperature.Get(2.0) is None and floor.GetVelocitiesAttr().Get(2.0) is None
+    assert len(floor.GetVelocitiesAttr().Get(1.0)) == len(points)
 
 
 def test_crease_edges_are_split_at_their_new_points(tmp_path):

@@ -5,7 +5,6 @@ did not name."""
 
 from __future__ import annotations
 
-import asyncio
 import json
 import signal
 import socket
@@ -14,6 +13,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
+from contextlib import ExitStack
 
 import numpy as np
 import pytest
@@ -141,27 +141,50 @@ def test_the_interleaved_stream_sharpens_into_the_bake(baked):
         assert len(mesh.faces) == 0 or mesh.faces.max() < len(mesh.positions)
 
 
-def test_requests_beyond_the_bound_get_503_until_a_slot_frees():
-    from usdbake.stages.serve import bounded_requests
+def test_stream_slots_bound_all_clients_and_one_address():
+    """Any free slot while at least half are free; past that, at most max_per_peer for one address."""
+    from usdbake.stages.serve import Limits, Slots
 
-    async def scenario():
-        middleware = bounded_requests(2)
-        release = asyncio.Event()
-
-        async def slow(request):
-            await release.wait()
-            return web.Response(text="done")
-
-        held = [asyncio.create_task(middleware(None, slow)) for _ in range(2)]
-        await asyncio.sleep(0)
+    slots = Slots(Limits(max_clients=8, max_per_peer=2))
+    with ExitStack() as held:
+        for _ in range(4):
+            held.enter_context(slots.hold("a"))  # a alone may take half of the slots
         with pytest.raises(web.HTTPServiceUnavailable) as refused:
-            await middleware(None, slow)
+            held.enter_context(slots.hold("a"))
         assert refused.value.headers["Retry-After"] == "1"
-        release.set()
-        assert [r.text for r in await asyncio.gather(*held)] == ["done", "done"]
-        assert (await middleware(None, slow)).text == "done"  # a freed slot serves again
+        for peer in ("b", "b", "c", "d"):
+            held.enter_context(slots.hold(peer))
+        assert slots.taken == {"a": 4, "b": 2, "c": 1, "d": 1}
+        for peer in ("b", "e"):  # b is at its share; nobody gets a ninth slot
+            with pytest.raises(web.HTTPServiceUnavailable):
+                held.enter_context(slots.hold(peer))
+    assert not slots.taken  # every slot came back
+    with slots.hold("a"):
+        assert slots.taken == {"a": 1}
 
-    asyncio.run(scenario())
+
+def test_range_forms_head_and_conditional_requests(baked):
+    with running(make_app(str(baked))) as url:
+        _, _, manifest = get(url + "/manifest")
+        grid = json.loads(manifest)["grid"]
+        status, headers, whole = get(url + grid["url"])
+        size, etag = len(whole), headers["ETag"]
+        assert status == 200 and size == grid["bytes"] and headers["Accept-Ranges"] == "bytes"
+        for asked, part, content_range in (("bytes=-5", whole[-5:], f"bytes {size - 5}-{size - 1}/{size}"),
+                                           ("bytes=7-", whole[7:], f"bytes 7-{size - 1}/{size}"),
+                                           (f"bytes=3-{size + 50}", whole[3:], f"bytes 3-{size - 1}/{size}")):
+            status, headers, body = get(url + grid["url"], {"Range": asked})
+            assert (status, body, headers["Content-Range"]) == (206, part, content_range), asked
+        for asked in (f"bytes={size}-", "bytes=9-3", "bytes=0-1,4-5", "pages=1-2"):
+            status, headers, _ = get(url + grid["url"], {"Range": asked})
+            assert (status, headers["Content-Range"]) == (416, f"bytes */{size}"), asked
+        for condition in (etag, "W/" + etag, "*", f'"other", {etag}'):
+            assert get(url + grid["url"], {"If-None-Match": condition})[0] == 304, condition
+        assert get(url + grid["url"], {"If-None-Match": '"other"'})[0] == 200
+        request = urllib.request.Request(url + grid["url"], method="HEAD")
+        with urllib.request.urlopen(request, timeout=10) as response:
+            assert response.status == 200 and response.headers["Content-Length"] == str(size)
+            assert response.read() == b""
 
 
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
