@@ -18,6 +18,28 @@ def stage_in(tmp_path):
     return fake_processors.write_stage(tmp_path / "in.usda")
 
 
+def _forbidden(*args, **kwargs):
+    raise AssertionError("compute started before the input was checked")
+
+
+@pytest.fixture
+def no_compute(monkeypatch):
+    """Fail the test if any processor runs: a bad input must be refused before."""
+    from usdbake.core import registry
+
+    for processor in registry.registry().values():
+        monkeypatch.setattr(processor, "run", _forbidden)
+
+
+@pytest.fixture
+def no_read(monkeypatch, no_compute):
+    """Also fail it if the stage is read into a Scene, by the command or the hook."""
+    from usdbake.stages import bake_file, extract, hook  # each binds extract_scene at import
+
+    for module in (extract, bake_file, hook):
+        monkeypatch.setattr(module, "extract_scene", _forbidden)
+
+
 @pytest.fixture
 def cache(tmp_path):
     """A result-cache folder of the test's own."""

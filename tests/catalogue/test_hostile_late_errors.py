@@ -29,9 +29,6 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from production_assets import add_box, add_floor, new_stage
 from usdbake.cli.main import main
-from usdbake.processors.ambient_occlusion import AmbientOcclusion
-from usdbake.processors.annual_daylight import AnnualDaylight
-from usdbake.processors.sky_visibility import SkyVisibility
 from usdbake.stages.extract import extract_scene
 
 FAST = ["--set", "ambient_occlusion.samples=16"]
@@ -42,24 +39,7 @@ FALLBACK = "using the fallback albedo (0.5, 0.5, 0.5)"
 
 
 def forbidden(*args, **kwargs):
-    raise AssertionError("compute started before the input was checked")
-
-
-@pytest.fixture
-def no_compute(monkeypatch):
-    """Fail the test if a processor runs."""
-    for processor in (SkyVisibility, AmbientOcclusion, AnnualDaylight):
-        monkeypatch.setattr(processor, "run", forbidden)
-
-
-@pytest.fixture
-def no_read(monkeypatch, no_compute):
-    """Also fail it if the stage is read into a Scene."""
-    import usdbake.stages.bake_file as bake_file  # imported first: it binds extract_scene at import
-    import usdbake.stages.extract as extract
-
-    monkeypatch.setattr(extract, "extract_scene", forbidden)
-    monkeypatch.setattr(bake_file, "extract_scene", forbidden)
+    raise AssertionError("the sky was made before the weather file was checked")
 
 
 @pytest.fixture

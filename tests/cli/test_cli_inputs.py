@@ -42,20 +42,6 @@ def assert_error(code, out, err, expected: str):
     assert err.strip().splitlines() == [f"usdbake: error: {expected}"], err
 
 
-@pytest.fixture
-def no_compute(monkeypatch):
-    """Fail the test if the stage is read into a Scene or a processor runs: checks come first."""
-    import usdbake.stages.bake_file as bake_file  # imported first: it binds extract_scene at import
-    import usdbake.stages.extract as extract
-
-    def forbidden(*args, **kwargs):
-        raise AssertionError("compute started before the inputs were checked")
-
-    monkeypatch.setattr(extract, "extract_scene", forbidden)
-    monkeypatch.setattr(bake_file, "extract_scene", forbidden)
-    monkeypatch.setattr(AmbientOcclusion, "run", forbidden)
-
-
 # ---------------------------------------------------------------------------
 # The output path
 
@@ -78,7 +64,7 @@ ACCEPTED = ".usd, .usda or .usdc"
                      "choose another -o)"),
 ], ids=["txt", "no-extension", "usdz", "folder", "parent-is-a-file", "the-input", "a-sublayer-of-the-input",
         "not-a-bake-layer", "garbage"])
-def test_bad_output_is_refused_before_compute(capsys, tmp_path, cache, no_compute, name, expected):
+def test_bad_output_is_refused_before_compute(capsys, tmp_path, cache, no_read, name, expected):
     sub = tmp_path / "sub.usda"
     sub.write_text("#usda 1.0\n")
     stage_in = fakes.write_stage(tmp_path / "in.usda")
@@ -99,7 +85,7 @@ def test_bad_output_is_refused_before_compute(capsys, tmp_path, cache, no_comput
 
 
 @pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc (a folder no one can write in)")
-def test_output_in_a_folder_that_cannot_be_written(capsys, stage_in, cache, no_compute):
+def test_output_in_a_folder_that_cannot_be_written(capsys, stage_in, cache, no_read):
     before = digest(stage_in)
     code, out, err = run_cli(capsys, "bake", stage_in, "-o", "/proc/usdbake/out.usda", "--cache", cache, *FAST)
     assert code == 2
@@ -108,7 +94,7 @@ def test_output_in_a_folder_that_cannot_be_written(capsys, stage_in, cache, no_c
 
 
 @pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root writes in read-only folders")
-def test_output_in_a_read_only_folder(capsys, tmp_path, stage_in, cache, no_compute):
+def test_output_in_a_read_only_folder(capsys, tmp_path, stage_in, cache, no_read):
     locked = tmp_path / "locked"
     locked.mkdir()
     locked.chmod(0o500)
@@ -132,7 +118,7 @@ def test_accepted_output_types_and_a_missing_folder_are_written(capsys, tmp_path
 # Options
 
 
-def test_set_for_a_processor_that_is_not_run(capsys, stage_in, cache, no_compute):
+def test_set_for_a_processor_that_is_not_run(capsys, stage_in, cache, no_read):
     code, out, err = run_cli(capsys, "bake", stage_in, "--cache", cache, *FAST,
                              "--set", "radiosity.gather_rays=16")
     assert_error(code, out, err, "--set radiosity.gather_rays=16: radiosity is not part of this run "
@@ -161,7 +147,7 @@ def test_set_for_a_dependency_of_the_run_is_accepted(capsys, stage_in, cache):
     ("[ambient_occlusion]\nper_face = \"maybe\"\n", "per_face='maybe' is not a valid bool"),
 ], ids=["processors-a-string", "processors-not-names", "str-param-a-number", "int-param-a-float",
         "bool-param-a-word"])
-def test_wrongly_typed_config(capsys, stage_in, cache, tmp_path, no_compute, toml, expected):
+def test_wrongly_typed_config(capsys, stage_in, cache, tmp_path, no_read, toml, expected):
     config = tmp_path / "bake.toml"
     config.write_text(toml)
     before = digest(stage_in)
@@ -186,7 +172,7 @@ def test_config_table_for_a_processor_not_run_is_a_warning(capsys, stage_in, cac
     ("gpu", "--device gpu: expected cpu or cuda:N"),
     ("cuda:99", "--device cuda:99: no such Warp device here (available: "),
 ])
-def test_bad_device(capsys, stage_in, cache, no_compute, device, expected):
+def test_bad_device(capsys, stage_in, cache, no_read, device, expected):
     code, out, err = run_cli(capsys, "bake", stage_in, "--device", device, "--cache", cache, *FAST)
     assert code == 2 and out == "" and "Traceback" not in err
     line = [text for text in err.strip().splitlines() if text.startswith("usdbake:")]
@@ -194,7 +180,7 @@ def test_bad_device(capsys, stage_in, cache, no_compute, device, expected):
     assert not (Path(stage_in).parent / "in.baked.usdc").exists()
 
 
-def test_cache_that_is_a_file(capsys, stage_in, cache, tmp_path, no_compute):
+def test_cache_that_is_a_file(capsys, stage_in, cache, tmp_path, no_read):
     blocker = tmp_path / "cache_file"
     blocker.write_text("")
     code, out, err = run_cli(capsys, "bake", stage_in, "--cache", blocker, *FAST)

@@ -19,8 +19,6 @@ import json
 import multiprocessing
 import os
 import pickle
-import shutil
-import subprocess
 import threading
 import time
 import warnings
