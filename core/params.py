@@ -24,6 +24,11 @@ class ParamError(UsageError):
     """A parameter name or value a user gave is not valid."""
 
 
+def _shown(value) -> str:
+    """A value as an error line shows it: a numpy scalar as its plain number (1.5, not np.float64(1.5))."""
+    return repr(value.item() if isinstance(value, np.generic) else value)
+
+
 def param(default: Any, doc: str, *, low: float | None = None, high: float | None = None,
           choices: tuple | None = None):
     """A Params field with a default, optional bounds or choices, and one line of doc."""
@@ -39,14 +44,14 @@ class Params:
             value = getattr(self, f.name)
             meta = f.metadata
             if meta.get("choices") is not None and value not in meta["choices"]:
-                raise ParamError(f"{f.name}={value!r} is not one of {list(meta['choices'])}")
+                raise ParamError(f"{f.name}={_shown(value)} is not one of {list(meta['choices'])}")
             if isinstance(value, (int, float)) and not isinstance(value, bool):
                 if isinstance(value, float) and math.isnan(value):
                     raise ParamError(f"{f.name}=nan is not a number")
                 if meta.get("low") is not None and value < meta["low"]:
-                    raise ParamError(f"{f.name}={value!r} is below the minimum {meta['low']}")
+                    raise ParamError(f"{f.name}={_shown(value)} is below the minimum {meta['low']}")
                 if meta.get("high") is not None and value > meta["high"]:
-                    raise ParamError(f"{f.name}={value!r} is above the maximum {meta['high']}")
+                    raise ParamError(f"{f.name}={_shown(value)} is above the maximum {meta['high']}")
 
     @classmethod
     def describe(cls) -> list[dict]:
@@ -159,7 +164,7 @@ def _convert(name: str, value: Any, default: Any) -> Any:
         if isinstance(default, float):
             return float(text)
     except ValueError:
-        raise ParamError(f"{name}={value!r} is not a valid {type(default).__name__}") from None
+        raise ParamError(f"{name}={_shown(value)} is not a valid {type(default).__name__}") from None
     return value
 
 
@@ -177,5 +182,5 @@ def _check_type(name: str, value: Any, default: Any) -> Any:
     else:
         return value
     if not ok:
-        raise ParamError(f"{name}={value!r} is not a valid {type(default).__name__}")
+        raise ParamError(f"{name}={_shown(value)} is not a valid {type(default).__name__}")
     return converted

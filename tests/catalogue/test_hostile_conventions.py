@@ -198,3 +198,11 @@ def test_hook_refuses_to_author_into_the_stage_s_own_layers(stage, no_read):
                                      f"everything in its layer, so give a new layer (Sdf.Layer.CreateAnonymous()) "
                                      f"or none")
     assert root.ExportToString() == before
+
+
+def test_hook_param_errors_print_numpy_values_plainly(stage, no_read):
+    import numpy as np
+
+    with pytest.raises(ParamError) as raised:
+        usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": np.float64(1.5)}})
+    assert str(raised.value) == "samples=1.5 is not a valid int"
