@@ -10,9 +10,12 @@ the file bytes from formats/dds.py and formats/sparse_operator.py.
 1. **Patches by voxelization** (section 5, step 1; geometry/patches.py).
    Triangles longer than the voxel are split into ``m x m`` congruent
    sub-triangles (fragments, ``m = ceil(longest edge / voxel)``); fragments
-   are clustered per voxel (of their centroid) and per dominant signed axis
-   of their normal (6 bins). A patch keeps its area, area-weighted centroid,
-   unit mean normal and area-weighted mean albedo.
+   are clustered per voxel (of their centroid), per dominant signed axis
+   of their normal (6 bins) and per receiver prim; triangles radiosity writes
+   nothing to (instances) cluster across prims, per albedo step instead, so
+   the patch count follows ``target_patches`` whatever the instance count.
+   A patch keeps its area, area-weighted centroid, unit mean normal and
+   area-weighted mean albedo.
 2. **Form factors** ``F_ij`` (section 3.5; Malley's method): the fraction of
    the cosine-weighted hemisphere of patch i covered by patch j, by
    cosine-weighted rays from stratified points on each patch; a hit is mapped
@@ -86,8 +89,8 @@ from ..core.products import FormFactorProduct, Patches
 from ..core.scene import Scene
 from ..formats import dds
 from ..formats.sparse_operator import sparse_file_bytes
-from ..geometry.mesh import receiver_detail_box
-from ..geometry.patches import MAX_PATCHES, build_patches, choose_voxel_size
+from ..geometry.mesh import receiver_detail_box, receiver_prims
+from ..geometry.patches import MAX_PATCHES, build_patches, choose_voxel_size, patch_groups
 from ..kernels.operator_codec import MAX_ERROR, compress_operator
 from ..kernels.patches import fragment_of_hit
 from ..kernels.sampling import cosine_hemisphere, stratified_pair, tangent_frame, triangle_point
@@ -328,10 +331,11 @@ def precompute(tracer, scene: Scene, p, progress=lambda f: None, chunks=None) ->
         started = time.perf_counter()
 
     detail = receiver_detail_box(scene)
+    groups = patch_groups(scene.tri_prim, scene.tri_albedo, ~np.isin(scene.tri_prim, receiver_prims(scene)))
     voxel = p.voxel_size or choose_voxel_size(scene.points, scene.tri_vertices, scene.tri_normals,
-                                              scene.tri_areas, p.target_patches, scene.tri_prim, detail)
+                                              scene.tri_areas, p.target_patches, groups, detail)
     patches = build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
-                            scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=scene.tri_prim,
+                            scene.tri_albedo, scene.tri_emission, voxel_size=voxel, tri_group=groups,
                             detail_box=detail)
     part("patches")
     progress(0.05)
@@ -355,7 +359,7 @@ def precompute(tracer, scene: Scene, p, progress=lambda f: None, chunks=None) ->
 
 class FormFactors(Processor):
     name = "form_factors"
-    version = "6"
+    version = "7"
     summary = "Radiosity precompute: voxel patches, ray-cast form factors, compressed multi-bounce matrix (BC1)."
     facets = ("geometry", "materials")
     provides = (FormFactorProduct,)

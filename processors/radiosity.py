@@ -343,8 +343,13 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
         e_ind_patch = relighter_for(tracer, op, p).apply(e0_patch)
     else:
         e_ind_patch = np.asarray(apply_operator(e0_patch), np.float32)
-    normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)[point_ids]
-    positions = vertex_sample_positions(scene.points, scene.tri_vertices, scene.tri_areas)[point_ids]
+    # Only the triangles around the points: instances (a million flattened triangles) get no vertex values.
+    wanted = np.zeros(scene.num_points, bool)
+    wanted[point_ids] = True
+    tris = np.flatnonzero(wanted[scene.tri_vertices].any(axis=1))
+    tri_vertices, tri_areas = scene.tri_vertices[tris], scene.tri_areas[tris]
+    normals = vertex_normals(scene.points, tri_vertices, scene.tri_normals[tris], tri_areas)[point_ids]
+    positions = vertex_sample_positions(scene.points, tri_vertices, tri_areas)[point_ids]
     e0_vertex = compute_direct_irradiance(tracer, scene, positions, normals, light_samples=p.light_samples,
                                           sky_samples=p.sky_samples, seed=p.seed + 2, emissive=p.emissive_lights)
     progress(0.6)

@@ -1,5 +1,6 @@
 """form_factors: patches, form factors against closed forms, the multi-bounce operator, compression."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -318,3 +319,47 @@ def test_too_fine_voxels_are_refused_with_a_message():
     with pytest.raises(ValueError, match="voxel_size=0.01"):
         geo_patches.build_patches(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas,
                                   scene.tri_albedo, scene.tri_emission, voxel_size=0.01)
+
+
+# ---------------------------------------------------------------------------
+# Instanced layouts (issue 27): instances share patches, the count keeps to target_patches
+
+
+def spheres_on_a_floor(per_side: int, *, writable: bool = False):
+    """An 8 x 8 floor (the receiver) under per_side^2 instances of a 0.2-radius icosphere (80 triangles)."""
+    from instanced_scenes import build_scene, grid, icosphere, translate
+
+    sphere, triangles = icosphere(1)
+    ticks = (np.arange(per_side) + 0.5) / per_side * 8.0 - 4.0
+    instances = [(0, translate(x, 0.2, z, scale=(0.2, 0.2, 0.2))) for x in ticks for z in ticks]
+    scene = build_scene([("/World/Floor", *grid(4.0, 4))], [("/World/Proto/Sphere", sphere, triangles)], instances)
+    if writable:  # the same spheres as ordinary meshes: receivers, patches of their own
+        scene = dataclasses.replace(scene, prim_writable=np.ones(len(scene.prim_paths), bool))
+    return scene
+
+
+@pytest.mark.parametrize("per_side", [4, 8])
+def test_instances_share_patches_and_the_count_keeps_to_the_target(per_side):
+    scene = spheres_on_a_floor(per_side)
+    params = ff.FormFactors.Params(target_patches=60, rays=16)
+    product, dense = ff.precompute(Tracer.from_scene(scene), scene, params)
+    patches = product.patches
+    assert 0.6 * 60 <= patches.count <= 1.5 * 60  # 16 or 64 spheres: per-prim patches would be >= 96 / 384
+    instance = scene.tri_instance[patches.fragment_tri] >= 0
+    mixed = np.intersect1d(patches.fragment_patch[instance], patches.fragment_patch[~instance])
+    assert mixed.size == 0  # the floor's patches hold the floor only
+    spans = [np.unique(scene.tri_instance[patches.fragment_tri[patches.fragment_patch == k]]).size
+             for k in np.unique(patches.fragment_patch[instance])]
+    assert max(spans) > 1  # a patch spans instances
+    assert dense["form"].sum(axis=1).max() <= 1.0 + FLOAT32_ACCUMULATED
+
+
+def test_receiver_meshes_keep_patches_of_their_own():
+    """The same spheres as writable meshes receive radiosity's output: a patch never spans two of them
+    (so the target cannot be reached: at least one patch per sphere and normal axis)."""
+    scene = spheres_on_a_floor(4, writable=True)
+    product, _ = ff.precompute(Tracer.from_scene(scene), scene, ff.FormFactors.Params(target_patches=60, rays=16))
+    patches = product.patches
+    owners = [np.unique(scene.tri_prim[patches.fragment_tri[patches.fragment_patch == k]]).size
+              for k in range(patches.count)]
+    assert max(owners) == 1 and patches.count >= 6 * 16
