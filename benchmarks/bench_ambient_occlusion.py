@@ -18,7 +18,7 @@ DEFAULT_SAMPLES = 256
 def run(quick: bool = False) -> dict:
     from usdbake.geometry.mesh import vertex_normals
     from usdbake.kernels.tracer import Tracer
-    from usdbake.processors.ambient_occlusion import AmbientOcclusion, compute_vertex_ao
+    from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion, compute_vertex_ao
 
     scene = harness.load_scene("atrium")
     tracer = Tracer.from_scene(scene)

@@ -13,9 +13,9 @@ from .bench_plan import grid_quads
 from usdbake.formats.weather import read_weather
 from usdbake.kernels.sky import overcast_radiance, tregenza_patches
 from usdbake.kernels.tracer import Tracer
-from usdbake.processors.annual_daylight import compute_annual_daylight
-from usdbake.processors.daylight import Relighter, compute_daylight, sun_table
-from usdbake.processors.sky_visibility import compute_sky_visibility
+from usdbake.processors.daylight.annual_daylight import compute_annual_daylight
+from usdbake.processors.daylight.daylight import Relighter, compute_daylight, sun_table
+from usdbake.processors.daylight.sky_visibility import compute_sky_visibility
 from usdbake.stages.extract import extract_scene
 
 NAME = "annual_daylight"

@@ -48,16 +48,16 @@ def bumpy_sphere(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def run(quick: bool = False) -> dict:
     from usdbake import core
-    from usdbake.kernels.displacement_field import encode_field
+    from usdbake.processors.instancing.field_kernels import encode_field
     from usdbake.kernels.tracer import Tracer
-    from usdbake.processors.ambient_occlusion import AmbientOcclusion
-    from usdbake.processors.displacement_fields import (
+    from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion
+    from usdbake.processors.instancing.displacement_fields import (
         DisplacementFields,
         compute_field_distances,
         prototype_geometry,
         side_for,
     )
-    from usdbake.processors.instance_ao import InstanceAO
+    from usdbake.processors.instancing.instance_ao import InstanceAO
 
     scene = harness.load_scene("instanced_props")
     receivers = harness.receiver_points(scene)
@@ -168,7 +168,7 @@ def _scaling(quick, compute_field_distances, encode_field, DisplacementField, si
     """Field lookup vs BVH any-hit time per ray as the prototype grows."""
     from usdbake.kernels.sh import uniform_sphere_np
     from usdbake.kernels.tracer import Tracer
-    from usdbake.processors.instance_ao import query_field
+    from usdbake.processors.instancing.instance_ao import query_field
 
     sizes = [36, 112] if quick else [36, 112, 355]
     ray_count = 200_000 if quick else 1_000_000
@@ -216,9 +216,9 @@ def _instance_vertices(scene) -> dict:
     from usdbake import core
     from usdbake.geometry.mesh import vertex_normals
     from usdbake.kernels.tracer import Tracer
-    from usdbake.processors.ambient_occlusion import AmbientOcclusion
-    from usdbake.processors.displacement_fields import DisplacementFields
-    from usdbake.processors.instance_ao import InstanceAO, InstancePoints
+    from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion
+    from usdbake.processors.instancing.displacement_fields import DisplacementFields
+    from usdbake.processors.instancing.instance_ao import InstanceAO, InstancePoints
 
     fields = DisplacementFields().run(core.Context(scene=scene, params=DisplacementFields.Params(),
                                                    tracer=None)).products[DisplacementFieldSet].fields

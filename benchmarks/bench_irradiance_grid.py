@@ -11,7 +11,7 @@ from . import harness
 from .references import point_irradiance
 from usdbake.kernels.lights import LUMINANCE
 from usdbake.kernels.direction24 import AXES
-from usdbake.processors.irradiance_grid import dequantize_vectors
+from usdbake.processors.irradiance_grid.irradiance_grid import dequantize_vectors
 
 NAME = "irradiance_grid"
 DESCRIPTION = (
@@ -68,7 +68,7 @@ def run(quick: bool = False) -> dict:
     from usdbake.formats import streaming
     from usdbake.geometry.mesh import vertex_normals
     from usdbake.kernels.tracer import Tracer
-    from usdbake.processors import irradiance_grid as ig
+    from usdbake.processors.irradiance_grid import irradiance_grid as ig
 
     scene = harness.load_scene("cornell_box")
     tracer = Tracer.from_scene(scene)

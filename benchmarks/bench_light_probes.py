@@ -36,7 +36,7 @@ FULL = {"free": 6000, "near": 4000, "leak": 500, "paths": 1024}
 def run(quick: bool = False) -> dict:
     from usdbake.core import Context
     from usdbake.kernels.tracer import Tracer
-    from usdbake.processors import light_probes as lp
+    from usdbake.processors.light_probes import light_probes as lp
 
     from . import probe_reference as ref
 

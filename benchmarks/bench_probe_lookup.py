@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from . import harness
-from usdbake.geometry import tetrahedra
-from usdbake.kernels.probe_lookup import ProbeLookup
+from usdbake.processors.light_probes import tetrahedra
+from usdbake.processors.light_probes.lookup import ProbeLookup
 from usdbake.kernels.tracer import default_threads
 
 NAME = "probe_lookup"
 DESCRIPTION = (
-    "Point location in a light-probe cloud (`kernels.probe_lookup`: start tetrahedron from a grid, then the "
+    "Point location in a light-probe cloud (`processors.light_probes.lookup`: start tetrahedron from a grid, then the "
     "barycentric walk, float32), lookups per second including the upload of the points and the download of "
     "tetrahedra and barycentrics, one thread and all cores; beside scipy's `Delaunay.find_simplex` (Qhull's "
     "walk, one thread) plus its barycentric transform, on the same probes and points. Probes: 1024 and 8192 "

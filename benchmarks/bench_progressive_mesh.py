@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from . import harness
 from usdbake.formats import mesh_stream
-from usdbake.processors import progressive_mesh as pm
+from usdbake.processors.irradiance_grid import progressive_mesh as pm
 
 NAME = "progressive_mesh"
 DESCRIPTION = (

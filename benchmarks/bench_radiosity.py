@@ -28,11 +28,11 @@ import warp as wp
 from . import harness
 from .references import path_traced_indirect
 from usdbake.geometry.mesh import vertex_normals
-from usdbake.kernels.operator_codec import compress_operator
-from usdbake.kernels.operator_relight import COMPRESSED, DENSE, Relighter, dense_nbytes, launch_rows, relight
+from usdbake.processors.radiosity.operator_codec import compress_operator
+from usdbake.processors.radiosity.operator_relight import COMPRESSED, DENSE, Relighter, dense_nbytes, launch_rows, relight
 from usdbake.kernels.tracer import Tracer
-from usdbake.processors import form_factors as ff
-from usdbake.processors import radiosity as rad
+from usdbake.processors.radiosity import form_factors as ff
+from usdbake.processors.radiosity import radiosity as rad
 
 wp.set_module_options({"enable_backward": False})
 

@@ -235,8 +235,8 @@ def in_processor_rates(threads: int, quick: bool) -> dict:
     (building), each against the bare core tracing the very rays the processor casts, stored beforehand."""
     from usdbake.geometry.mesh import vertex_inward, vertex_normals
     from usdbake.kernels.sky import enu_to_world, uniform_patches
-    from usdbake.processors.ambient_occlusion import compute_vertex_ao
-    from usdbake.processors.sky_visibility import compute_sky_visibility
+    from usdbake.processors.occlusion.ambient_occlusion import compute_vertex_ao
+    from usdbake.processors.daylight.sky_visibility import compute_sky_visibility
 
     figures = {}
     for label, sample in (("ao_atrium", "atrium"), ("sky_visibility_building", "building")):

@@ -189,8 +189,8 @@ def accuracy(instances: int, folder: Path, *, paths: int = 8192) -> dict:
     paths, seeds 7 and 8, against each other, / sqrt 2 for their mean)."""
     from usdbake.geometry.mesh import vertex_normals
     from usdbake.kernels.tracer import Tracer
-    from usdbake.processors import form_factors as ff
-    from usdbake.processors import radiosity as rad
+    from usdbake.processors.radiosity import form_factors as ff
+    from usdbake.processors.radiosity import radiosity as rad
     from usdbake.stages.extract import extract_scene
 
     from . import harness

@@ -84,7 +84,7 @@ def regions(name: str, scene) -> list[tuple[np.ndarray, np.ndarray]]:
     """The boxes (lo, hi) float64, scene frame, that hold the test points: atrium the probe placement box,
     furnished room its room, thin wall its two rooms (rooms shrunk by ROOM_SHRINK)."""
     if name == "atrium":
-        from usdbake.processors.light_probes import placement_box
+        from usdbake.processors.light_probes.light_probes import placement_box
 
         return [placement_box(scene)]
     if name == "furnished_room":
@@ -152,7 +152,7 @@ def _far_from_lights(scene, points: np.ndarray) -> np.ndarray:
 
 def free_points(scene, tracer, lighting, boxes, count: int, rng) -> np.ndarray:
     """(count, 3) float32 points uniform in the boxes (by volume), outside geometry, FREE_CLEARANCE from it."""
-    from usdbake.kernels.probe_capture import classify_points
+    from usdbake.processors.light_probes.capture import classify_points
 
     volumes = np.array([np.prod(hi - lo) for lo, hi in boxes])
     found, total = [], 0
@@ -171,7 +171,7 @@ def free_points(scene, tracer, lighting, boxes, count: int, rng) -> np.ndarray:
 def near_points(scene, tracer, lighting, boxes, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(count, 3) float32 points SURFACE_OFFSET in front of area-uniform surface points, inside the boxes,
     and their face normals; a candidate whose offset segment hits geometry or ends inside it is skipped."""
-    from usdbake.kernels.probe_capture import classify_points
+    from usdbake.processors.light_probes.capture import classify_points
 
     offset = scene.points[scene.tri_vertices].astype(np.float64) + SURFACE_OFFSET * scene.tri_normals[:, None]
     lo, hi = offset.min(axis=1), offset.max(axis=1)  # triangles whose offset copy meets a box
@@ -196,7 +196,7 @@ def near_points(scene, tracer, lighting, boxes, count: int, seed: int) -> tuple[
 
 def leak_points(name: str, scene, tracer, lighting, count: int, rng) -> np.ndarray:
     """(count, 3) float32 points within LEAK_BAND of a wall on its dark side (module docstring)."""
-    from usdbake.kernels.probe_capture import classify_points
+    from usdbake.processors.light_probes.capture import classify_points
 
     if name == "atrium" or count == 0:
         return np.zeros((0, 3), np.float32)

@@ -50,7 +50,7 @@ DNI/DHI into illuminance and Radiance divides by 179 lm/W, so 179 * luminance
 gives cd/m^2. With ``output='solar'`` (``-O1``) they are solar watts:
 179 * (DHI + DNI cos z) exactly reproduces the weather file's global horizontal
 irradiance at 179 lm/W; use this one to compare with a model that, like
-usdbake's ``kernels/sky_matrix.py``, scales the sky to the file's DHI. A .wea
+usdbake's ``processors/daylight/sky_matrix.py``, scales the sky to the file's DHI. A .wea
 carries no dew point, so gendaymtx's luminous efficacy (``-O0`` only) uses its
 default 11 degC dew point. The sky colour is gendaymtx's default (0.96, 1.004,
 1.118), whose luminance weight is 1.000.

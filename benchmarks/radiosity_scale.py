@@ -28,9 +28,9 @@ import warp as wp
 from . import harness
 from .bench_radiosity import relight_dense_kernel
 from usdbake import init_warp
-from usdbake.kernels.operator_relight import COMPRESSED, Relighter, dense_nbytes, relight_form
+from usdbake.processors.radiosity.operator_relight import COMPRESSED, Relighter, dense_nbytes, relight_form
 from usdbake.kernels.tracer import Tracer
-from usdbake.processors import form_factors as ff
+from usdbake.processors.radiosity import form_factors as ff
 
 ROUNDS = 30
 

@@ -164,7 +164,7 @@ class DisplacementField:
     frame: np.ndarray = field(default_factory=lambda: np.eye(4))
     """(4, 4) float64 row-vector rigid motion from the frame the field was built in (that of ``center``, the
     texels and prototype_points) to this prototype's space: the identity unless the field is shared with a
-    moved copy of its prototype (``processors.displacement_fields.ShapeIndex``)."""
+    moved copy of its prototype (``processors.instancing.displacement_fields.ShapeIndex``)."""
 
     @property
     def nbytes(self) -> int:
@@ -276,7 +276,7 @@ class ProbeCloud:
     tet_blocked: np.ndarray
     """(T,) uint8 6-bit blocked-edge masks (tetrahedra.TET_EDGES); zeros without leak fixing."""
     tetra: Any
-    """usdbake.geometry.tetrahedra.Tetrahedralization of the probes."""
+    """usdbake.processors.light_probes.tetrahedra.Tetrahedralization of the probes."""
     direct_lights: bool = True
     """The SH hold the direct light of the lights that are not geometry (distant, sphere, rect, disk); False:
     the lookup adds it (``light_probes.irradiance_at`` with a tracer) or the engine's real-time lights do."""
@@ -290,7 +290,7 @@ class IrradianceGridProduct:
     """A baked grid (scene frame)."""
 
     layout: Any
-    """usdbake.processors.irradiance_grid.GridLayout: origin, cell size, resolution."""
+    """usdbake.processors.irradiance_grid.irradiance_grid.GridLayout: origin, cell size, resolution."""
     directions: np.ndarray
     """(V, 6) uint8 hemi-octahedral codes."""
     colors: np.ndarray

@@ -18,17 +18,17 @@ from .processor import Processor
 ENTRY_POINT_GROUP = "usdbake.processors"
 
 BUILTIN = (
-    "usdbake.processors.ambient_occlusion:AmbientOcclusion",
-    "usdbake.processors.sky_visibility:SkyVisibility",
-    "usdbake.processors.daylight:Daylight",
-    "usdbake.processors.annual_daylight:AnnualDaylight",
-    "usdbake.processors.displacement_fields:DisplacementFields",
-    "usdbake.processors.instance_ao:InstanceAO",
-    "usdbake.processors.form_factors:FormFactors",
-    "usdbake.processors.radiosity:Radiosity",
-    "usdbake.processors.light_probes:LightProbes",
-    "usdbake.processors.irradiance_grid:IrradianceGrid",
-    "usdbake.processors.progressive_mesh:ProgressiveMesh",
+    "usdbake.processors.occlusion.ambient_occlusion:AmbientOcclusion",
+    "usdbake.processors.daylight.sky_visibility:SkyVisibility",
+    "usdbake.processors.daylight.daylight:Daylight",
+    "usdbake.processors.daylight.annual_daylight:AnnualDaylight",
+    "usdbake.processors.instancing.displacement_fields:DisplacementFields",
+    "usdbake.processors.instancing.instance_ao:InstanceAO",
+    "usdbake.processors.radiosity.form_factors:FormFactors",
+    "usdbake.processors.radiosity.radiosity:Radiosity",
+    "usdbake.processors.light_probes.light_probes:LightProbes",
+    "usdbake.processors.irradiance_grid.irradiance_grid:IrradianceGrid",
+    "usdbake.processors.irradiance_grid.progressive_mesh:ProgressiveMesh",
 )
 """Every technique in usdbake/processors, as "module:Class"."""
 

@@ -2,7 +2,7 @@
 
 Pacanowski et al. 2008, "Efficient Streaming of 3D Scenes with Complex
 Geometry and Complex Lighting", section 4.2: a mesh ordered by half-edge
-collapses (``processors/progressive_mesh.py``: a rank per vertex and the
+collapses (``processors/irradiance_grid/progressive_mesh.py``: a rank per vertex and the
 vertex each collapses onto) is sent vertex by vertex, coarse first; a client
 holding the first k vertices maps every face corner through the collapse
 table to a received vertex and keeps the faces whose three corners stay

@@ -18,6 +18,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = REPO
 PACKAGE = "usdbake"
 FOLDERS = ("core", "kernels", "geometry", "formats", "processors", "stages", "schemas", "preview", "farm", "cli")
@@ -121,11 +123,37 @@ def test_each_folder_imports_only_the_folders_below_it():
         assert violations(package_files((folder,)), forbidden) == [], folder
 
 
-def test_processors_never_import_each_other():
-    for path in package_files(("processors",)):
-        others = [f"{PACKAGE}.processors.{p.stem}" for p in (ROOT / "processors").glob("*.py")
-                  if p.stem not in (path.stem, "__init__")]
-        assert violations([path], others) == []
+TECHNIQUES = sorted(p.name for p in (ROOT / "processors").iterdir() if (p / "__init__.py").exists())
+"""The technique packages under processors/."""
+
+
+def test_processors_are_technique_packages():
+    assert TECHNIQUES and [p.name for p in (ROOT / "processors").glob("*.py")] == ["__init__.py"]
+
+
+@pytest.mark.parametrize("technique", TECHNIQUES)
+def test_a_technique_never_imports_another(technique):
+    others = [f"{PACKAGE}.processors.{other}" for other in TECHNIQUES if other != technique]
+    assert violations(sorted((ROOT / "processors" / technique).rglob("*.py")), others) == []
+
+
+def test_shared_folders_hold_what_two_or_more_techniques_use():
+    """A module of kernels/, geometry/ or formats/ that one technique alone imports belongs in its package
+    (a module only kernels/ itself imports, the ray core's, reaches every technique through the tracer)."""
+    users: dict[str, set[str]] = {}
+    for technique in TECHNIQUES:
+        for path in (ROOT / "processors" / technique).rglob("*.py"):
+            for _, name in imported_names(path):
+                users.setdefault(name, set()).add(technique)
+    outside = [p for p in package_files() if p.relative_to(ROOT).parts[0] != "processors"]
+    used_elsewhere = {name for path in outside for _, name in imported_names(path)}
+    single = []
+    for folder in ("kernels", "geometry", "formats"):
+        for path in sorted((ROOT / folder).glob("*.py")):
+            name = ".".join(module_parts(path))
+            if path.stem != "__init__" and len(users.get(name, ())) == 1 and name not in used_elsewhere:
+                single.append(f"{name}: only {users[name].pop()}")
+    assert single == []
 
 
 def test_only_schemas_and_stages_import_pxr():
@@ -145,7 +173,7 @@ def test_importing_the_processors_loads_no_pxr_of_their_own():
         "before = usd()\n"
         "from usdbake.core import registry\n"
         "registry.builtin()\n"
-        "assert 'usdbake.processors.ambient_occlusion' in sys.modules\n"
+        "assert 'usdbake.processors.occlusion.ambient_occlusion' in sys.modules\n"
         "print(sorted(usd() - before))\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

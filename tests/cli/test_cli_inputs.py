@@ -18,7 +18,7 @@ import fake_processors as fakes
 import usdbake
 from usdbake import core
 from usdbake.cli.main import main
-from usdbake.processors.ambient_occlusion import AmbientOcclusion
+from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion
 
 FAST = ["--set", "ambient_occlusion.samples=16"]
 
@@ -300,7 +300,7 @@ SLOW_BAKE = textwrap.dedent("""
     import sys, time
     from pathlib import Path
     from usdbake.cli.main import main
-    from usdbake.processors.ambient_occlusion import AmbientOcclusion
+    from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion
 
     def slow(self, ctx):
         Path(sys.argv[1]).write_text("running")
@@ -356,7 +356,7 @@ DRAINING_BAKE = textwrap.dedent("""
     import sys, time
     from pathlib import Path
     from usdbake.cli.main import main
-    from usdbake.processors.ambient_occlusion import AmbientOcclusion
+    from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion
 
     def draining(self, ctx):
         # Stands in for CPU kernel launches that cannot be stopped midway: the first Ctrl-C is

@@ -12,7 +12,7 @@ import pytest
 
 import fake_processors as fakes
 from usdbake import core
-from usdbake.processors.ambient_occlusion import AmbientOcclusion
+from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion
 from usdbake.core.cache import CacheWarning
 from usdbake.core.pipeline import GraphError, Pipeline, ProcessorFailed, build_steps, step_key
 

@@ -1,6 +1,6 @@
 """The registry is complete and the built-ins follow one convention.
 
-Every module in processors/ is named in core.registry.BUILTIN (a technique
+Every processor module of a technique package is named in core.registry.BUILTIN (a technique
 nobody registered is dead code that no test bakes); every entry loads; a
 processor ``name`` is its module's name and its class name is the CamelCase of
 it; every parameter has one line of doc, since ``usdbake list`` and the docs
@@ -8,6 +8,8 @@ tables print it.
 """
 
 from __future__ import annotations
+
+import re
 
 from repo_paths import REPO
 
@@ -34,8 +36,10 @@ def test_class_name_convention():
 
 
 def test_every_processor_module_is_in_builtin():
-    modules = {path.stem for path in PROCESSORS_DIR.glob("*.py")} - {"__init__"}
-    listed = {spec.partition(":")[0].rpartition(".")[2] for spec in registry.BUILTIN}
+    """Every module of a technique package that defines a Processor is listed, and only those."""
+    modules = {f"{path.parent.name}.{path.stem}" for path in PROCESSORS_DIR.glob("*/*.py")
+               if re.search(r"^class \w+\(Processor\):", path.read_text(), re.MULTILINE)}
+    listed = {".".join(spec.partition(":")[0].split(".")[-2:]) for spec in registry.BUILTIN}
     assert modules - listed == set(), "add these modules to usdbake.core.registry.BUILTIN"
     assert listed - modules == set(), "BUILTIN names modules that processors/ does not hold"
 

@@ -12,7 +12,7 @@ from scipy.spatial import Delaunay
 
 from usdbake.benchmarks.bench_progressive_mesh import height_field
 from usdbake.formats import mesh_stream as ms
-from usdbake.processors import progressive_mesh as pm
+from usdbake.processors.irradiance_grid import progressive_mesh as pm
 
 
 def random_mesh(seed: int, count: int):

@@ -100,7 +100,7 @@ def test_neighbourhood_work_on_stacked_copies_is_at_most_that_of_distinct_triang
 
 def test_stacked_copies_get_the_ao_of_one_triangle():
     """Every vertex of N stacked copies facing open sky has AO 1 (no copy occludes another), finite."""
-    from usdbake.processors.ambient_occlusion import compute_vertex_ao
+    from usdbake.processors.occlusion.ambient_occlusion import compute_vertex_ao
 
     copies = 3000
     points = np.tile(TRIANGLE, (copies, 1))

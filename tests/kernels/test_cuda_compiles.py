@@ -12,12 +12,12 @@ import importlib
 import pytest
 import warp as wp
 
-FAST = ["usdbake.kernels.tracer", "usdbake.kernels.sun_visibility", "usdbake.processors.ambient_occlusion",
-        "usdbake.processors.sky_visibility", "usdbake.processors.form_factors",
-        "usdbake.processors.displacement_fields", "usdbake.preview.raycast", "usdbake.kernels.operator_relight"]
+FAST = ["usdbake.kernels.tracer", "usdbake.processors.daylight.sun_visibility", "usdbake.processors.occlusion.ambient_occlusion",
+        "usdbake.processors.daylight.sky_visibility", "usdbake.processors.radiosity.form_factors",
+        "usdbake.processors.instancing.displacement_fields", "usdbake.preview.raycast", "usdbake.processors.radiosity.operator_relight"]
 """Modules of a few seconds each (measured 0.7-2 s)."""
-HEAVY = ["usdbake.processors.radiosity", "usdbake.processors.irradiance_grid", "usdbake.processors.instance_ao",
-         "usdbake.kernels.probe_capture"]
+HEAVY = ["usdbake.processors.radiosity.radiosity", "usdbake.processors.irradiance_grid.irradiance_grid", "usdbake.processors.instancing.instance_ao",
+         "usdbake.processors.light_probes.capture"]
 """Modules of 5-12 s each: the slow run."""
 
 

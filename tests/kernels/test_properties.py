@@ -35,8 +35,9 @@ from scipy.spatial import Delaunay
 from tolerances import (BARYCENTRIC, BC1_BOUND_SLACK, FLOAT32_ROUNDING, FLOAT32_STORAGE, FLOAT64_AMPLIFIED,
                         FLOAT64_ROUNDING, LOG_CODE_SLACK, ON_BOUNDARY, PALETTE_ROUNDING, QUANT565, QUOTED_6_DECIMALS,
                         SH_LOBE, SH_QUADRATURE)
-from usdbake.geometry import tetrahedra
-from usdbake.kernels import bc1, operator_codec, rgb9e5, sh, sky
+from usdbake.processors.light_probes import tetrahedra
+from usdbake.processors.radiosity import bc1, operator_codec
+from usdbake.kernels import rgb9e5, sh, sky
 from usdbake.kernels import direction24 as dir24
 
 PROPERTY = settings(derandomize=True, max_examples=100, deadline=None)

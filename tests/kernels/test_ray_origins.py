@@ -16,7 +16,7 @@ import pytest
 from lit_scenes import make_scene, merge, quad
 from tolerances import MC_SIGMAS
 from usdbake.kernels.tracer import Tracer
-from usdbake.processors.ambient_occlusion import compute_vertex_ao
+from usdbake.processors.occlusion.ambient_occlusion import compute_vertex_ao
 
 SAMPLES = 4096
 """Rays per point: 64 x 64 strata, for both the processor and the reference."""

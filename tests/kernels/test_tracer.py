@@ -6,7 +6,7 @@ import pytest
 import warp as wp
 
 from tolerances import FLOAT32_ACCUMULATED, FLOAT32_STORAGE, GRAZING_RAY_FLIPS
-from usdbake.processors.ambient_occlusion import compute_vertex_ao
+from usdbake.processors.occlusion.ambient_occlusion import compute_vertex_ao
 from usdbake.kernels.tracer import MIN_CHUNK, RAY_EPSILON_RELATIVE, Tracer, trace_scale
 
 wp.set_module_options({"enable_backward": False})

@@ -2,7 +2,7 @@
 
 The reference is the flattened twin of the same board (``production_assets.instanced_board``
 with ``instanced=False``): the same pawns as ordinary prims, baked per vertex. An instance's
-mean is the area-weighted mean of its surface's per-vertex AO, as ``geometry/instances.py``
+mean is the area-weighted mean of its surface's per-vertex AO, as ``processors/occlusion/instances.py``
 defines it, recomputed here from the twin's Scene.
 """
 

@@ -12,7 +12,7 @@ from pxr import Sdf, Usd, UsdGeom, UsdShade
 
 import fake_processors as fakes
 import usdbake
-from usdbake.processors.ambient_occlusion import AmbientOcclusion
+from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion
 from usdbake.core import OutputError
 from usdbake.stages import bake_layer
 from usdbake.cli.main import main

@@ -82,7 +82,7 @@ def test_bake_into_a_given_layer(stage, cache):
 
 
 def test_failed_bake_authors_nothing(stage, cache, monkeypatch):
-    from usdbake.processors.ambient_occlusion import AmbientOcclusion
+    from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion
     from usdbake.core.pipeline import ProcessorFailed
 
     def boom(self, ctx):

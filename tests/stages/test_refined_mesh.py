@@ -19,10 +19,10 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 from production_assets import add_box, add_floor, new_stage, room_with_box, topology_mismatches
 from usdbake.cli.main import main
 from usdbake.core.records import Attribute, Block, Primvar
-from usdbake.geometry.refined_scene import refine_scene
+from usdbake.processors.daylight.refined_scene import refine_scene
 from usdbake.kernels.sky import patch_layout
 from usdbake.kernels.tracer import Tracer
-from usdbake.processors.sky_visibility import compute_sky_visibility
+from usdbake.processors.daylight.sky_visibility import compute_sky_visibility
 from usdbake.stages.bake_layer import author
 from usdbake.stages.extract import extract_scene
 from usdbake.stages.refined_mesh import complete_outputs

@@ -13,7 +13,7 @@ import usdbake
 from pxr import Gf, Usd, UsdGeom
 from stress.stage_builders_stress import box_on_floor, hostile_stage, stage_with
 from tolerances import FAR_POINTS_FLIP_FACTOR, FLOAT32_ACCUMULATED, STRESS_RAY_FLIPS
-from usdbake.processors.ambient_occlusion import compute_vertex_ao
+from usdbake.processors.occlusion.ambient_occlusion import compute_vertex_ao
 from usdbake.geometry.mesh import vertex_normals
 from usdbake.kernels.tracer import Tracer
 from usdbake.core.errors import StageError

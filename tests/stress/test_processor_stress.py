@@ -18,7 +18,7 @@ from stress.stage_builders_stress import FAST_PARAMS, fast_params, hostile_lit_s
 from tolerances import FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_STORAGE, PROCESSOR_RAY_FLIPS
 from usdbake.core.products import FormFactorProduct, ProbeCloud
 from usdbake import core
-from usdbake.kernels.operator_codec import decompress_operator
+from usdbake.processors.radiosity.operator_codec import decompress_operator
 from usdbake.kernels.sh import sh_basis_np
 from usdbake.core.errors import StageError
 from usdbake.stages.extract import extract_scene

@@ -1,0 +1,130 @@
+"""Sun visibility: the share of the solar disk each face sees, by shadow rays (Warp).
+
+Shared by ``daylight`` (one sun position per time, or a table of sun bins for interactive relighting)
+and ``annual_daylight`` (one per sun bin).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from ...kernels.sampling import tangent_frame, triangle_point
+from ...kernels.sky import SUN_ANGULAR_DIAMETER, reinhart_patches
+from ...kernels.tracer import FAR, triangle_origin
+from ...kernels.traversal import TraceScene, trace_any
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.kernel
+def sun_visibility_kernel(
+    start: int,
+    scene: TraceScene,
+    faces: wp.array(dtype=int),
+    corners: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    sun: wp.vec3,
+    cos_half_angle: float,
+    samples: int,
+    epsilon: float,
+    seed: int,
+    visible: wp.array(dtype=float),
+):
+    """Share of rays from random points of face faces[i] toward random points of the solar disk that escape.
+
+    The sun's visibility S_i of Bosch, Besuievsky & Martin, Sec. 5 (they use a
+    shadow map; here rays): directions uniform in solid angle over the cone of
+    half-angle acos(``cos_half_angle``) about ``sun`` (the 0.53 degree disk;
+    uniform cone sampling, Pharr, Jakob & Humphreys, "Physically Based
+    Rendering" (3rd ed.), sec. 13.6.4), origins uniform on the face.
+    Dimensionless in [0, 1]; rays below the face's horizon count as blocked.
+    """
+    i = start + wp.tid()
+    f = faces[i]
+    n = normals[f]
+    a = corners[3 * f]
+    b = corners[3 * f + 1]
+    c = corners[3 * f + 2]
+    frame = tangent_frame(sun)
+    state = wp.rand_init(seed, i)
+    hits = int(0)
+    for k in range(samples):
+        cos_t = 1.0 - wp.randf(state) * (1.0 - cos_half_angle)
+        sin_t = wp.sqrt(wp.max(0.0, 1.0 - cos_t * cos_t))
+        phi = 2.0 * wp.pi * wp.randf(state)
+        d = frame * wp.vec3(sin_t * wp.cos(phi), sin_t * wp.sin(phi), cos_t)
+        x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))
+        if wp.dot(n, d) > 0.0:
+            if not trace_any(scene, triangle_origin(scene, a, b, c, x, n, epsilon), d, FAR):
+                hits += 1
+    visible[i] = float(hits) / float(samples)
+
+
+class SunFaces:
+    """Faces uploaded once for shadow rays toward any number of sun directions."""
+
+    def __init__(self, tracer, corners: np.ndarray, normals: np.ndarray):
+        self.tracer = tracer
+        self.normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
+        self.corners = tracer.array(np.ascontiguousarray(corners, np.float32).reshape(-1, 3), wp.vec3)
+        self.normals_device = tracer.array(self.normals, wp.vec3)
+
+    def visibility(self, sun: np.ndarray, *, samples: int, seed: int) -> np.ndarray:
+        """(F,) float32 share of the solar disk visible from each face (0 for faces turned away):
+        ``sun_visibility_kernel`` on the faces not wholly turned away."""
+        sun = np.asarray(sun, np.float64)
+        sun = (sun / np.linalg.norm(sun)).astype(np.float32)
+        result = np.zeros(len(self.normals), np.float32)
+        facing = np.flatnonzero(self.normals @ sun > -math.sin(math.radians(SUN_ANGULAR_DIAMETER / 2)))
+        if len(facing) == 0:
+            return result
+        tracer = self.tracer
+        visible = wp.zeros(len(facing), dtype=float, device=tracer.device)
+        cos_half = math.cos(math.radians(SUN_ANGULAR_DIAMETER / 2))
+        tracer.launch(sun_visibility_kernel, len(facing), [
+            tracer.scene, tracer.array(facing.astype(np.int32), wp.int32), self.corners, self.normals_device,
+            wp.vec3(*sun.tolist()), cos_half, int(samples), tracer.epsilon, int(seed), visible])
+        tracer.rays_cast += len(facing) * samples
+        result[facing] = visible.numpy()
+        return result
+
+
+def compute_sun_visibility(tracer, corners: np.ndarray, normals: np.ndarray, sun: np.ndarray, *,
+                           samples: int = 4, seed: int = 0) -> np.ndarray:
+    """(F,) float32 share of the solar disk visible from each face (0 for faces turned away): S_i of the
+    module docstring (Bosch, Besuievsky & Martin, Sec. 5: the sun's visibility from its current position)."""
+    return SunFaces(tracer, corners, normals).visibility(sun, samples=samples, seed=seed)
+
+
+def sun_bins(suns: np.ndarray, up: np.ndarray, subdivision: int) -> tuple[np.ndarray, np.ndarray]:
+    """(bin of each sun position, -1 where ``up`` is false; (B, 3) unit mean direction of each bin).
+
+    Positions are snapped to the nearest patch of Reinhart MF:``subdivision`` (in the frame of ``suns``).
+    """
+    bins = np.full(len(suns), -1, np.int64)
+    if not up.any():
+        return bins, np.zeros((0, 3))
+    layout = reinhart_patches(subdivision).patch_directions
+    nearest = np.argmax(suns[up] @ layout.T, axis=1)
+    used, bins[up] = np.unique(nearest, return_inverse=True)
+    directions = np.zeros((len(used), 3))
+    np.add.at(directions, bins[up], suns[up])
+    return bins, directions / np.linalg.norm(directions, axis=1, keepdims=True)
+
+
+def sun_bin_hits(tracer, corners: np.ndarray, normals: np.ndarray, directions: np.ndarray, *, samples: int,
+                 seed: int = 0, progress=lambda f: None) -> np.ndarray:
+    """(B, F) uint8 shadow rays of ``samples`` (at most 255) that reach the sun from each face, per sun
+    direction (world, (B, 3)): S_i of every bin, as exact counts in a byte each."""
+    if not 1 <= samples <= 255:
+        raise ValueError(f"sun samples {samples}: a count per face is kept in a byte (1..255)")
+    faces = SunFaces(tracer, corners, normals)  # uploaded once for every bin
+    hits = np.zeros((len(directions), len(faces.normals)), np.uint8)
+    for b, direction in enumerate(directions):
+        share = faces.visibility(direction, samples=samples, seed=seed + b)
+        hits[b] = np.rint(share * samples).astype(np.uint8)
+        progress((b + 1) / max(1, len(directions)))
+    return hits

@@ -1,0 +1,457 @@
+"""Radiosity relight: direct light with shadow rays, indirect light from the compressed operator.
+
+The apply half of Shcherbakov (MSU 2017), section 5: for the current lights,
+
+1. **Direct irradiance** ``E0`` (W/m^2 when light radiance is W/(m^2 sr)) at
+   several stratified points per patch and at every mesh vertex, with shadow
+   rays through the shared BVH:
+
+   ``direct_irradiance`` of the shared light model (kernels/lights.py:
+   UsdLux distant, dome, sphere, rect and disk lights, and emissive
+   triangles picked by power, ``light_samples`` stratified samples per light
+   and ``sky_samples`` rays per dome). Emitted light always enters the
+   outgoing radiosity product.
+
+2. **Indirect irradiance** at the patches, ``E_ind = M E0`` with the
+   multi-bounce operator of ``form_factors``: the relight kernel decodes the
+   BC1 blocks of each block row on the fly (endpoints -> 4-entry palette ->
+   256-entry code table, never materializing the float matrix), adds the exact
+   sparse part, and works in the stored (permuted) order.
+
+3. **Transfer to the mesh**: a final gather per vertex (section 3.5 step 5):
+   ``gather_rays`` cosine-weighted rays, each hit adding rho (E0 + E_ind) of
+   the patch it lands on, so a vertex sees the patches' k bounces plus the
+   gather's own reflection (k + 1, what a probe looking at the patches sees).
+   Hits nearer than ``near_hits`` voxel edges (corners, contact edges) take
+   E0 at the hit itself (one shadow ray per light, ``hit_sky_samples`` dome
+   rays) and their first bounce from one more ray, bounces 2..k from the
+   patch (its k-bounce light minus a patch-level gather of its first bounce).
+   With ``gather_rays = 0`` each vertex instead blends the k-bounce indirect
+   irradiance of its ``neighbors`` nearest patch centroids whose normals
+   agree (cos > ``normal_cos``), ``w = (n_v . n_p)^2 / (d^2 + (voxel/2)^2)``:
+   no rays, smooth, blurred in corners.
+   Direct light at vertices is computed exactly (step 1), not interpolated,
+   at the vertex moved 0.1 % towards the centre of its triangle ring
+   (VERTEX_INSET) so a vertex on a seam between meshes does not start its
+   rays inside the other.
+
+USD written (bake layer), on writable prims with triangles and no ``bake:skip``:
+
+================================= ========= ============= ==============================
+property                          type      interpolation value
+================================= ========= ============= ==============================
+primvars:bake:irradianceDirect    color3f[] vertex        direct irradiance E0 (W/m^2)
+primvars:bake:irradianceIndirect  color3f[] vertex        indirect irradiance (W/m^2)
+================================= ========= ============= ==============================
+
+Product ``RadiosityProduct`` (core/products.py, for later processors): patch centroids, normals, areas,
+direct and indirect irradiance, and outgoing radiosity ``B = rho (E0 + E_ind)
++ pi L_e`` (W/m^2), one row per patch.
+
+Parameters: ``usdbake list radiosity`` or docs/radiosity.md, both generated from ``Params`` below.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ...core import Context, Params, Primvar, Processor, Result, param
+from ...core.products import FormFactorProduct, RadiosityProduct
+from ...core.scene import Scene
+from ...geometry.mesh import missing_receivers, receiver_prims, vertex_normals
+from ...kernels.lights import NO_LIGHTS, Lights, direct_irradiance, has_light, light_bundle, shadow_rays_per_point
+from .operator_relight import Relighter
+from .patch_kernels import fragment_of_hit
+from ...kernels.sampling import cosine_hemisphere, strata_for, tangent_frame
+from ...kernels.tracer import FAR, surface_origin
+from ...kernels.traversal import TraceScene, trace_closest
+
+wp.set_module_options({"enable_backward": False})
+
+
+# ---------------------------------------------------------------------------
+# Direct light (the shared light model, kernels/lights.py)
+
+
+@wp.kernel
+def direct_kernel(
+    start: int,
+    scene: TraceScene,
+    lights: Lights,
+    positions: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    strata: int,
+    sky_strata: int,
+    epsilon: float,
+    seed: int,
+    irradiance: wp.array(dtype=wp.vec3),
+):
+    """E0 at point i (zero for a point without a normal) by ``direct_irradiance``: the initial
+    irradiance vector of the relight, Shcherbakov section 3.5 step 1, W/m^2."""
+    i = start + wp.tid()
+    n = normals[i]
+    if wp.length(n) < 0.5:
+        irradiance[i] = wp.vec3(0.0, 0.0, 0.0)
+        return
+    state = wp.rand_init(seed, i)
+    irradiance[i] = direct_irradiance(scene, lights, positions[i], n, strata, sky_strata, epsilon, state)
+
+
+def compute_direct_irradiance(tracer, scene: Scene, positions: np.ndarray, normals: np.ndarray, *,
+                              light_samples: int = 16, sky_samples: int = 64, seed: int = 0,
+                              emissive: str = "auto") -> np.ndarray:
+    """(N, 3) float32 direct irradiance (W/m^2) at points with unit normals (zero normal -> 0).
+
+    positions, normals : (N, 3) float32 in the scene frame.
+    """
+    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+    normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
+    strata, sky_strata = strata_for(light_samples), strata_for(sky_samples)
+    out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
+    tracer.launch(direct_kernel, len(positions), [
+        tracer.scene, light_bundle(scene, tracer.device, emissive=emissive), tracer.array(positions, wp.vec3),
+        tracer.array(normals, wp.vec3), strata, sky_strata, tracer.epsilon, seed, out,
+    ])
+    tracer.rays_cast += len(positions) * shadow_rays_per_point(scene, strata=strata, sky_strata=sky_strata,
+                                                               emissive=emissive)
+    return np.nan_to_num(out.numpy(), nan=0.0, posinf=0.0, neginf=0.0)
+
+
+# ---------------------------------------------------------------------------
+# Transfer to the mesh
+
+
+@wp.func
+def patch_light(
+    scene: TraceScene,
+    origin: wp.vec3,
+    direction: wp.vec3,
+    tri_normals: wp.array(dtype=wp.vec3),
+    tri_albedo: wp.array(dtype=wp.vec3),
+    tri_subdivision: wp.array(dtype=int),
+    tri_fragment_start: wp.array(dtype=int),
+    fragment_patch: wp.array(dtype=int),
+    patch_direct: wp.array(dtype=wp.vec3),
+) -> wp.vec3:
+    """rho(z) E0(patch of z) at the front face z a ray meets (W/m^2; zero on a miss or a back face)."""
+    q = trace_closest(scene, origin, direction, FAR)
+    if q.result:
+        if wp.dot(direction, tri_normals[q.face]) < 0.0:
+            patch = fragment_patch[fragment_of_hit(q.face, q.u, q.v, tri_subdivision, tri_fragment_start)]
+            if patch >= 0:
+                return wp.cw_mul(tri_albedo[q.face], patch_direct[patch])
+    return wp.vec3(0.0, 0.0, 0.0)
+
+
+@wp.kernel
+def final_gather_kernel(
+    start: int,
+    scene: TraceScene,
+    lights: Lights,
+    positions: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    tri_normals: wp.array(dtype=wp.vec3),
+    tri_albedo: wp.array(dtype=wp.vec3),
+    tri_subdivision: wp.array(dtype=int),
+    tri_fragment_start: wp.array(dtype=int),
+    fragment_patch: wp.array(dtype=int),
+    patch_direct: wp.array(dtype=wp.vec3),
+    patch_indirect: wp.array(dtype=wp.vec3),
+    patch_higher: wp.array(dtype=wp.vec3),
+    near: float,
+    strata: int,
+    sky_strata: int,
+    epsilon: float,
+    seed: int,
+    irradiance: wp.array(dtype=wp.vec3),
+    near_hits: wp.array(dtype=int),
+):
+    """Final gather, Shcherbakov section 3.5 step 5 (the patch solution carried to the mesh):
+    E_ind(x) = sum_j F_xj rho_j (E0_j + E_ind_j), estimated over strata^2 cosine-weighted rays from x as
+    the mean of rho(y) (E0(y) + E_ind(y)) at the hits y (back faces absorb, as in the form factors),
+    with the hit patch's means. Hits nearer than ``near`` (corners, contact edges, where light varies
+    within a patch) evaluate E0(y) at y (one shadow ray per light, sky_strata^2 dome rays) and
+    E_ind(y) as rho(z) E0(z) at the patch z one more cosine ray from y meets plus y's patch bounces
+    2..k (``patch_higher``). Counts the near hits per point (their rays)."""
+    i = start + wp.tid()
+    n = normals[i]
+    e = wp.vec3(0.0, 0.0, 0.0)
+    near_count = int(0)
+    if wp.length(n) < 0.5:
+        irradiance[i] = e
+        return
+    state = wp.rand_init(seed, i)
+    frame = tangent_frame(n)
+    origin = surface_origin(scene, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
+    rays = strata * strata
+    inv = 1.0 / float(strata)
+    for k in range(rays):
+        # Jitter drawn here, not in a wp.func: the state is passed by value, and the light sample at
+        # each hit must see a state advanced past every earlier one.
+        u1 = (float(k % strata) + wp.randf(state)) * inv
+        u2 = (float(k // strata) + wp.randf(state)) * inv
+        w = frame * cosine_hemisphere(u1, u2)
+        q = trace_closest(scene, origin, w, FAR)
+        if q.result:
+            hn = tri_normals[q.face]
+            if wp.dot(w, hn) < 0.0:
+                patch = fragment_patch[fragment_of_hit(q.face, q.u, q.v, tri_subdivision, tri_fragment_start)]
+                indirect = wp.vec3(0.0, 0.0, 0.0)
+                direct = wp.vec3(0.0, 0.0, 0.0)
+                if patch >= 0:
+                    indirect = patch_indirect[patch]
+                    direct = patch_direct[patch]
+                if q.t < near or patch < 0:
+                    y = origin + w * q.t
+                    direct = direct_irradiance(scene, lights, y, hn, 1, sky_strata, epsilon, state)
+                    # The first bounce at y varies fast near corners and contact edges: one more cosine ray
+                    # from y to the direct light it meets; bounces 2..k from y's patch.
+                    v = tangent_frame(hn) * cosine_hemisphere(wp.randf(state), wp.randf(state))
+                    indirect = patch_light(scene, surface_origin(scene, y, hn, wp.vec3(0.0, 0.0, 0.0), epsilon), v,
+                                           tri_normals, tri_albedo, tri_subdivision, tri_fragment_start,
+                                           fragment_patch, patch_direct)
+                    if patch >= 0:
+                        indirect = indirect + patch_higher[patch]
+                    near_count += 1
+                e += wp.cw_mul(tri_albedo[q.face], direct + indirect)
+    irradiance[i] = e / float(rays)
+    near_hits[i] = near_count
+
+
+def final_gather(tracer, scene: Scene, patches, patch_direct: np.ndarray, patch_indirect: np.ndarray,
+                 patch_higher: np.ndarray, positions: np.ndarray, normals: np.ndarray, *, rays: int, near: float,
+                 sky_samples: int, seed: int = 0, emissive: str = "auto") -> np.ndarray:
+    """(N, 3) float32 indirect irradiance at points: one gather over the patches' direct + indirect light."""
+    strata, sky_strata = strata_for(rays), strata_for(sky_samples)
+    out = wp.zeros(len(positions), dtype=wp.vec3, device=tracer.device)
+    near_hits = wp.zeros(len(positions), dtype=int, device=tracer.device)
+    tracer.launch(final_gather_kernel, len(positions), [
+        tracer.scene, light_bundle(scene, tracer.device, emissive=emissive),
+        tracer.array(np.ascontiguousarray(positions, np.float32), wp.vec3),
+        tracer.array(np.ascontiguousarray(normals, np.float32), wp.vec3),
+        tracer.array(scene.tri_normals, wp.vec3), tracer.array(scene.tri_albedo, wp.vec3),
+        tracer.array(patches.tri_subdivision, wp.int32), tracer.array(patches.tri_fragment_start, wp.int32),
+        tracer.array(patches.fragment_patch, wp.int32),
+        tracer.array(np.ascontiguousarray(patch_direct, np.float32), wp.vec3),
+        tracer.array(np.ascontiguousarray(patch_indirect, np.float32), wp.vec3),
+        tracer.array(np.ascontiguousarray(patch_higher, np.float32), wp.vec3), float(near), strata, sky_strata, tracer.epsilon, seed, out, near_hits,
+    ])
+    tracer.rays_cast += len(positions) * strata * strata + int(near_hits.numpy().sum()) * (1 + shadow_rays_per_point(
+        scene, strata=1, sky_strata=sky_strata, emissive=emissive))
+    return np.nan_to_num(out.numpy())
+
+
+VERTEX_INSET = 1e-3
+"""Vertices are evaluated this fraction of the way towards the centre of their triangle ring: a
+vertex on the seam of two meshes (a wall standing on a floor) can sit a rounding error behind its
+neighbour, where every ray would start inside it."""
+
+
+def vertex_sample_positions(points: np.ndarray, tri_vertices: np.ndarray, tri_areas: np.ndarray,
+                            inset: float = VERTEX_INSET) -> np.ndarray:
+    """(P, 3) float32 points moved ``inset`` of the way towards the area-weighted centroid of their ring."""
+    corners = points[tri_vertices].astype(np.float64)
+    centroids = corners.mean(axis=1) * tri_areas[:, None]
+    accum = np.zeros((len(points), 3), np.float64)
+    weight = np.zeros(len(points), np.float64)
+    for corner in range(3):
+        np.add.at(accum, tri_vertices[:, corner], centroids)
+        np.add.at(weight, tri_vertices[:, corner], tri_areas.astype(np.float64))
+    ring = np.where(weight[:, None] > 0, accum / np.maximum(weight, 1e-300)[:, None], points)
+    return (points + inset * (ring - points)).astype(np.float32)
+
+
+def transfer_to_vertices(positions: np.ndarray, normals: np.ndarray, patch_centroids: np.ndarray,
+                         patch_normals: np.ndarray, patch_values: np.ndarray, *, neighbors: int = 8,
+                         normal_cos: float = 0.5, smoothing: float = 0.0) -> np.ndarray:
+    """(N, 3) float32 values at points blended from the nearest patches with agreeing normals.
+
+    Weights ``(n_v . n_p)^2 / (d^2 + smoothing^2)`` over the ``neighbors`` nearest centroids with
+    ``n_v . n_p > normal_cos``; a point none of them agrees with takes the nearest patch facing
+    its side (n_v . n_p > 0), else 0. Points without a normal blend by distance only.
+    """
+    from scipy.spatial import cKDTree
+
+    if len(patch_centroids) == 0 or len(positions) == 0:
+        return np.zeros((len(positions), 3), np.float32)
+    k = min(neighbors, len(patch_centroids))
+    tree = cKDTree(patch_centroids.astype(np.float64))
+    dist, idx = tree.query(positions.astype(np.float64), k=k)
+    dist = dist.reshape(len(positions), k)
+    idx = idx.reshape(len(positions), k)
+    cos = np.einsum("nkc,nc->nk", patch_normals[idx].astype(np.float64), normals.astype(np.float64))
+    has_normal = np.linalg.norm(normals, axis=1) > 0.5
+    agree = np.where(has_normal[:, None], cos > normal_cos, True)
+    w = np.where(agree, np.where(has_normal[:, None], cos, 1.0) ** 2 / (dist ** 2 + smoothing ** 2 + 1e-30), 0.0)
+    total = w.sum(axis=1)
+    values = patch_values[idx].astype(np.float64)
+    out = np.einsum("nk,nkc->nc", w, values) / np.maximum(total, 1e-300)[:, None]
+    lonely = total <= 0
+    if lonely.any():
+        facing = cos[lonely] > 0
+        first = np.where(facing.any(axis=1), facing.argmax(axis=1), -1)
+        fallback = np.where(first[:, None] >= 0, values[lonely][np.arange(lonely.sum()), np.maximum(first, 0)], 0.0)
+        out[lonely] = fallback
+    return np.nan_to_num(out).astype(np.float32)
+
+
+# ---------------------------------------------------------------------------
+# Processor
+
+
+def _patch_points(patches, points_per_patch: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)  # fixed seed: points are part of the result's definition
+    n = patches.count
+    u = (np.arange(points_per_patch)[None, :] + rng.random((n, points_per_patch))) / points_per_patch
+    start = patches.patch_fragment_start.astype(np.int64)
+    counts = np.diff(start)
+    cdf = patches.patch_fragment_cdf.astype(np.float64) + np.repeat(np.arange(n), counts)
+    slot = np.searchsorted(cdf, (np.minimum(u, 1 - 1e-9) + np.arange(n)[:, None]).ravel(), side="right")
+    slot = np.clip(slot, np.repeat(start[:-1], points_per_patch), np.repeat(start[1:] - 1, points_per_patch))
+    fragment = patches.patch_fragments[slot]
+    corners = patches.fragment_vertices[fragment].astype(np.float64)
+    r1 = np.sqrt(rng.random(len(fragment)))[:, None]
+    r2 = rng.random(len(fragment))[:, None]
+    points = corners[:, 0] * (1 - r1) + corners[:, 1] * (r1 * (1 - r2)) + corners[:, 2] * (r1 * r2)
+    return points.astype(np.float32), fragment
+
+
+def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lambda f: None,
+          apply_operator=None) -> dict:
+    """Direct light, compressed relight and transfer for the points ``point_ids`` (pure; run and benchmarks).
+
+    Vertex indirect light: with ``gather_rays`` > 0 a final gather over the patches' direct + k-bounce
+    indirect light (``final_gather``: the gather adds one reflection, k + 1 in all, as a probe or any
+    point looking at the patches sees), with direct light evaluated at near hits; with 0 the patches'
+    k-bounce indirect light interpolated (``transfer_to_vertices``: no rays, smooth, blurred in corners).
+    ``apply_operator(E0) -> E_ind`` replaces the relight (run: a Relighter for the step's memory budget; benchmarks: the dense operator).
+    ``transfer_seconds`` in the result: the time of the transfer to the points (the gather or the blend).
+    """
+    patches, op = product.patches, product.operator
+    points, fragment = _patch_points(patches, p.patch_points, p.seed)
+    point_normals = scene.tri_normals[patches.fragment_tri[fragment]]
+    e0_patch = compute_direct_irradiance(tracer, scene, points, point_normals, light_samples=p.light_samples,
+                                         sky_samples=p.sky_samples, seed=p.seed + 1, emissive=p.emissive_lights)
+    e0_patch = e0_patch.reshape(patches.count, p.patch_points, 3).mean(axis=1)
+    progress(0.3)
+    if apply_operator is None:
+        e_ind_patch = relighter_for(tracer, op, p).apply(e0_patch)
+    else:
+        e_ind_patch = np.asarray(apply_operator(e0_patch), np.float32)
+    # Only the triangles around the points: instances (a million flattened triangles) get no vertex values.
+    wanted = np.zeros(scene.num_points, bool)
+    wanted[point_ids] = True
+    tris = np.flatnonzero(wanted[scene.tri_vertices].any(axis=1))
+    tri_vertices, tri_areas = scene.tri_vertices[tris], scene.tri_areas[tris]
+    normals = vertex_normals(scene.points, tri_vertices, scene.tri_normals[tris], tri_areas)[point_ids]
+    positions = vertex_sample_positions(scene.points, tri_vertices, tri_areas)[point_ids]
+    e0_vertex = compute_direct_irradiance(tracer, scene, positions, normals, light_samples=p.light_samples,
+                                          sky_samples=p.sky_samples, seed=p.seed + 2, emissive=p.emissive_lights)
+    progress(0.6)
+    started = time.perf_counter()
+    if p.gather_rays > 0:
+        zero = np.zeros_like(e_ind_patch)
+        first_patch = final_gather(tracer, scene, patches, e0_patch, zero, zero, points, point_normals,
+                                   rays=max(1, p.gather_rays // p.patch_points), near=0.0, sky_samples=1,
+                                   seed=p.seed + 3).reshape(patches.count, p.patch_points, 3).mean(axis=1)
+        higher = np.maximum(e_ind_patch - first_patch, 0.0)
+        e_ind_vertex = final_gather(tracer, scene, patches, e0_patch, e_ind_patch, higher, positions, normals,
+                                    rays=p.gather_rays, near=p.near_hits * patches.voxel_size,
+                                    sky_samples=p.hit_sky_samples, seed=p.seed + 4, emissive=p.emissive_lights)
+    else:
+        e_ind_vertex = transfer_to_vertices(positions, normals, patches.patch_centroids, patches.patch_normals,
+                                            e_ind_patch, neighbors=p.neighbors, normal_cos=p.normal_cos,
+                                            smoothing=0.5 * patches.voxel_size)
+    transfer_seconds = time.perf_counter() - started
+    progress(0.9)
+    return {"patch_direct": e0_patch.astype(np.float32), "patch_indirect": e_ind_patch,
+            "vertex_direct": e0_vertex, "vertex_indirect": np.maximum(e_ind_vertex, 0.0).astype(np.float32),
+            "transfer_seconds": transfer_seconds}
+
+
+def relighter_for(tracer, op, p) -> Relighter:
+    """The operator in its run-time form for ``p.relight_memory_mb`` (0: the default budget)."""
+    budget = int(p.relight_memory_mb * 2**20) if p.relight_memory_mb > 0 else None
+    return Relighter(op, device=tracer.device, threads=tracer.threads, memory_budget=budget)
+
+
+class Radiosity(Processor):
+    name = "radiosity"
+    version = "2"
+    summary = "Direct + multi-bounce indirect irradiance per vertex from the compressed form-factor operator."
+    requires = (FormFactorProduct,)
+    provides = (RadiosityProduct,)
+    facets = ("geometry", "materials", "lights")
+    follows_refinement = True
+    writes = ("primvars:bake:irradianceDirect", "primvars:bake:irradianceIndirect")
+
+    @dataclass(frozen=True)
+    class Params(Params):
+        light_samples: int = param(16, "shadow-ray samples per light, and for the emissive triangles "
+                                   "(picked by power)", low=1, high=65536)
+        sky_samples: int = param(64, "cosine-weighted rays for dome lights", low=1, high=65536)
+        patch_points: int = param(16, "stratified points per patch for the patch direct light", low=1, high=4096)
+        gather_rays: int = param(512, "final-gather rays per vertex over the patches' light (adds one "
+                                 "reflection: k + 1 in all); 0 = interpolate the patches' k-bounce light",
+                                 low=0, high=65536)
+        near_hits: float = param(0.5, "gather hits nearer than this many voxel edges evaluate direct light "
+                                 "at the hit, not the patch mean", low=0.0)
+        hit_sky_samples: int = param(4, "dome rays per near gather hit", low=1, high=65536)
+        neighbors: int = param(8, "nearest patches blended per vertex (gather_rays = 0)", low=1, high=64)
+        normal_cos: float = param(0.5, "a patch contributes to a vertex when n_v . n_p exceeds this "
+                                  "(gather_rays = 0)", low=-1.0, high=1.0)
+        emissive_lights: str = param("auto", "emissive triangles as area lights: auto (only without UsdLux "
+                                     "lights), on, off", choices=("auto", "on", "off"))
+        relight_memory_mb: float = param(0.0, "memory budget (MB) of the relight operator: the dense float32 "
+                                         "operator (BLAS) when it fits, else the compressed kernel; 0 = a "
+                                         "quarter of the physical memory", low=0.0)
+        seed: int = param(0, "random seed (identical results across thread counts)", low=0)
+
+    def applies(self, ctx: Context) -> tuple[bool, str]:
+        scene = ctx.scene
+        if not has_light(scene):
+            return False, NO_LIGHTS
+        reason = missing_receivers(scene)
+        return not reason, reason
+
+    def run(self, ctx: Context) -> Result:
+        scene, p = ctx.scene, ctx.params
+        rays_before = ctx.tracer.rays_cast
+        receivers = receiver_prims(scene)
+        point_ids = np.flatnonzero(np.isin(scene.point_prim, receivers))
+        relighter = relighter_for(ctx.tracer, ctx.products[FormFactorProduct].operator, p)
+        solved = solve(ctx.tracer, scene, ctx.products[FormFactorProduct], p, point_ids, progress=ctx.progress,
+                       apply_operator=relighter.apply)
+        e0_vertex = np.zeros((scene.num_points, 3), np.float32)
+        e_ind_vertex = np.zeros((scene.num_points, 3), np.float32)
+        e0_vertex[point_ids] = solved["vertex_direct"]
+        e_ind_vertex[point_ids] = solved["vertex_indirect"]
+        patches = ctx.products[FormFactorProduct].patches
+        e0_patch, e_ind_patch = solved["patch_direct"], solved["patch_indirect"]
+        radiosity = patches.patch_albedo * (e0_patch + e_ind_patch) + math.pi * patches.patch_emission
+        result = Result(products={RadiosityProduct: RadiosityProduct(
+            patch_centroids=patches.patch_centroids, patch_normals=patches.patch_normals,
+            patch_areas=patches.patch_areas, patch_irradiance_direct=e0_patch.astype(np.float32),
+            patch_irradiance_indirect=e_ind_patch, patch_radiosity=radiosity.astype(np.float32),
+            vertex_irradiance_direct=e0_vertex, vertex_irradiance_indirect=e_ind_vertex,
+        )})
+        for prim in receivers:
+            sl = scene.prim_points(prim)
+            result.outputs.append(Primvar(scene.prim_paths[prim], "bake:irradianceDirect", e0_vertex[sl],
+                                          "color3f", "vertex"))
+            result.outputs.append(Primvar(scene.prim_paths[prim], "bake:irradianceIndirect", e_ind_vertex[sl],
+                                          "color3f", "vertex"))
+        result.stats["rays"] = float(ctx.tracer.rays_cast - rays_before)
+        result.stats["patches"] = float(patches.count)
+        result.messages.append(f"indirect light relit with the {relighter.form} operator "
+                               f"({relighter.nbytes / 2**20:.1f} MB)")
+        skipped = int((~scene.prim_writable).sum())
+        if skipped:
+            result.messages.append(f"{skipped} instanced prims occlude and bounce light but get no primvars")
+        ctx.progress(1.0)
+        return result
