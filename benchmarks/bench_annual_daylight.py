@@ -9,7 +9,7 @@ import numpy as np
 from pxr import Usd, UsdGeom
 
 from . import harness
-from .bench_plan import grid_quads
+from .city_stage import grid_quads
 from usdbake.formats.weather import read_weather
 from usdbake.kernels.sky import overcast_radiance, tregenza_patches
 from usdbake.kernels.tracer import Tracer
@@ -40,7 +40,7 @@ SENSORS = 192
 
 
 def grid(origin, u, v, nu: int, nv: int, keep=None) -> list[np.ndarray]:
-    """``bench_plan.grid_quads`` as a list, without the cells whose centre shares (a along u, b along v) fail
+    """``city_stage.grid_quads`` as a list, without the cells whose centre shares (a along u, b along v) fail
     ``keep(a, b)`` (window openings)."""
     quads = grid_quads(origin, u, v, nu, nv)
     if keep is not None:

@@ -218,7 +218,8 @@ def _instance_vertices(scene) -> dict:
     from usdbake.kernels.tracer import Tracer
     from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion
     from usdbake.processors.instancing.displacement_fields import DisplacementFields
-    from usdbake.processors.instancing.instance_ao import InstanceAO, InstancePoints
+    from usdbake.processors.instancing.instance_ao import InstanceAO
+    from usdbake.processors.instancing.instance_points import InstancePoints
 
     fields = DisplacementFields().run(core.Context(scene=scene, params=DisplacementFields.Params(),
                                                    tracer=None)).products[DisplacementFieldSet].fields

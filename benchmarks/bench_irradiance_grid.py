@@ -10,8 +10,7 @@ import numpy as np
 from . import harness
 from .references import point_irradiance
 from usdbake.kernels.lights import LUMINANCE
-from usdbake.kernels.direction24 import AXES
-from usdbake.processors.irradiance_grid.irradiance_grid import dequantize_vectors
+from usdbake.kernels.direction24 import AXES, dequantize_vectors
 
 NAME = "irradiance_grid"
 DESCRIPTION = (
@@ -69,6 +68,7 @@ def run(quick: bool = False) -> dict:
     from usdbake.geometry.mesh import vertex_normals
     from usdbake.kernels.tracer import Tracer
     from usdbake.processors.irradiance_grid import irradiance_grid as ig
+    from usdbake.processors.irradiance_grid.vector_grid import grid_layout, reconstruct_irradiance
 
     scene = harness.load_scene("cornell_box")
     tracer = Tracer.from_scene(scene)
@@ -88,7 +88,7 @@ def run(quick: bool = False) -> dict:
                 "vertices": point_irradiance(tracer, scene, scene.points, vertex_n, rays=reference_rays, seed=99,
                                              include_direct=direct)})
     lo, hi = scene.bounds
-    ig.bake_grid(tracer, scene, ig.grid_layout(lo, hi, vertices=64), rays=4)  # compile outside the timing
+    ig.bake_grid(tracer, scene, grid_layout(lo, hi, vertices=64), rays=4)  # compile outside the timing
     point_irradiance(tracer, scene, points[:10], normals[:10], rays=4)
     # The reference's own noise: the same estimator at the same rays with another seed (heavy-tailed:
     # one light sample per bounce hit, large for hits close to the big ceiling light).
@@ -104,14 +104,14 @@ def run(quick: bool = False) -> dict:
         [(2000, 256), (8000, 256), (20000, 64), (20000, 256), (20000, 1024), (60000, 256)]
     rows, grids = [], {}
     for vertices, rays in settings:
-        layout = ig.grid_layout(lo, hi, vertices=vertices)
+        layout = grid_layout(lo, hi, vertices=vertices)
         row = {"label": f"{layout.count} v / {rays} rays", "vertices": layout.count, "rays": rays,
                "cell_size": round(float(layout.cell_size[0]), 3),
                "default": vertices == DEFAULT_VERTICES and rays == DEFAULT_RAYS}
         for mode, direct in (("total", True), ("indirect", False)):
             with harness.measure() as m:
                 grid = ig.bake_grid(tracer, scene, layout, rays=rays, include_direct=direct)
-            estimate = ig.reconstruct_irradiance(layout, dequantize_vectors(grid.directions, grid.colors), points,
+            estimate = reconstruct_irradiance(layout, dequantize_vectors(grid.directions, grid.colors), points,
                                                  normals)
             row[f"error_{mode}"] = _relative_rms(estimate, references[mode]["surface"])
             row[f"seconds_{mode}"] = m.seconds
@@ -132,18 +132,18 @@ def run(quick: bool = False) -> dict:
                "reference_seed_to_seed_error_total": reference_noise["total"],
                "reference_seed_to_seed_error_indirect": reference_noise["indirect"]}
     figures["error_total_at_mesh_vertices_default"] = round(_relative_rms(
-        ig.reconstruct_irradiance(layout, decoded, scene.points, vertex_n), references["total"]["vertices"]), 4)
+        reconstruct_irradiance(layout, decoded, scene.points, vertex_n), references["total"]["vertices"]), 4)
 
     # Quantization: memory and the error it adds (float vectors vs 8:8:8 direction + RGB9E5).
-    float_estimate = ig.reconstruct_irradiance(layout, default.vectors, points, normals)
-    quant_estimate = ig.reconstruct_irradiance(layout, decoded, points, normals)
+    float_estimate = reconstruct_irradiance(layout, default.vectors, points, normals)
+    quant_estimate = reconstruct_irradiance(layout, decoded, points, normals)
     quantized_bytes = default.directions[0].nbytes + default.colors[0].nbytes
     figures["quantized_bytes_per_vertex"] = quantized_bytes
     figures["float_bytes_per_vertex"] = 6 * 9 * 4
     figures["quantized_grid_kib_default"] = round(layout.count * quantized_bytes / 1024, 1)
     figures["float_grid_kib_default"] = round(layout.count * 216 / 1024, 1)
     figures["quantization_error_vs_float"] = round(_relative_rms(quant_estimate, float_estimate), 5)
-    at_vertices = {name: ig.reconstruct_irradiance(layout, vectors, scene.points, vertex_n) for name, vectors in
+    at_vertices = {name: reconstruct_irradiance(layout, vectors, scene.points, vertex_n) for name, vectors in
                    (("quantized", decoded), ("shared", _shared_direction(default.vectors)), ("full", default.vectors))}
     figures["quantization_mean_delta_e_at_mesh_vertices"] = round(_mean_delta_e(at_vertices["quantized"],
                                                                                 at_vertices["shared"]), 5)
@@ -156,7 +156,7 @@ def run(quick: bool = False) -> dict:
     for reconstruction in ("paper", "normalized"):
         for offset in (0.0, 0.25, 0.5, 1.0):
             for cutoff in (False, True):
-                estimate = ig.reconstruct_irradiance(layout, decoded, points, normals, normal_offset=offset,
+                estimate = reconstruct_irradiance(layout, decoded, points, normals, normal_offset=offset,
                                                      reconstruction=reconstruction, behind_cutoff=cutoff)
                 key = f"{reconstruction}_offset_{offset:g}" + ("_behind_cutoff" if cutoff else "")
                 variants[key] = round(_relative_rms(estimate, ref), 4)
@@ -178,7 +178,7 @@ def run(quick: bool = False) -> dict:
             started = time.perf_counter()
             filled = streaming.push_pull(flat, layout.resolution, known, smooth=smooth)
             seconds = time.perf_counter() - started
-            estimate = ig.reconstruct_irradiance(layout, filled.reshape(-1, 6, 3, 3), points, normals)
+            estimate = reconstruct_irradiance(layout, filled.reshape(-1, 6, 3, 3), points, normals)
             row[f"error_{label}"] = round(_relative_rms(estimate, ref), 4)
             row[f"seconds_{label}"] = round(seconds, 3)
         curve.append(row)

@@ -35,8 +35,11 @@ FULL = {"free": 6000, "near": 4000, "leak": 500, "paths": 1024}
 
 def run(quick: bool = False) -> dict:
     from usdbake.core import Context
+    from usdbake.kernels.sh import sh_basis_np
     from usdbake.kernels.tracer import Tracer
     from usdbake.processors.light_probes import light_probes as lp
+    from usdbake.processors.light_probes.capture import compute_probe_sh, direct_light_irradiance
+    from usdbake.processors.light_probes.interpolation import irradiance_at, segment_blocked
 
     from . import probe_reference as ref
 
@@ -66,7 +69,7 @@ def run(quick: bool = False) -> dict:
             result = processor.run(Context(scene, processor.Params(**params), tracer))
             seconds = time.perf_counter() - started
             cloud = result.products[ProbeCloud]
-            estimate = lp.irradiance_at(cloud, tests.positions, tests.normals, tracer=tracer, scene=scene)
+            estimate = irradiance_at(cloud, tests.positions, tests.normals, tracer=tracer, scene=scene)
             return {"probes": len(cloud.probe_positions), "seconds": seconds,
                     "placement_seconds": result.stats["placement_seconds"],
                     "capture_seconds": result.stats["capture_seconds"], **errors(estimate)}
@@ -76,20 +79,20 @@ def run(quick: bool = False) -> dict:
             lo, hi = ref.grid_box(name, scene)
             positions, dims = ref.grid_positions(lo, hi, count)
             started = time.perf_counter()
-            sh = lp.compute_probe_sh(tracer, scene, positions, rays=rays, seed=1_000_003, bounces=bounces,
+            sh = compute_probe_sh(tracer, scene, positions, rays=rays, seed=1_000_003, bounces=bounces,
                                      direct_lights=direct_lights == "probes")
             seconds = time.perf_counter() - started
             index, weights = ref.grid_weights(lo, hi, dims, tests.positions)
             if visibility:  # the cloud's lookup rule on the lattice: corners hidden from the point drop out
-                hidden = lp.segment_blocked(tracer, np.repeat(tests.positions, 8, axis=0),
+                hidden = segment_blocked(tracer, np.repeat(tests.positions, 8, axis=0),
                                             positions[index].reshape(-1, 3)).reshape(-1, 8)
                 seen = np.where(hidden, 0.0, weights)
                 total = seen.sum(axis=1, keepdims=True)
                 weights = np.where(total > 0, seen / np.maximum(total, 1e-300), weights)
             interpolated = np.einsum("nv,nvkc->nkc", weights, sh[index].astype(np.float64))
-            estimate = np.einsum("nk,nkc->nc", lp.sh_basis_np(tests.normals.astype(np.float64)), interpolated)
+            estimate = np.einsum("nk,nkc->nc", sh_basis_np(tests.normals.astype(np.float64)), interpolated)
             if direct_lights == "lookup":
-                estimate = estimate + lp.direct_light_irradiance(tracer, scene, tests.positions, tests.normals)
+                estimate = estimate + direct_light_irradiance(tracer, scene, tests.positions, tests.normals)
             return {"probes": len(positions), "seconds": seconds, **errors(estimate)}
 
         processor.run(Context(scene, processor.Params(probes=16, rays=4, placement_rays=4, iterations=1), tracer))
@@ -229,28 +232,3 @@ def _probes_for_error(grid_curve: list[tuple[int, float]], row: dict) -> float |
             t = np.log(row["error"] / e0) / np.log(e1 / e0)
             return round(float(np.exp(np.log(c0) + t * (np.log(c1) - np.log(c0)))) / row["probes"], 3)
     return None
-
-
-LEAK_BAND = 0.1
-"""Leak points lie within this distance (m) of the wall, on its dark side."""
-
-
-def thin_wall_stage():
-    """Two closed 4 x 4 x 3 m rooms (walls facing in) side by side, 5 cm of wall between them; a 2000 W/sr
-    lamp in room A, a 100 W/sr lamp in room B (Z up, metres)."""
-    from pxr import Gf, Usd, UsdGeom, UsdLux
-
-    stage = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(stage, "Z")
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    outward = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
-    for name, x0, intensity in (("A", 0.0, 2000.0), ("B", 4.05, 100.0)):
-        room = UsdGeom.Mesh.Define(stage, f"/World/Room{name}")
-        room.CreatePointsAttr([(x, y, z) for z in (0.0, 3.0) for y in (0.0, 4.0) for x in (x0, x0 + 4.0)])
-        room.CreateFaceVertexCountsAttr([4] * 6)
-        room.CreateFaceVertexIndicesAttr([i for face in outward for i in face[::-1]])
-        lamp = UsdLux.SphereLight.Define(stage, f"/World/Lamp{name}")
-        lamp.CreateIntensityAttr(intensity)
-        lamp.CreateRadiusAttr(0.1)
-        UsdGeom.Xformable(lamp).AddTranslateOp().Set(Gf.Vec3d(x0 + 2.0, 2.0, 2.5))
-    return stage

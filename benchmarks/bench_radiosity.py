@@ -270,6 +270,7 @@ def furnished_room(quick: bool) -> dict:
     the refinement. The transfer's share is the final gather's time over the whole bake (all three steps)."""
     from usdbake.core.pipeline import Pipeline
     from usdbake.core.products import FormFactorProduct, RadiosityProduct, RefinedScene
+    from usdbake.core.runtime import Runtime
     from usdbake.stages.extract import extract_scene
 
     from . import furnished_room as room
@@ -285,7 +286,7 @@ def furnished_room(quick: bool) -> dict:
                  "indirect": path_traced_indirect(tracer, scene, points, normals, paths=paths, bounces=bounces)})
     figures = {}
     for label, names in (("refined", ["sky_visibility", "radiosity"]), ("unrefined", ["radiosity"])):
-        steps = Pipeline.build(names).run(scene)
+        steps = Pipeline.build(names, runtime=Runtime(Tracer.from_scene)).run(scene)
         products = {k: v for step in steps if step.result for k, v in step.result.products.items()}
         baked = products[RefinedScene].scene if RefinedScene in products else scene
         baked_tracer = Tracer.from_scene(baked)

@@ -29,7 +29,8 @@ import numpy as np
 import warp as wp
 
 from . import harness
-from usdbake.kernels.lights import LUMINANCE, Lights, direct_irradiance, scene_lighting
+from usdbake.kernels.light_bundles import scene_lighting
+from usdbake.kernels.lights import LUMINANCE, Lights, direct_irradiance
 from usdbake.kernels.traversal import TraceScene
 
 wp.set_module_options({"enable_backward": False})
@@ -74,17 +75,36 @@ def load(name: str):
 
         return extract_scene(furnished_room.build())
     if name == "thin_wall":
-        from . import bench_light_probes
-
-        return extract_scene(bench_light_probes.thin_wall_stage())
+        return extract_scene(thin_wall_stage())
     raise ValueError(f"unknown scene {name!r}, expected one of {SCENES}")
+
+
+def thin_wall_stage():
+    """Two closed 4 x 4 x 3 m rooms (walls facing in) side by side, 5 cm of wall between them; a 2000 W/sr
+    lamp in room A, a 100 W/sr lamp in room B (Z up, metres)."""
+    from pxr import Gf, Usd, UsdGeom, UsdLux
+
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, "Z")
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    outward = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
+    for name, x0, intensity in (("A", 0.0, 2000.0), ("B", 4.05, 100.0)):
+        room = UsdGeom.Mesh.Define(stage, f"/World/Room{name}")
+        room.CreatePointsAttr([(x, y, z) for z in (0.0, 3.0) for y in (0.0, 4.0) for x in (x0, x0 + 4.0)])
+        room.CreateFaceVertexCountsAttr([4] * 6)
+        room.CreateFaceVertexIndicesAttr([i for face in outward for i in face[::-1]])
+        lamp = UsdLux.SphereLight.Define(stage, f"/World/Lamp{name}")
+        lamp.CreateIntensityAttr(intensity)
+        lamp.CreateRadiusAttr(0.1)
+        UsdGeom.Xformable(lamp).AddTranslateOp().Set(Gf.Vec3d(x0 + 2.0, 2.0, 2.5))
+    return stage
 
 
 def regions(name: str, scene) -> list[tuple[np.ndarray, np.ndarray]]:
     """The boxes (lo, hi) float64, scene frame, that hold the test points: atrium the probe placement box,
     furnished room its room, thin wall its two rooms (rooms shrunk by ROOM_SHRINK)."""
     if name == "atrium":
-        from usdbake.processors.light_probes.light_probes import placement_box
+        from usdbake.processors.light_probes.placement import placement_box
 
         return [placement_box(scene)]
     if name == "furnished_room":

@@ -12,16 +12,9 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from usdbake.kernels.lights import (
-    Lights,
-    Surfaces,
-    emissive_lights,
-    hit_radiance,
-    light_sample_count,
-    path_indirect_irradiance,
-    scene_lighting,
-    visible_light_sample,
-)
+from usdbake.kernels.light_bundles import emissive_lights, scene_lighting
+from usdbake.kernels.lights import (Lights, Surfaces, hit_radiance, light_sample_count, path_indirect_irradiance,
+                                     visible_light_sample)
 from usdbake.kernels.sampling import cosine_hemisphere, strata_for, stratified_pair, tangent_frame
 from usdbake.kernels.tracer import FAR, surface_origin
 from usdbake.kernels.traversal import TraceScene, trace_any, trace_closest

@@ -267,7 +267,7 @@ class ResultCache:
         """
         if self.directory is None or self.unwritable:
             return
-        from .. import __version__
+        from .version import __version__
 
         tree, arrays = plain_data.encode(result, trusted=_trust())
         temp = self.directory / f".{name}-{key}.{os.getpid()}-{uuid.uuid4().hex}"

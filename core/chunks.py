@@ -10,14 +10,15 @@ A processor whose work splits by receivers hands it to ``ctx.chunks.map(fn, item
   bit-identical to a local one.
 - ``items`` are per-item arrays (sliced per chunk); ``static`` are the settings every chunk shares.
 
-``InProcess`` (the default) runs the whole range as one call on the scene's shared tracer, whose
-launches use every CPU thread. ``usdbake.farm.chunks.DaskChunks`` cuts the range into tasks on a
-Dask cluster, sending the scene once per worker.
+A chunk runner (``ChunkRunner``) is part of the run's ``core.runtime.Runtime``. ``InProcess`` (the
+default) runs the whole range as one call on the scene's tracer of the run, whose launches use the run's
+threads. ``usdbake.farm.chunks.DaskChunks`` cuts the range into tasks on a Dask cluster, sending the
+scene once per worker.
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -55,8 +56,14 @@ class SceneChunks:
         return result
 
 
-class InProcess:
-    """The default runner: every chunk here, on the scene's shared tracer."""
+class ChunkRunner(Protocol):
+    """Where a run's chunks go: ``for_scene(scene, runtime)`` gives the object whose ``map`` runs them."""
 
-    def for_scene(self, scene, tracer, *, device: str = "cpu", threads: int | None = None) -> SceneChunks:
-        return SceneChunks(tracer)
+    def for_scene(self, scene, runtime) -> SceneChunks: ...
+
+
+class InProcess:
+    """The default runner: every chunk here, on the run's tracer of the scene (``runtime.tracer(scene)``)."""
+
+    def for_scene(self, scene, runtime) -> SceneChunks:
+        return SceneChunks(lambda: runtime.tracer(scene))

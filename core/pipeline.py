@@ -6,7 +6,8 @@ processor that ``requires`` a product type depends on the one processor that
 product a type, one producer per product, every
 requirement produced, no cycles). Each step's cache key is its name,
 version and params plus the fingerprint of the Scene facets it reads and the
-keys of the steps it depends on.
+keys of the steps it depends on. Every step reads the one run-time object of the run
+(core.runtime.Runtime: device, threads, the scene's BVH, the chunk runner) through its Context.
 """
 
 from __future__ import annotations
@@ -14,10 +15,9 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from graphlib import CycleError, TopologicalSorter
-from typing import Callable
+from typing import Callable, Collection
 
 from .cache import ResultCache, step_key
-from .chunks import InProcess
 from .errors import UsageError
 from .params import ParamError, Params
 from .processor import Context, Processor, Result
@@ -25,13 +25,24 @@ from .products import RefinedScene
 from .records import Attribute, Prim, Primvar
 from .registry import get as get_processor
 from .registry import registry as all_processors
+from .runtime import Runtime
 from .scene import Scene
+from .version import __version__
 
 DEFAULT_PROCESSORS = ("ambient_occlusion",)
 
 
 class GraphError(UsageError):
     """The requested processors do not form a valid graph."""
+
+
+class ParamsOutsideRun(ParamError):
+    """Params given for a processor that is not part of the run: they would be ignored."""
+
+    def __init__(self, processor: str, running: list[str]):
+        self.processor, self.running = processor, tuple(running)
+        super().__init__(f"params for {processor!r}, which is not part of this run ({', '.join(running)}); "
+                         f"add it to the processors")
 
 
 class ProcessorFailed(RuntimeError):
@@ -74,9 +85,12 @@ class Step:
 
 
 def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dict] | None = None, *,
-                allow_conflicts: bool = False) -> list[Step]:
+                allow_conflicts: bool = False, ignorable: Collection[str] = ()) -> list[Step]:
     """Requested processors plus everything they depend on, in dependency order. Two of them declaring
-    one property in ``writes`` is a GraphError unless ``allow_conflicts`` (``plan`` lists them instead)."""
+    one property in ``writes`` is a GraphError unless ``allow_conflicts`` (``plan`` lists them instead).
+
+    The one check of ``params`` against the run: ParamError for an unknown processor, ParamsOutsideRun
+    for one the run does not hold, unless ``ignorable`` names it (a shared config file's table)."""
     params = dict(params or {})
     registry = all_processors()
     for name in params:
@@ -124,7 +138,16 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
         step_params = cls.Params.from_dict(params.get(name, {}))
         steps.append(Step(name, cls(step_params), step_params, after=(after[name],) if name in after else (),
                           requested=name in requested))
+    for name in outside_run(params, steps):
+        if name not in ignorable:
+            raise ParamsOutsideRun(name, [step.name for step in steps])
     return steps
+
+
+def outside_run(params: dict, steps: list[Step]) -> list[str]:
+    """The processors ``params`` names that ``steps`` do not hold (their params would be ignored)."""
+    running = {step.name for step in steps}
+    return [name for name in params if name not in running]
 
 
 def _after_refinement(wanted: list[str], graph: dict[str, set[str]], registry: dict) -> dict[str, str]:
@@ -187,35 +210,30 @@ def checked_products(step: Step, result: Result) -> dict:
 
 @dataclass
 class Pipeline:
-    """Plan and run processors on one Scene, sharing one Tracer."""
+    """Plan and run processors on one Scene; every step reads the one Runtime of the run."""
 
     steps: list[Step]
-    device: str = "cpu"
+    runtime: Runtime
     cache: ResultCache = field(default_factory=lambda: ResultCache(None))
     force: bool = False
-    threads: int | None = None
-    chunks: object = field(default_factory=InProcess)
-    """Where work split by receivers runs: InProcess, or usdbake.farm.chunks.DaskChunks."""
-
-    def tracer_for(self, scene: Scene) -> Callable[[], object]:
-        """A factory of the scene's one shared BVH: built on first use by applies() or run()."""
-        def build():
-            from ..kernels.tracer import shared_tracer  # core holds no Warp code; the BVH is built on demand
-
-            return shared_tracer(scene, device=self.device, threads=self.threads)
-        return build
+    ignored_params: tuple[str, ...] = ()
+    """The processors whose params were left out as ``ignorable``: they are not part of this run."""
 
     def context(self, step: Step, scene: Scene, products: dict | None = None, progress=None) -> Context:
-        tracer = self.tracer_for(scene)
-        return Context(scene=scene, params=step.params, tracer=tracer, products=products,
-                       progress=progress, device=self.device, threads=self.threads,
-                       chunks=self.chunks.for_scene(scene, tracer, device=self.device, threads=self.threads))
+        """What ``applies`` and ``run`` of ``step`` read: its params and products, and the runtime's tracer,
+        chunk runner, device and threads for ``scene``."""
+        runtime = self.runtime
+        return Context(scene=scene, params=step.params, tracer=lambda: runtime.tracer(scene), products=products,
+                       progress=progress, device=runtime.device, threads=runtime.threads,
+                       chunks=runtime.scene_chunks(scene))
 
     @classmethod
-    def build(cls, names=None, params=None, *, device="cpu", cache_dir=None, force=False, threads=None,
-              allow_conflicts=False, chunks=None):
-        return cls(build_steps(names, params, allow_conflicts=allow_conflicts), device=device,
-                   cache=ResultCache(cache_dir), force=force, threads=threads, chunks=chunks or InProcess())
+    def build(cls, names=None, params=None, *, runtime: Runtime, cache_dir=None, force=False,
+              allow_conflicts=False, ignorable: Collection[str] = ()) -> "Pipeline":
+        """The steps of ``names`` (see build_steps, which checks ``params``) run with ``runtime``."""
+        steps = build_steps(names, params, allow_conflicts=allow_conflicts, ignorable=ignorable)
+        return cls(steps, runtime, cache=ResultCache(cache_dir), force=force,
+                   ignored_params=tuple(outside_run(params or {}, steps)))
 
     def conflicts(self) -> list[str]:
         """The pairs of its steps that would author one property (see Processor.writes)."""
@@ -322,9 +340,7 @@ class Pipeline:
         return records
 
     def provenance(self, extra: dict | None = None) -> dict:
-        from .. import __version__
-
-        data = {"version": __version__, "device": self.device,
+        data = {"version": __version__, "device": self.runtime.device,
                 "processors": {step.name: {"action": step.action, "reason": step.reason,
                                            "params": step.params.as_dict(), "fingerprint": step.key,
                                            "seconds": round(step.seconds, 4),

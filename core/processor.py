@@ -33,7 +33,8 @@ class Result:
 
 
 class Context:
-    """Everything ``applies`` and ``run`` may read: the scene, params, upstream products, the shared tracer.
+    """Everything ``applies`` and ``run`` may read: the scene, params, upstream products, and what the run's
+    ``core.runtime.Runtime`` holds for the scene (tracer, chunk runner, device, threads).
 
     ``tracer`` is either a built Tracer or a zero-argument factory; the factory
     runs on first access, so a processor that never traces never builds a BVH,
@@ -45,7 +46,7 @@ class Context:
                  chunks: SceneChunks | None = None):
         self.scene = scene
         self.device, self.threads = device, threads
-        """Where kernels run, and CPU threads; for processors that build BVHs of their own."""
+        """Where kernels run, and CPU threads (None: every core); for processors that build BVHs of their own."""
         self.params = params
         self.products = dict(products or {})
         self.progress = progress or (lambda fraction: None)
@@ -56,7 +57,7 @@ class Context:
 
     @property
     def tracer(self) -> Any:
-        """The scene's shared usdbake.kernels.tracer.Tracer."""
+        """The scene's usdbake.kernels.tracer.Tracer, one per scene and run."""
         if callable(self._tracer):
             self._tracer = self._tracer()
         return self._tracer

@@ -20,9 +20,12 @@ from pathlib import Path
 from typing import Callable
 
 from ..core.errors import UsageError
-from ..core.pipeline import Pipeline, ProcessorFailed
+from ..core.pipeline import Pipeline, ProcessorFailed, build_steps
+from ..core.runtime import Runtime, check_threads
+from ..kernels.startup import start_warp_quietly
+from ..kernels.tracer import Tracer
 from ..stages.bake_file import BakeReport, bake_file
-from .cluster import WORKER_THREADS_VARIABLE, connect, start_warp_quietly, worker_threads
+from .cluster import WORKER_THREADS_VARIABLE, connect, worker_threads
 
 BAKED, UP_TO_DATE, FAILED = "baked", "up to date", "failed"
 WORKER_DIED = ("the worker process died while baking it (out of memory, or a crash in native code); "
@@ -44,9 +47,20 @@ class BatchOptions:
     allow_missing: bool = False
     deinstance: bool = False
 
-    def pipeline(self, threads: int | None = None) -> Pipeline:
-        return Pipeline.build(list(self.processors) if self.processors else None, self.params, device=self.device,
-                              cache_dir=self.cache_dir, force=self.force, threads=self.threads or threads)
+    def check(self) -> None:
+        """Refuse, before any stage is sent, what would fail every stage: processors, params, threads."""
+        build_steps(self.names(), self.params)
+        check_threads(self.threads)
+
+    def pipeline(self) -> Pipeline:
+        """The pipeline of one stage in this worker: its run-time object uses ``threads``, else the worker's
+        share of the cores."""
+        threads = self.threads if self.threads is not None else worker_threads()
+        runtime = Runtime(Tracer.from_scene, device=self.device, threads=threads)
+        return Pipeline.build(self.names(), self.params, runtime=runtime, cache_dir=self.cache_dir, force=self.force)
+
+    def names(self) -> list[str] | None:
+        return list(self.processors) if self.processors else None
 
 
 @dataclass
@@ -114,7 +128,7 @@ def bake_stage(input_path: str, output: str, options: BatchOptions) -> StageOutc
     """Bake one stage in a worker; a failure is returned as the outcome, never raised."""
     start_warp_quietly(options.device)
     try:
-        report = bake_file(input_path, output, options.pipeline(worker_threads()), time_code=options.time_code,
+        report = bake_file(input_path, output, options.pipeline(), time_code=options.time_code,
                            allow_missing=options.allow_missing, deinstance=options.deinstance)
     except (UsageError, ProcessorFailed) as error:
         return StageOutcome(input_path, output, FAILED, error=str(error))
@@ -139,9 +153,7 @@ def bake_many(paths: list[str], output_dir: str | None = None, *, processors=Non
     outputs = batch_outputs(inputs, output_dir)
     options = BatchOptions(tuple(processors) if processors else None, dict(params or {}), device, cache_dir, force,
                            threads, time, allow_missing, deinstance)
-    from ..stages.hook import check_param_targets
-
-    check_param_targets(options.params, [step.name for step in options.pipeline().steps])  # before any work
+    options.check()  # before any work
     jobs = list(zip(inputs, outputs))
     report = on_outcome or (lambda outcome: None)
     if scheduler:

@@ -2,11 +2,11 @@
 
 The scene is scattered once per run to every worker (``Client.scatter(broadcast=True)``), so a task
 carries only its own items (a range of points or faces) and the chunk's settings. On the worker the
-scene is one object held by Dask, and ``kernels.tracer.shared_tracer`` keys its BVH by that object:
-each worker builds the BVH once per scene, whatever the number of tasks it runs. Chunk functions
-seed their random numbers from global item indices (core.chunks), so results are bit-identical to
-an in-process bake for any chunk size and any number of workers; Dask re-runs the tasks of a worker
-that dies, which changes nothing in the output for the same reason.
+scene is one object held by Dask, and the worker's run-time object (``worker_runtime``, built on its
+first task) keys its BVH by that object: each worker builds the BVH once per scene, whatever the number
+of tasks it runs. Chunk functions seed their random numbers from global item indices (core.chunks), so
+results are bit-identical to an in-process bake for any chunk size and any number of workers; Dask
+re-runs the tasks of a worker that dies, which changes nothing in the output for the same reason.
 """
 
 from __future__ import annotations
@@ -14,12 +14,16 @@ from __future__ import annotations
 import math
 import uuid
 import weakref
+from functools import cache
 from typing import Callable
 
 import numpy as np
 
 from ..core.chunks import chunk_bounds, concatenate_parts
-from .cluster import start_warp_quietly, worker_count, worker_threads
+from ..core.runtime import Runtime
+from ..kernels.startup import start_warp_quietly
+from ..kernels.tracer import Tracer
+from .cluster import worker_count, worker_threads
 
 TASKS_PER_WORKER = 4
 """Default chunks per worker and map: enough to balance uneven chunks, few enough to keep per-task
@@ -31,13 +35,17 @@ SCATTER_BYTES = 1 << 20
 goes to every worker once per map, not once per task."""
 
 
+@cache
+def worker_runtime(device: str) -> Runtime:
+    """This worker process's run-time object on ``device``, with the worker's share of the cores: built on
+    its first task, so later tasks reuse the BVH of their scene."""
+    start_warp_quietly(device)
+    return Runtime(Tracer.from_scene, device=device, threads=worker_threads())
+
+
 def run_chunk(fn: Callable, scene, device: str, first: int, items: tuple, static: dict):
     """On a worker: ``fn`` over one chunk with the worker's BVH of ``scene`` (built on its first task)."""
-    from ..kernels.tracer import shared_tracer
-
-    start_warp_quietly(device)
-    tracer = shared_tracer(scene, device=device, threads=worker_threads())
-    return fn(tracer, first, *items, **static)
+    return fn(worker_runtime(device).tracer(scene), first, *items, **static)
 
 
 class DaskChunks:
@@ -59,8 +67,9 @@ class DaskChunks:
     def description(self) -> str:
         return f"Dask scheduler {self.client.scheduler.address} ({worker_count(self.client)} workers)"
 
-    def for_scene(self, scene, tracer, *, device: str = "cpu", threads: int | None = None) -> "DaskSceneChunks":
-        return DaskSceneChunks(self, scene, device)
+    def for_scene(self, scene, runtime: Runtime) -> "DaskSceneChunks":
+        """Chunks of ``scene`` as tasks; each worker traces on ``runtime.device`` with its own threads."""
+        return DaskSceneChunks(self, scene, runtime.device)
 
     def scene_future(self, scene):
         """The scene scattered to every worker, once per scene object (dropped with the scene)."""

@@ -45,29 +45,17 @@ def worker_count(client) -> int:
     return max(1, len(client.scheduler_info(n_workers=-1).get("workers", {})))
 
 
-def start_warp_quietly(device: str = "cpu") -> None:
-    """Start Warp in a worker process with only warnings logged (no module-load lines from every task)."""
-    import warp as wp
-
-    from .. import init_warp
-
-    if hasattr(wp, "LOG_WARNING"):
-        wp.config.log_level = wp.LOG_WARNING
-    else:  # Warp < 1.14
-        wp.config.quiet = True
-    init_warp(device)
-
-
 WORKER_THREADS_VARIABLE = "USDBAKE_WORKER_THREADS"
 """Set by the local pool's initializer: a pool worker's share of the cores."""
 
 
 def worker_threads() -> int | None:
     """Ray threads for work in a worker process: the Dask worker's thread count, else a pool worker's
-    share of the cores, else None (all cores); so 2 workers x 1 thread on 2 cores run 2 ray threads, not 4."""
+    share of the cores, else None (every core); so 2 workers x 1 thread on 2 cores run 2 ray threads, not 4."""
     try:
         from distributed import get_worker
 
         return get_worker().state.nthreads
     except (ImportError, ValueError, AttributeError):
-        return int(os.environ.get(WORKER_THREADS_VARIABLE, "0")) or None
+        share = os.environ.get(WORKER_THREADS_VARIABLE)
+        return int(share) if share else None

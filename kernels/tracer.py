@@ -1,8 +1,9 @@
-"""One BVH per run, shared by every processor.
+"""One BVH per scene and run, shared by every processor.
 
 ``Tracer`` builds the Scene's triangles into the ray core (``bvh_build``, traversed by the device
 functions of ``traversal``; docs/ray_core.md) and offers batched closest-hit and any-hit queries for
-tests and tools; kernels trace through ``Tracer.scene``. Large CPU launches are split into
+tests and tools; kernels trace through ``Tracer.scene``. ``Tracer.from_scene`` is the tracer factory a
+run hands its ``core.runtime.Runtime``, which calls it once per scene. Large CPU launches are split into
 chunks, one Python thread per core: Warp releases the GIL while a CPU kernel
 runs, so the chunks run in parallel.
 
@@ -22,7 +23,6 @@ operation, so its rays meet what the unscaled scene's rays meet.
 from __future__ import annotations
 
 import os
-import weakref
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
@@ -331,19 +331,3 @@ def _nonempty(points: np.ndarray, tri_vertices: np.ndarray) -> tuple[np.ndarray,
 def finite_distance(max_t: float) -> float:
     """A ray length for a float32 kernel argument: ``max_t`` clamped to FAR (inf means no limit)."""
     return float(min(max_t, FAR))
-
-
-_SHARED: dict[tuple[int, str], Tracer] = {}
-
-
-def shared_tracer(scene, *, device: str = "cpu", threads: int | None = None) -> Tracer:
-    """The one BVH of a scene per device: built on first use, then reused by every processor and by
-    applies() checks, and dropped when the scene is."""
-    key = (id(scene), str(wp.get_device(device)))
-    tracer = _SHARED.get(key)
-    if tracer is None:
-        tracer = Tracer.from_scene(scene, device=device, threads=threads)
-        _SHARED[key] = tracer
-        weakref.finalize(scene, _SHARED.pop, key, None)
-    tracer.threads = threads or default_threads()
-    return tracer

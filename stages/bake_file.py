@@ -95,4 +95,4 @@ def bake_file(input_path: str, output: str | None, pipeline: Pipeline, *, time_c
         messages=[f"{step.name}: {message}" for step in pipeline.steps
                   for message in (step.result.messages if step.result else [])],
         deinstanced=sum(1 for r in outputs if isinstance(r, Prim) and r.instanceable is False),
-        distributed=dict(getattr(pipeline.chunks, "stats", {}) or {}))
+        distributed=dict(getattr(pipeline.runtime.chunks, "stats", {}) or {}))

@@ -28,7 +28,10 @@ from ..core.errors import UsageError
 from ..core.params import ParamError
 from ..core.pipeline import Pipeline
 from ..core.records import File, Texture
-from .bake_layer import PROVENANCE_KEY, author, is_bake_layer, provenance_of, write_failures
+from ..core.runtime import Runtime
+from ..kernels.tracer import Tracer
+from .bake_layer import author, write_failures
+from .provenance import PROVENANCE_KEY, is_bake_layer, provenance_of
 from .inputs import check_cache_folder, check_device, check_writable_folder, empty_bake_message
 from .extract import extract_scene
 from .refined_mesh import complete_outputs, refinement_guard
@@ -52,7 +55,7 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
         warning) instead of raising StageError naming the first
     deinstance : bake natively instanced meshes as ordinary ones (per vertex); the layer sets
         ``instanceable = false`` on the instances whose meshes receive data
-    threads : CPU threads for ray casting (default: all cores)
+    threads : CPU threads for ray casting (None, the default: every core)
 
     Warnings (missing assets allowed, textures that could not be read and the fallback used, faces
     left out) are issued as Python warnings and kept in the layer's report: ``last_warnings(layer)``.
@@ -62,9 +65,9 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     The Sdf.Layer holding the results. On failure nothing is authored.
     """
     processors = check_arguments(stage, processors, params, layer=layer, device=device, cache_dir=cache_dir,
-                                 texture_dir=texture_dir, threads=threads)
-    pipeline = Pipeline.build(processors, params, device=device, cache_dir=cache_dir, force=force, threads=threads)
-    check_param_targets(params or {}, [step.name for step in pipeline.steps])
+                                 texture_dir=texture_dir)
+    runtime = Runtime(Tracer.from_scene, device=device, threads=threads)
+    pipeline = Pipeline.build(processors, params, runtime=runtime, cache_dir=cache_dir, force=force)
     target = layer if layer is not None else _session_bake_layer(stage)
     muted = _mute_for_extraction(stage, target)
     try:  # the stage is read without an earlier bake's opinions, also where refined meshes are completed
@@ -89,7 +92,7 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     return target
 
 
-def check_arguments(stage, processors, params, *, layer, device, cache_dir, texture_dir, threads) -> list | None:
+def check_arguments(stage, processors, params, *, layer, device, cache_dir, texture_dir) -> list | None:
     """Refuse, before the stage is read, arguments that would fail later or harm a layer; returns the
     processor names as a list (one name given as a string is one processor). Raises UsageError
     (ParamError for params) with the one-line messages the command prints."""
@@ -105,8 +108,6 @@ def check_arguments(stage, processors, params, *, layer, device, cache_dir, text
             isinstance(name, str) and isinstance(values, dict) for name, values in params.items())):
         raise ParamError(f"params={_shown(params)}: expected {{processor: {{param: value}}}}, e.g. "
                          f"{{'ambient_occlusion': {{'samples': 64}}}}")
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
-        raise UsageError(f"threads={_shown(threads)}: expected a whole number of at least 1")
     check_device(device, option="device=")
     if cache_dir is not None:
         check_cache_folder(cache_dir, option="cache_dir=")
@@ -159,14 +160,6 @@ def _mute_for_extraction(stage: Usd.Stage, layer: Sdf.Layer) -> bool:
         stage.MuteLayer(layer.identifier)
         return True
     return False
-
-
-def check_param_targets(params: dict, names: list[str], *, origin: str = "params") -> None:
-    """Refuse parameters for a processor that is not part of the run (they would be ignored)."""
-    for name in params:
-        if name not in names:
-            raise ParamError(f"{origin} for {name!r}, which is not part of this run ({', '.join(names)}); "
-                             f"add it to the processors")
 
 
 def _sidecar_prefix(stage: Usd.Stage, layer: Sdf.Layer) -> str:

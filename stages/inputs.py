@@ -13,7 +13,9 @@ from pathlib import Path
 from pxr import Sdf, Tf, Usd
 
 from ..core.errors import UsageError
-from .bake_layer import LAYER_SUFFIXES, TEMP_TAG, bake_source, is_bake_layer
+from .bake_layer import LAYER_SUFFIXES, bake_source
+from .provenance import is_bake_layer
+from .sidecars import TEMP_TAG
 
 
 def open_source(path: str):

@@ -7,7 +7,7 @@ from pathlib import Path
 from pxr import Sdf, Tf
 
 from ..core.errors import UsageError
-from .bake_layer import PROVENANCE_KEY, is_bake_layer, provenance_of
+from .provenance import PROVENANCE_KEY, is_bake_layer, provenance_of
 from .inputs import usd_reason
 
 

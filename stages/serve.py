@@ -94,7 +94,7 @@ from aiohttp import hdrs, web
 from pxr import Sdf, Usd
 
 from ..core.errors import UsageError
-from .bake_layer import owned_sidecars
+from .sidecars import owned_sidecars
 
 GRID_PRIM = "/usdbake/IrradianceGrid"
 MESH_STREAM_ATTRIBUTE = "bake:pmStreamFile"

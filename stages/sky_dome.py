@@ -27,7 +27,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
 from ..core.errors import StageError, UsageError
 from ..core.records import Texture
-from .bake_layer import write_texture
+from .sidecars import write_texture
 from .images import RgbRows
 
 SKY_PRIM = "/SkyLights"

@@ -7,7 +7,8 @@ kernel's annotations as objects.
 import numpy as np
 import warp as wp
 
-from usdbake.kernels.lights import Lights, direct_irradiance, light_bundle
+from usdbake.kernels.light_bundles import light_bundle
+from usdbake.kernels.lights import Lights, direct_irradiance
 from usdbake.kernels.tracer import Tracer
 from usdbake.kernels.traversal import TraceScene
 

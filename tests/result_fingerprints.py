@@ -56,10 +56,12 @@ def fingerprints(sample: Path, name: str, params: dict) -> dict:
     """{'action': run|skip, 'records': {key: digest}} for one processor (with its dependencies) on one sample."""
     from usdbake.stages.extract import extract_scene
     from usdbake.core.pipeline import Pipeline
+    from usdbake.core.runtime import Runtime
+    from usdbake.kernels.tracer import Tracer
     from pxr import Usd
 
     scene = extract_scene(Usd.Stage.Open(str(sample)))
-    steps = Pipeline.build([name], params).run(scene)
+    steps = Pipeline.build([name], params, runtime=Runtime(Tracer.from_scene)).run(scene)
     records: dict[str, str] = {}
     step = next(s for s in steps if s.name == name)
     if step.action == "skip":

@@ -1,21 +1,26 @@
-"""The house plan, as imports: each folder of the package imports only the folders below it.
+"""The house plan, as imports: each folder of the package imports only the folders below it, and no module
+imports itself back through others.
 
-    cli, preview           -> stages, processors (via the registry), core, kernels, geometry
-                              (preview also formats: the stream client decodes the served streams)
-    stages (+ schemas)     -> core                 USD lives here and in schemas/ only
-    processors             -> core, kernels, geometry, formats; never each other
+    usdbake (the package root), cli, benchmarks   the top: the root's bake() and bake_many() call stages and
+                                                  farm; nothing imports the root, cli or benchmarks
+                                                  (benchmarks import anything, ``usdbake bench`` runs them)
+    farm, preview          -> stages, kernels, core (preview also geometry and formats)
+    stages (+ schemas)     -> kernels, formats, core     USD lives here and in schemas/ only
+    processors             -> kernels, geometry, formats, core; never each other (core's registry reaches
+                              them by name, never by an import statement)
     kernels, geometry, formats -> core
-    core                   -> nothing of ours (one lazy import: the runner builds the shared BVH)
+    core                   -> nothing of ours
 
-Imports are read with ast (relative imports resolved to absolute names), so a
-rule broken in a function body or behind a branch is caught too; a subprocess
-then checks the transitive import graph at run time.
+Imports are read with ast (relative imports resolved to absolute names), so a rule broken in a function body
+or behind a branch is caught too, and no import is excepted; a subprocess then checks that importing the
+processors loads no pxr.
 """
 
 from repo_paths import REPO
 import ast
 import subprocess
 import sys
+from graphlib import CycleError, TopologicalSorter
 from pathlib import Path
 
 import pytest
@@ -31,19 +36,14 @@ MAY_IMPORT = {
     "formats": ("core",),
     "processors": ("core", "kernels", "geometry", "formats"),
     "schemas": (),
-    "stages": ("core", "schemas"),
-    "preview": ("core", "kernels", "geometry", "stages", "formats"),
-    "farm": ("core", "stages"),
-    "cli": ("core", "stages", "preview", "farm", "benchmarks"),
+    "stages": ("core", "kernels", "formats", "schemas"),
+    "preview": ("core", "kernels", "geometry", "formats", "stages"),
+    "farm": ("core", "kernels", "stages"),
+    "cli": ("core", "kernels", "stages", "preview", "farm"),
+    PACKAGE: ("core", "kernels", "schemas", "stages", "farm"),
+    "benchmarks": (*FOLDERS, PACKAGE),
 }
-"""Folder -> the other folders of the package it may import."""
-
-LAZY_EXCEPTIONS = {("core/pipeline.py", "usdbake.kernels.tracer"), ("stages/sky_dome.py", "usdbake.kernels.sky"),
-                   ("stages/sky_dome.py", "usdbake.kernels.solar"), ("stages/sky_dome.py", "usdbake.formats.weather"),
-                   ("farm/chunks.py", "usdbake.kernels.tracer")}
-"""The runner's factory of the shared BVH imports the tracer when a processor first asks for it; ``usdbake
-sky`` evaluates the sky models and the sun position (numpy) when it writes a sky as UsdLux lights, and
-reads a weather file's hour when asked for one; a Dask worker builds its BVH of a scene on its first chunk."""
+"""Layer (a folder, or ``usdbake``: the package root's ``__init__.py``) -> the other layers it may import."""
 
 PXR_ALLOWED = ("schemas", "stages")
 """Folders that may import pxr."""
@@ -91,15 +91,78 @@ def violations(files, forbidden) -> list[str]:
     for path in files:
         for line, name in imported_names(path):
             if any(name == f or name.startswith(f + ".") for f in forbidden):
-                if not any(str(path.relative_to(ROOT)) == file and name.startswith(module)
-                           for file, module in LAZY_EXCEPTIONS):
-                    bad.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
     return bad
+
+
+def all_modules() -> dict[str, Path]:
+    """Dotted name -> file of every module of the package, the root and benchmarks/ included."""
+    files = [ROOT / "__init__.py"]
+    for folder in (*FOLDERS, "benchmarks"):
+        files += sorted((ROOT / folder).rglob("*.py"))
+    return {".".join(module_parts(path)): path for path in files}
+
+
+def imported_modules(path: Path, modules, module: str | None = None) -> dict[str, int]:
+    """{module of the package: first line} for each import statement in the file, ``module`` (default: from
+    its place under ROOT) itself left out. ``from P import name`` imports the module P.name when there is
+    one, else P; a name of ours that is not a module is its longest dotted prefix that is."""
+    def resolve(name: str) -> str | None:
+        parts = name.split(".")
+        while parts and ".".join(parts) not in modules:
+            parts.pop()
+        return ".".join(parts) or None
+
+    tree = ast.parse(path.read_text(), filename=str(path))
+    parts = module.split(".") if module else module_parts(path)
+    package = parts if path.name == "__init__.py" else parts[:-1]
+    found: dict[str, int] = {}
+    for node in ast.walk(tree):
+        targets = []
+        if isinstance(node, ast.Import):
+            targets = [resolve(alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = ".".join(package[: len(package) - (node.level - 1)] + ([node.module] if node.module else [])) \
+                if node.level else node.module or ""
+            targets = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in modules else resolve(base)
+                       for alias in node.names]
+        for target in targets:
+            if target and target.startswith(PACKAGE) and target != ".".join(parts):
+                found[target] = min(found.get(target, node.lineno), node.lineno)
+    return found
+
+
+def import_graph() -> dict[str, dict[str, int]]:
+    """Module -> {module it imports: line}, over the whole package."""
+    modules = all_modules()
+    return {name: imported_modules(path, modules) for name, path in modules.items()}
+
+
+def layer(module: str) -> str:
+    """The folder a module lives in, or PACKAGE for the package root."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else PACKAGE
 
 
 def violations_in(path, module, forbidden) -> int:
     return len({line for line, name in imported_names(path, module)
                 if any(name == f or name.startswith(f + ".") for f in forbidden)})
+
+
+def upward(graph: dict[str, dict[str, int]]) -> list[str]:
+    """'module:line imports target' for each import of a layer that MAY_IMPORT does not put below."""
+    return [f"{module}:{line} imports {target}" for module, imports in graph.items()
+            for target, line in imports.items()
+            if layer(target) != layer(module) and layer(target) not in MAY_IMPORT[layer(module)]]
+
+
+def circle(graph: dict[str, dict[str, int]]) -> str:
+    """One circle of imports ('a -> b -> a'), or '' when there is none."""
+    try:
+        list(TopologicalSorter({module: set(imports) for module, imports in graph.items()}).static_order())
+    except CycleError as error:
+        return " -> ".join(error.args[1])
+    return ""
 
 
 def test_resolver_sees_relative_and_aliased_imports(tmp_path):
@@ -113,14 +176,39 @@ def test_resolver_sees_relative_and_aliased_imports(tmp_path):
 
 def test_every_folder_has_a_rule():
     folders = {p.name for p in ROOT.iterdir() if (p / "__init__.py").exists()}
-    assert folders - {"tests", "samples", "benchmarks"} == set(MAY_IMPORT)
+    assert folders - {"tests", "samples"} == set(MAY_IMPORT) - {PACKAGE}
 
 
-def test_each_folder_imports_only_the_folders_below_it():
-    for folder, allowed in MAY_IMPORT.items():
-        forbidden = [f"{PACKAGE}.{other}" for other in (*FOLDERS, "benchmarks")
-                     if other != folder and other not in allowed]
-        assert violations(package_files((folder,)), forbidden) == [], folder
+def test_the_rules_are_layers():
+    """MAY_IMPORT orders the layers: no two of them may import each other, even through a third."""
+    try:
+        list(TopologicalSorter(MAY_IMPORT).static_order())
+    except CycleError as error:
+        pytest.fail(f"layers that may import each other: {' -> '.join(error.args[1])}")
+
+
+def test_nothing_imports_upward():
+    """Every import statement of every module (the root and benchmarks/ included) names a module of its own
+    layer or of one MAY_IMPORT puts below it; nothing is excepted."""
+    assert upward(import_graph()) == []
+
+
+def test_no_circles():
+    """No module imports itself back through others, benchmarks/ included."""
+    assert circle(import_graph()) == ""
+
+
+def test_the_checks_see_upward_imports_and_circles(tmp_path):
+    modules = {"usdbake", "usdbake.core", "usdbake.core.a", "usdbake.core.b", "usdbake.kernels", "usdbake.kernels.k"}
+    probe = tmp_path / "probe.py"
+    probe.write_text("def late():\n    from ..kernels import k\n    from . import b\nfrom .. import __version__\n")
+    graph = {"usdbake.core.a": imported_modules(probe, modules, "usdbake.core.a")}
+    assert graph["usdbake.core.a"] == {"usdbake.kernels.k": 2, "usdbake.core.b": 3, "usdbake": 4}
+    assert sorted(upward(graph)) == ["usdbake.core.a:2 imports usdbake.kernels.k",
+                                     "usdbake.core.a:4 imports usdbake"]
+    assert circle(graph) == ""
+    assert set(circle({**graph, "usdbake.core.b": {"usdbake.core.a": 1}}).split(" -> ")) == {"usdbake.core.a",
+                                                                                            "usdbake.core.b"}
 
 
 TECHNIQUES = sorted(p.name for p in (ROOT / "processors").iterdir() if (p / "__init__.py").exists())

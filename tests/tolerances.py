@@ -137,6 +137,16 @@ CHI2_SIGNIFICANCE = 1e-3
 """p-value below which a chi-square test rejects equal cell probabilities (false-failure rate 1e-3
 per test; the seed is fixed anyway)."""
 
+SINGLE_RAY_FLIP = 1.0
+"""Rays per vertex that may flip between hit and miss where only float32 rounding differs and at most
+one was measured to: the Cornell box rescaled by 1e-12 or 1e12 (64 rays), instances folded into one
+prototype against a field shared by them (256 rays). The tolerance is SINGLE_RAY_FLIP / rays."""
+
+MEAN_FLIP_SHIFT = 1e-3
+"""Shift of the mean AO over all of the Cornell box's vertices when grazing rays flip on a rescaled stage:
+each flip moves one vertex by 1/64, so this bounds the flipping vertices to under one in 16 (a
+systematic change of the trace would move every vertex)."""
+
 # -- quadrature and deterministic grids --------------------------------------------------------
 
 MIDPOINT_MOMENT_FACTOR = 2.0
@@ -256,10 +266,32 @@ SH_L2_TRUNCATION = 0.01
 """L2 truncation of the irradiance of max(w.z, 0): pi/4 + pi/3 + 5 pi/64 is 0.8 % below the exact
 2 pi / 3 (Ramamoorthi & Hanrahan)."""
 
+DERING_STRENGTH = 1e-3
+"""The window strength ``dering`` finds on its 512 directions against DERING_NON_NEGATIVE (quoted to 4
+decimals, from a search over all directions): the directions may straddle the dip's minimum, so the
+found strength is a little lower (measured 0.09309 against 0.0933)."""
+
+LEAST_SQUARES_RIDGE = 1e-6
+"""A float64 least-squares gradient with a ridge of 1e-9 of its normal matrix's trace (light_probes
+ascent): the ridge shrinks the solution by ~1e-9 x trace / smallest eigenvalue, up to ~1e-6 for the
+flat neighbourhoods of a random cloud; a linear field's gradient comes back to that."""
+
 # -- published and quoted reference values -----------------------------------------------------
 
 QUOTED_6_DECIMALS = 1e-6
 """A reference value quoted to 6 decimals (-0.039583, 0.488603) is good to 5e-7."""
+
+QUOTED_4_DECIMALS = 5e-5
+"""A reference value quoted to 4 decimals (Perez et al.'s Table 1 coefficients) is good to 5e-5."""
+
+SRGB_MATRIX_DIGITS = 1e-3
+"""IEC 61966-2-1 prints the sRGB -> XYZ matrix to 4 decimals: taking our RGB (from the exact inverse) back
+through it moves luminance and chromaticity coordinates by ~1e-4 relative (measured 6e-5 on Preetham skies),
+1e-3 with margin."""
+
+KASTEN_PLANE_PARALLEL = 0.005
+"""Kasten's (1966) air mass times cos(zenith) against the plane-parallel atmosphere's 1, up to 60
+degrees from the zenith: the curvature term makes it 0.9964 at 60 degrees."""
 
 CATALOG_FORM_FACTOR = 1e-4
 """Howell's catalog quotes view factors to 5 decimals (0.19982, 0.20004): our closed forms must
@@ -299,6 +331,24 @@ patch's mean cosine is off by at most dz / 8, and the errors average out over 25
 PEREZ_PATCH_AVERAGING = 0.03
 """Patch averaging of the Perez sky, smooth but peaked around the sun (circumsolar): a few percent
 of the diffuse horizontal irradiance."""
+
+PEREZ_NORMALISATION = 3e-4
+"""The Perez sky is scaled to its diffuse horizontal irradiance by a 90 x 180 midpoint rule
+(kernels.sky): a 200 x 400 Gauss-Legendre integral of the scaled sky gives back the DHI to the first
+rule's error, measured up to 5.6e-5 relative on five skies."""
+
+SKY_MATRIX_NORMALISATION = 1e-3
+"""The annual sky matrix scales each hour's Perez sky by a 45 x 90 quadrature (sky_matrix.NORMALIZATION_GRID),
+the per-hour model by a 90 x 180 one: the two horizontal integrals agree within 0.1 %."""
+
+SPLIT_FACE_EXPOSURE = 0.02
+"""Mean sky exposure of a floor under a wall, split into faces of 1e-3 diagonal^2 and traced with 4
+samples per patch of 256, against the mean of 2048 points at 4096 rays each: the patch discretization
+and sampling leave ~1 % (measured 0.1108 against 0.1107; unsplit 0.1003)."""
+
+EXPOSURE_COMPARISON_SLACK = 0.01
+"""Relative slack when one exposure estimate must come closer to the reference than another: the
+4-samples-per-patch noise of a floor's mean exposure, so that equal estimates do not fail by chance."""
 
 SUN_PENUMBRA_SHARE = 1e-2
 """Share of a face inside the 0.53 deg sun's penumbra band behind a roof edge (~1 % of its area),

@@ -1,6 +1,6 @@
 """Irradiance from an irradiance-vector grid inside a kernel (Pacanowski et al. 2008, section 3.2).
 
-The ``wp.func`` twin of ``processors/irradiance_grid.reconstruct_irradiance`` ("paper" reconstruction,
+The ``wp.func`` twin of ``processors/irradiance_grid/vector_grid.reconstruct_irradiance`` ("paper" reconstruction,
 no behind-cutoff): kernels that need the grid's light at a point call it, such as the grid's own capture
 when it bounces light a second time.
 """

@@ -16,16 +16,9 @@ import numpy as np
 import warp as wp
 
 from ...core.scene import Scene
-from ...kernels.lights import (
-    Lights,
-    SceneLighting,
-    Surfaces,
-    hit_radiance_bounces,
-    light_sample_count,
-    scene_lighting,
-    sky_radiance,
-    visible_light_sample,
-)
+from ...kernels.light_bundles import SceneLighting, scene_lighting
+from ...kernels.lights import (Lights, Surfaces, hit_radiance_bounces, light_sample_count, sky_radiance,
+                               visible_light_sample)
 from ...kernels.sampling import strata_for, stratified_pair
 from ...kernels.sh import COSINE_LOBE, project_kernel, sh_basis, uniform_sphere
 from ...kernels.tracer import FAR

@@ -64,7 +64,8 @@ from ...core import Context, Params, Primvar, Processor, Result, param
 from ...core.products import FormFactorProduct, RadiosityProduct
 from ...core.scene import Scene
 from ...geometry.mesh import missing_receivers, receiver_prims, vertex_normals
-from ...kernels.lights import NO_LIGHTS, Lights, direct_irradiance, has_light, light_bundle, shadow_rays_per_point
+from ...kernels.light_bundles import NO_LIGHTS, has_light, light_bundle, shadow_rays_per_point
+from ...kernels.lights import Lights, direct_irradiance
 from .operator_relight import Relighter
 from .patch_kernels import fragment_of_hit
 from ...kernels.sampling import cosine_hemisphere, strata_for, tangent_frame

@@ -15,6 +15,7 @@ import pytest
 from production_assets import add_floor, new_stage
 from pxr import Gf, Usd, UsdGeom, Vt
 
+from tolerances import FLOAT32_STORAGE
 from usdbake.cli.main import main
 from usdbake.kernels.tracer import Tracer
 from usdbake.stages.extract import extract_scene
@@ -192,7 +193,7 @@ def test_turned_and_rounded_copies_of_a_prototype_share_one_field(bake, cache, t
     assert len(files) == 1 and Path(files.pop()).is_file()
     orientation = prims["B"].GetAttribute("bake:field:orientation").Get()
     np.testing.assert_allclose([orientation.GetReal(), *orientation.GetImaginary()],
-                               [np.sqrt(0.5), 0.0, np.sqrt(0.5), 0.0], atol=1e-6)  # float32 storage of cos 45
+                               [np.sqrt(0.5), 0.0, np.sqrt(0.5), 0.0], atol=FLOAT32_STORAGE)  # cos 45 in float32
     assert not prims["A"].GetAttribute("bake:field:orientation").HasAuthoredValue()
     assert not prims["C"].GetAttribute("bake:field:orientation").HasAuthoredValue()
     ao = ao_of(out, "/World/Floor")

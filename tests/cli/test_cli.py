@@ -205,19 +205,27 @@ def test_console_script_runs(stage_in, cache, tmp_path):
 
 
 def test_threads_reach_the_ray_core(capsys, stage_in, cache, tmp_path, monkeypatch):
-    """--threads N is the thread count of the shared tracer every processor casts its rays with."""
-    from usdbake.kernels import tracer as tracer_module
+    """--threads N is the thread count of the run's tracer every processor casts its rays with: the run's
+    tracer factory builds it once, with N."""
+    from usdbake.kernels.tracer import Tracer
 
     seen = []
-    original = tracer_module.shared_tracer
+    original = Tracer.from_scene
 
     def recording(scene, **kwargs):
         built = original(scene, **kwargs)
         seen.append(built.threads)
         return built
 
-    monkeypatch.setattr(tracer_module, "shared_tracer", recording)
+    monkeypatch.setattr(Tracer, "from_scene", recording)
     code, _, err = run_cli(capsys, "bake", stage_in, "-o", tmp_path / "out.usda", "--cache", cache, "--force",
                            "--threads", "3", *FAST)
     assert code == 0, err
-    assert seen and set(seen) == {3}
+    assert seen == [3]
+
+
+def test_bench_runs_the_benchmarks_in_a_process_of_their_own(capfd):
+    """``usdbake bench`` runs ``python -m usdbake.benchmarks`` (the library never imports the benchmarks) and
+    returns its exit status."""
+    assert main(["bench", "no_such_benchmark"]) == 2
+    assert "unknown benchmark(s): no_such_benchmark" in capfd.readouterr().err

@@ -39,6 +39,8 @@ from usdbake.core.processor import Processor, Result
 from usdbake.core.products import (AmbientOcclusionProduct, InstanceOcclusionProduct, RefinedScene,
                                    SkyVisibilityProduct)
 from usdbake.core.records import Attribute, Block, File, Primvar
+from usdbake.core.runtime import Runtime
+from usdbake.kernels.tracer import Tracer
 from usdbake.core.scene import FACETS
 from usdbake.stages.extract import extract_scene
 
@@ -109,9 +111,9 @@ def actions(steps) -> dict:
 def test_second_run_is_served_from_the_cache_record_for_record(sample, names, tmp_path, no_cache_warnings):
     scene = extract_scene(Usd.Stage.Open(str(SAMPLES / f"{sample}.usda")))
     params = params_for(*names)
-    first = Pipeline.build(list(names), params, cache_dir=tmp_path)
+    first = Pipeline.build(list(names), params, runtime=Runtime(Tracer.from_scene), cache_dir=tmp_path)
     assert set(actions(first.run(scene)).values()) == {"run"}
-    second = Pipeline.build(list(names), params, cache_dir=tmp_path)
+    second = Pipeline.build(list(names), params, runtime=Runtime(Tracer.from_scene), cache_dir=tmp_path)
     assert set(actions(second.run(scene)).values()) == {"cached"}
 
     before, after = first.outputs(), second.outputs()
@@ -125,8 +127,8 @@ def test_second_run_is_served_from_the_cache_record_for_record(sample, names, tm
 
 def test_a_cached_scene_and_memo_fields_behave_like_the_originals(cornell, tmp_path, no_cache_warnings):
     names, params = ["sky_visibility"], params_for("sky_visibility")
-    first = Pipeline.build(names, params, cache_dir=tmp_path).run(cornell)[0].result
-    second = Pipeline.build(names, params, cache_dir=tmp_path).run(cornell)[0]
+    first = Pipeline.build(names, params, runtime=Runtime(Tracer.from_scene), cache_dir=tmp_path).run(cornell)[0].result
+    second = Pipeline.build(names, params, runtime=Runtime(Tracer.from_scene), cache_dir=tmp_path).run(cornell)[0]
     assert second.action == "cached"
     refined, loaded = first.products[RefinedScene].scene, second.result.products[RefinedScene].scene
     for facet in FACETS:
@@ -157,12 +159,14 @@ class Payload:
 
 def entry(cache_dir, scene) -> tuple[str, str]:
     """(name, key) of the ambient_occlusion entry for ``scene``."""
-    step = Pipeline.build(["ambient_occlusion"], AO_FAST, cache_dir=cache_dir).plan(scene)[0]
+    step = Pipeline.build(["ambient_occlusion"], AO_FAST, runtime=Runtime(Tracer.from_scene),
+                          cache_dir=cache_dir).plan(scene)[0]
     return step.name, step.key
 
 
 def bake(cache_dir, scene) -> str:
-    steps = Pipeline.build(["ambient_occlusion"], AO_FAST, cache_dir=cache_dir).run(scene)
+    steps = Pipeline.build(["ambient_occlusion"], AO_FAST, runtime=Runtime(Tracer.from_scene),
+                           cache_dir=cache_dir).run(scene)
     return steps[0].action
 
 
@@ -380,7 +384,7 @@ def test_the_entry_hash_is_of_the_content_not_the_bytes(cornell, tmp_path, no_ca
 @pytest.fixture(scope="module")
 def cornell_ao(cornell):
     """A real ambient_occlusion Result on the Cornell box (Floor: 9 points, 4 quads; LightQuad: 4 points)."""
-    return Pipeline.build(["ambient_occlusion"], AO_FAST).run(cornell)[0].result
+    return Pipeline.build(["ambient_occlusion"], AO_FAST, runtime=Runtime(Tracer.from_scene)).run(cornell)[0].result
 
 
 def with_outputs(result: Result, *outputs) -> Result:
@@ -458,7 +462,8 @@ def test_a_sealed_entry_that_does_not_fit_is_recomputed_and_rewritten(cornell, t
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        steps = Pipeline.build(["ambient_occlusion"], AO_FAST, cache_dir=cache_dir).run(cornell)
+        steps = Pipeline.build(["ambient_occlusion"], AO_FAST, runtime=Runtime(Tracer.from_scene),
+                               cache_dir=cache_dir).run(cornell)
     assert [str(w.message) for w in caught if issubclass(w.category, CacheWarning)] == [
         f"usdbake cache: {manifest}: does not fit the scene ({LIGHT}: 9 vertex values for 4 points); recomputing"]
     assert (steps[0].action, steps[0].reason) == ("run", "cache entry unusable (see the warning); recomputed")
@@ -505,12 +510,12 @@ def unwritable_warning(folder, strerror: str) -> str:
 
 @pytest.mark.parametrize("code", [errno.ENOSPC, errno.EFBIG, errno.EROFS, errno.EACCES])
 def test_a_write_that_fails_warns_once_and_the_run_completes(code, cornell, tmp_path, monkeypatch):
-    reference = Pipeline.build(*TWO_STEPS).run(cornell)
+    reference = Pipeline.build(*TWO_STEPS, runtime=Runtime(Tracer.from_scene)).run(cornell)
     cache_dir = tmp_path / "cache"
     monkeypatch.setattr(core.cache, "open", failing_open(code), raising=False)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        pipeline = Pipeline.build(*TWO_STEPS, cache_dir=cache_dir)
+        pipeline = Pipeline.build(*TWO_STEPS, runtime=Runtime(Tracer.from_scene), cache_dir=cache_dir)
         steps = pipeline.run(cornell)
     assert [str(w.message) for w in caught if issubclass(w.category, CacheWarning)] == [
         unwritable_warning(cache_dir, os.strerror(code))]  # two steps, one warning
@@ -519,9 +524,11 @@ def test_a_write_that_fails_warns_once_and_the_run_completes(code, cornell, tmp_
         assert_same(a.result, b.result, a.name)
     assert list(cache_dir.iterdir()) == []  # the partial file is gone, nothing else was written
     monkeypatch.undo()
-    assert actions(Pipeline.build(*TWO_STEPS, cache_dir=cache_dir).run(cornell)) == {
+    assert actions(Pipeline.build(*TWO_STEPS, runtime=Runtime(Tracer.from_scene),
+                                  cache_dir=cache_dir).run(cornell)) == {
         "ambient_occlusion": "run", "progressive_mesh": "run"}  # a later run writes again
-    assert actions(Pipeline.build(*TWO_STEPS, cache_dir=cache_dir).run(cornell)) == {
+    assert actions(Pipeline.build(*TWO_STEPS, runtime=Runtime(Tracer.from_scene),
+                                  cache_dir=cache_dir).run(cornell)) == {
         "ambient_occlusion": "cached", "progressive_mesh": "cached"}
 
 
@@ -531,7 +538,7 @@ def test_a_cache_folder_that_cannot_be_made_warns_once(cornell, tmp_path):
     cache_dir = tmp_path / "file" / "cache"
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        steps = Pipeline.build(*TWO_STEPS, cache_dir=cache_dir).run(cornell)
+        steps = Pipeline.build(*TWO_STEPS, runtime=Runtime(Tracer.from_scene), cache_dir=cache_dir).run(cornell)
     assert [str(w.message) for w in caught if issubclass(w.category, CacheWarning)] == [
         unwritable_warning(cache_dir, os.strerror(errno.ENOTDIR))]
     assert set(actions(steps).values()) == {"run"} and all(step.result.outputs for step in steps)
@@ -549,12 +556,13 @@ def read_only(tmp_path):
 def test_a_read_only_cache_folder_is_still_read_and_warns_once(cornell, read_only):
     """A shared cache others fill and we may only read: its entries are served, a new one warns once."""
     folder = read_only.folder
-    Pipeline.build(["ambient_occlusion"], AO_FAST, cache_dir=folder).run(cornell)  # filled while writable
+    Pipeline.build(["ambient_occlusion"], AO_FAST, runtime=Runtime(Tracer.from_scene),
+                   cache_dir=folder).run(cornell)  # filled while writable
     strerror = read_only.lock()
     before = sorted(folder.iterdir())
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        steps = Pipeline.build(*TWO_STEPS, cache_dir=folder).run(cornell)
+        steps = Pipeline.build(*TWO_STEPS, runtime=Runtime(Tracer.from_scene), cache_dir=folder).run(cornell)
     assert [str(w.message) for w in caught if issubclass(w.category, CacheWarning)] == [
         unwritable_warning(folder, strerror)]
     assert actions(steps) == {"ambient_occlusion": "cached", "progressive_mesh": "run"}
@@ -689,7 +697,8 @@ def test_the_runner_surfaces_an_unstorable_result(tmp_path):
     core.registry.register(Unstorable)
     try:
         with pytest.raises(TypeError, match="products.UnstorableProduct.values: cannot store an array of dtype object"):
-            Pipeline.build(["unstorable"], cache_dir=tmp_path).run(fakes.make_scene())
+            Pipeline.build(["unstorable"], runtime=Runtime(Tracer.from_scene),
+                           cache_dir=tmp_path).run(fakes.make_scene())
     finally:
         core.registry.unregister("unstorable")
 

@@ -1,8 +1,9 @@
-"""The DAG runner: wiring, ordering, broken graphs, skip reasons, caching, failures, params.
+"""The DAG runner: wiring, ordering, broken graphs, skip reasons, caching, failures, params, and the one
+run-time object every step reads.
 
 Fake processors (tests/fake_processors.py) need no tracer and no pxr, so
-these tests exercise the runner alone; they assert which steps ran and which
-were reused from the cache.
+these tests exercise the runner alone (their runs' tracer factory fails if
+called); they assert which steps ran and which were reused from the cache.
 """
 
 import math
@@ -14,8 +15,8 @@ import fake_processors as fakes
 from usdbake import core
 from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion
 from usdbake.core.cache import CacheWarning
-from usdbake.core.pipeline import GraphError, Pipeline, ProcessorFailed, build_steps, step_key
-
+from usdbake.core.pipeline import GraphError, ParamsOutsideRun, Pipeline, ProcessorFailed, build_steps, step_key
+from usdbake.core.runtime import Runtime
 
 
 @pytest.fixture
@@ -34,6 +35,15 @@ def register():
     for name in added:
         core.registry.unregister(name)
     fakes.CALLS.clear()
+
+
+def no_tracer(scene, **options):
+    raise AssertionError("a fake processor asked for a tracer")
+
+
+def fake_run(**options) -> Runtime:
+    """The run-time object of a run of fake processors: nothing may trace."""
+    return Runtime(no_tracer, **options)
 
 
 def names(steps):
@@ -70,6 +80,20 @@ def test_unknown_processor_rejected():
         build_steps(["nope"])
 
 
+def test_params_for_a_processor_outside_the_run_are_refused_unless_ignorable(register):
+    """The one check of params against the run (the hook, the command and bake_many all reach it)."""
+    register(fakes.FakeA, fakes.FakeB)
+    with pytest.raises(ParamsOutsideRun) as raised:
+        build_steps(["fake_a"], {"fake_b": {"gain": 2.0}})
+    assert (raised.value.processor, raised.value.running) == ("fake_b", ("fake_a",))
+    assert str(raised.value) == ("params for 'fake_b', which is not part of this run (fake_a); "
+                                 "add it to the processors")
+    pipeline = Pipeline.build(["fake_a"], {"fake_b": {"gain": 2.0}}, runtime=fake_run(), ignorable=["fake_b"])
+    assert (names(pipeline.steps), pipeline.ignored_params) == (["fake_a"], ("fake_b",))
+    dependency = Pipeline.build(["fake_b"], {"fake_a": {"scale": 2.0}}, runtime=fake_run(), ignorable=["fake_a"])
+    assert dependency.ignored_params == () and dependency.steps[0].params.scale == 2.0  # a dependency is part of the run
+
+
 def test_two_producers_of_one_product_is_a_graph_error(register):
     register(fakes.FakeA, fakes.FakeB, fakes.FakeDuplicateA)
     with pytest.raises(GraphError, match="ProductA is provided by both"):
@@ -103,7 +127,7 @@ def test_register_refuses_a_taken_name():
 
 def test_not_applicable_skips_it_and_its_dependents(register, tmp_path):
     register(fakes.FakeNotApplicable, fakes.FakeAfterNA)
-    pipeline = Pipeline.build(["fake_after_na"], cache_dir=tmp_path / "cache")
+    pipeline = Pipeline.build(["fake_after_na"], runtime=fake_run(), cache_dir=tmp_path / "cache")
     steps = {step.name: step for step in pipeline.run(fakes.make_scene())}
     assert steps["fake_na"].action == "skip"
     assert steps["fake_na"].reason == "not applicable: no lights in the scene"
@@ -118,7 +142,7 @@ def test_not_applicable_skips_it_and_its_dependents(register, tmp_path):
 
 
 def run(names_, tmp_path, scene=None, params=None, force=False):
-    pipeline = Pipeline.build(names_, params, cache_dir=tmp_path / "cache", force=force)
+    pipeline = Pipeline.build(names_, params, runtime=fake_run(), cache_dir=tmp_path / "cache", force=force)
     return pipeline.run(scene if scene is not None else fakes.make_scene())
 
 
@@ -184,7 +208,7 @@ def test_unreadable_cache_entry_is_recomputed(register, tmp_path):
 def test_no_cache_dir_means_no_caching(register):
     register(fakes.FakeA)
     for _ in range(2):
-        steps = Pipeline.build(["fake_a"]).run(fakes.make_scene())
+        steps = Pipeline.build(["fake_a"], runtime=fake_run()).run(fakes.make_scene())
         assert actions(steps) == {"fake_a": "run"}
     assert fakes.CALLS == {"fake_a": 2}
 
@@ -226,7 +250,7 @@ def test_step_key_depends_on_params_version_and_upstream():
 
 def test_processor_that_raises_is_named_and_nothing_is_cached(register, tmp_path):
     register(fakes.FakeA, fakes.FakeBoom)
-    pipeline = Pipeline.build(["fake_boom"], cache_dir=tmp_path / "cache")
+    pipeline = Pipeline.build(["fake_boom"], runtime=fake_run(), cache_dir=tmp_path / "cache")
     with pytest.raises(ProcessorFailed, match="fake_boom.*RuntimeError: kaboom") as info:
         pipeline.run(fakes.make_scene())
     assert info.value.name == "fake_boom"
@@ -289,12 +313,12 @@ def test_two_processors_declaring_one_property_are_refused_before_compute(regist
     register(fakes.FakeA, fakes.FakeB, fakes.FakeSamePrimvar)
     with pytest.raises(GraphError, match=r"(fake_b and fake_same_primvar|fake_same_primvar and fake_b) both write "
                                          r"primvars:bake:fakeB; run one of them"):
-        Pipeline.build(["fake_b", "fake_same_primvar"], cache_dir=tmp_path)
+        Pipeline.build(["fake_b", "fake_same_primvar"], runtime=fake_run(), cache_dir=tmp_path)
 
 
 def test_a_property_the_processor_did_not_declare_is_refused(register, tmp_path):
     register(fakes.FakeUndeclared)
-    pipeline = Pipeline.build(["fake_undeclared"], cache_dir=tmp_path)
+    pipeline = Pipeline.build(["fake_undeclared"], runtime=fake_run(), cache_dir=tmp_path)
     pipeline.run(fakes.make_scene())
     with pytest.raises(ProcessorFailed, match=r"bake:stray, which its `writes` does not declare"):
         pipeline.outputs()
@@ -302,7 +326,7 @@ def test_a_property_the_processor_did_not_declare_is_refused(register, tmp_path)
 
 def test_the_built_in_processors_that_write_ao_are_refused_together():
     with pytest.raises(GraphError, match="ambient_occlusion and instance_ao both write primvars:bake:ao"):
-        Pipeline.build(["ambient_occlusion", "instance_ao"])
+        Pipeline.build(["ambient_occlusion", "instance_ao"], runtime=fake_run())
 
 
 def test_cache_key_changes_with_the_processor_code(register, tmp_path, monkeypatch):
@@ -317,9 +341,9 @@ def test_cache_key_changes_with_the_processor_code(register, tmp_path, monkeypat
     mod = importlib.import_module("edited_processor")
     register(mod.Edited)
     scene = fakes.make_scene()
-    first = Pipeline.build(["edited"], cache_dir=tmp_path / "cache").plan(scene)[0].key
+    first = Pipeline.build(["edited"], runtime=fake_run(), cache_dir=tmp_path / "cache").plan(scene)[0].key
     module.write_text(textwrap_processor("22.0"))  # same version string, different code (and size)
-    second = Pipeline.build(["edited"], cache_dir=tmp_path / "cache").plan(scene)[0].key
+    second = Pipeline.build(["edited"], runtime=fake_run(), cache_dir=tmp_path / "cache").plan(scene)[0].key
     assert first != second
     sys.modules.pop("edited_processor", None)
 
@@ -331,3 +355,47 @@ def textwrap_processor(constant: str) -> str:
         "    name = 'edited'\n"
         f"    def run(self, ctx):\n        return Result(stats={{'x': {constant}}})\n"
     )
+
+
+# ---------------------------------------------------------------------------
+# The run-time object
+
+
+class FakeRuntimeReader(core.Processor):
+    """Records what its Context holds in applies() and run()."""
+
+    name = "fake_runtime_reader"
+    seen: list = []
+
+    def applies(self, ctx):
+        self.seen.append((self.name, ctx.device, ctx.threads, ctx.tracer, ctx.chunks.tracer))
+        return True, ""
+
+    def run(self, ctx):
+        self.seen.append((self.name, ctx.device, ctx.threads, ctx.tracer, ctx.chunks.tracer))
+        return core.Result()
+
+
+class FakeRuntimeReaderToo(FakeRuntimeReader):
+    name = "fake_runtime_reader_too"
+
+
+def test_every_step_reads_the_one_runtime(register):
+    """applies() and run() of every step see the run's device and threads, and one BVH per scene: built
+    once, by the runtime's tracer factory, for the chunk runner too."""
+    register(FakeRuntimeReader, FakeRuntimeReaderToo)
+    FakeRuntimeReader.seen.clear()
+    built = []
+
+    def build_tracer(scene, *, device, threads):
+        built.append((scene, device, threads))
+        return object()
+
+    scene = fakes.make_scene()
+    Pipeline.build(["fake_runtime_reader", "fake_runtime_reader_too"], runtime=Runtime(build_tracer, threads=3)) \
+        .run(scene)
+    assert built == [(scene, "cpu", 3)]
+    assert sorted(seen[0] for seen in FakeRuntimeReader.seen) == \
+        ["fake_runtime_reader"] * 2 + ["fake_runtime_reader_too"] * 2  # applies() of each, then run()
+    assert {seen[1:3] for seen in FakeRuntimeReader.seen} == {("cpu", 3)}
+    assert len({id(tracer) for seen in FakeRuntimeReader.seen for tracer in seen[3:]}) == 1

@@ -22,8 +22,10 @@ from usdbake.farm import batch as batch_module
 from usdbake.farm import cluster as cluster_module
 from usdbake.farm.batch import FAILED, UP_TO_DATE, WORKER_DIED, bake_many, batch_outputs, expand_inputs
 from usdbake.stages.bake_file import bake_file
-from usdbake.stages.bake_layer import PROVENANCE_KEY
+from usdbake.stages.provenance import PROVENANCE_KEY
 from usdbake.core.pipeline import Pipeline
+from usdbake.core.runtime import Runtime
+from usdbake.kernels.tracer import Tracer
 
 STAGES = ("cornell_box", "city_block", "window_room")
 PARAMS = {"ambient_occlusion": {"samples": 16}}
@@ -60,7 +62,7 @@ def layer_text(path: str) -> tuple[str, dict]:
 
 def serial_bakes(inputs, folder):
     for path, output in zip(inputs, batch_outputs(inputs, str(folder))):
-        bake_file(path, output, Pipeline.build(["ambient_occlusion"], PARAMS))
+        bake_file(path, output, Pipeline.build(["ambient_occlusion"], PARAMS, runtime=Runtime(Tracer.from_scene)))
     return [layer_text(output) for output in batch_outputs(inputs, str(folder))]
 
 
@@ -105,6 +107,18 @@ def test_a_failing_stage_never_stops_the_others(inputs, tmp_path, capsys):
                          params=PARAMS, workers=1)
     assert [o.status for o in outcomes] == [FAILED, FAILED]
     assert "cannot be read as USD" in outcomes[0].error and "no such file" in outcomes[1].error
+
+
+def test_a_shared_config_table_for_a_processor_not_run_is_a_warning_in_a_batch_too(inputs, tmp_path, capsys):
+    """The batch leaves the table out, as one stage does, instead of failing every stage."""
+    config = tmp_path / "studio.toml"
+    config.write_text("[radiosity]\ngather_rays = 16\n\n[ambient_occlusion]\nsamples = 16\n")
+    code = main(["bake", inputs[0], "-o", str(tmp_path / "out") + "/", "--config", str(config), "--workers", "1",
+                 "--cache", str(tmp_path / "cache")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert f"warning: {config}: [radiosity] is ignored: radiosity is not part of this run (ambient_occlusion)" in err
+    assert "1 of 1 stages baked" in err
 
 
 CRASH_PLUGIN = """
@@ -210,5 +224,7 @@ def test_bad_params_are_refused_before_any_stage_runs(inputs, tmp_path):
         bake_many(inputs, str(tmp_path), processors=["ambient_occlusion"], params={"ambient_occlusion": {"bogus": 1}})
     with pytest.raises(UsageError, match="not part of this run"):
         bake_many(inputs, str(tmp_path), processors=["ambient_occlusion"], params={"light_probes": {"probes": 8}})
+    with pytest.raises(UsageError, match="threads=0: expected a whole number of at least 1"):
+        bake_many(inputs, str(tmp_path), processors=["ambient_occlusion"], threads=0)  # every core is None
     assert not any(name.endswith(".usdc") for name in os.listdir(tmp_path))
     assert batch_module.BAKED == "baked"

@@ -18,7 +18,9 @@ from pxr import Usd  # noqa: E402
 
 from repo_paths import SAMPLES  # noqa: E402
 from usdbake.core.pipeline import Pipeline  # noqa: E402
+from usdbake.core.runtime import Runtime  # noqa: E402
 from usdbake.farm.chunks import DaskChunks  # noqa: E402
+from usdbake.kernels.tracer import Tracer  # noqa: E402
 from usdbake.stages.extract import extract_scene  # noqa: E402
 
 PROCESSORS = ["ambient_occlusion", "sky_visibility"]
@@ -28,7 +30,7 @@ PARAMS = {"ambient_occlusion": {"samples": 16, "per_face": True},
 
 
 def bake_outputs(scene, chunks=None, processors=PROCESSORS, params=PARAMS):
-    pipeline = Pipeline.build(processors, params, chunks=chunks)
+    pipeline = Pipeline.build(processors, params, runtime=Runtime(Tracer.from_scene, chunks=chunks))
     pipeline.run(scene)
     return pipeline.outputs()
 

@@ -13,7 +13,7 @@ import pytest
 import warp as wp
 
 FAST = ["usdbake.kernels.tracer", "usdbake.processors.daylight.sun_visibility", "usdbake.processors.occlusion.ambient_occlusion",
-        "usdbake.processors.daylight.sky_visibility", "usdbake.processors.radiosity.form_factors",
+        "usdbake.processors.daylight.patch_visibility", "usdbake.processors.radiosity.form_factors",
         "usdbake.processors.instancing.displacement_fields", "usdbake.preview.raycast", "usdbake.processors.radiosity.operator_relight"]
 """Modules of a few seconds each (measured 0.7-2 s)."""
 HEAVY = ["usdbake.processors.radiosity.radiosity", "usdbake.processors.irradiance_grid.irradiance_grid", "usdbake.processors.instancing.instance_ao",

@@ -7,7 +7,8 @@ against independent references, never against stored outputs:
 - two-level instancing against the same scene traced flat (a PointInstancer with rotated, non-uniformly
   scaled and mirrored instances), and ray origins from ``surface_origin`` that do not hit their own face;
 - bit-identical results for any CPU thread count; ``trace_any_in_instance`` on ``Tracer.of_meshes``;
-- degenerate input (no triangles, only zero-area ones, NaN points).
+- degenerate input (no triangles, only zero-area ones, NaN points);
+- the native source (kernels/native) ships with the package.
 
 Rays the float64 reference cannot decide for float32 input are left out of the exact comparisons: those
 passing within FLOAT32_ACCUMULATED (in barycentrics, widened as 1 / cosine at grazing incidence) of an
@@ -17,16 +18,20 @@ only to eps / cosine.
 
 from __future__ import annotations
 
+import tomllib
+from fnmatch import fnmatch
+
 import numpy as np
 import pytest
 import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from instanced_scenes import icosphere
+from repo_paths import REPO
 from tolerances import INSTANCE_TRANSFORM_FLIPS, FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_STORAGE
 from usdbake.kernels import tracer as tracer_module
 from usdbake.kernels.tracer import Tracer
-from usdbake.kernels.traversal import TraceScene, surface_origin, trace_any_in_instance
+from usdbake.kernels.traversal import NATIVE, TraceScene, surface_origin, trace_any_in_instance
 
 wp.set_module_options({"enable_backward": False})
 
@@ -609,3 +614,47 @@ def test_rays_aimed_at_zero_area_triangles_never_hit():
     hits = tracer.closest_hit(origins, directions)
     assert (hits.hit_triangle < 0).all(), f"{(hits.hit_triangle >= 0).sum()} of {count} rays hit a zero-area triangle"
     assert not tracer.occluded(origins, directions).any()
+
+
+def test_a_tree_deeper_than_the_traversal_stack_is_walked_without_overflowing_it():
+    """A hand-made tree 60 levels deep, each node holding 7 leaves and the next node: walking down it needs
+    420 stack entries against the 256 there are. Only the root's leaves hold the triangle (the others an
+    empty packet), and the walks still find it: closest hit, any hit and surface_origin's box query leave
+    out the nodes the stack has no room for rather than write past it over the entries of the root's leaves."""
+    from usdbake.kernels.bvh_build import (CHILD_OFFSET, COUNT_OFFSET, NODE_FLOATS, PACKET, WIDTH, TriangleBvh,
+                                           leaf_ref, single_level)
+
+    points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    packets = np.zeros((2, 9, PACKET), np.float32)  # packet 0: the triangle in lane 0; packet 1: empty
+    packets[0, :, 0] = points.ravel()
+    packet_triangle = np.full((2, PACKET), -1, np.int32)
+    packet_triangle[0, 0] = 0
+    depth = 60
+    nodes = np.zeros((depth, NODE_FLOATS), np.float32)
+    nodes[:, :3 * WIDTH], nodes[:, 3 * WIDTH:6 * WIDTH] = -1.0, 2.0  # every child box holds the triangle
+    ints = nodes.view(np.int32)
+    ints[:, CHILD_OFFSET:CHILD_OFFSET + WIDTH] = leaf_ref(1, 1)
+    ints[0, CHILD_OFFSET:CHILD_OFFSET + WIDTH] = leaf_ref(0, 1)
+    ints[:-1, CHILD_OFFSET + WIDTH - 1] = np.arange(1, depth)  # the last child: the next node
+    ints[:, COUNT_OFFSET] = WIDTH
+    tracer = Tracer(points, [[0, 1, 2]], arrays=single_level(TriangleBvh(nodes, packets, packet_triangle)))
+    origin, down = np.array([[0.25, 0.25, 10.0]], np.float32), np.array([[0.0, 0.0, -1.0]], np.float32)
+    hits = tracer.closest_hit(origin, down)
+    assert hits.hit_triangle.tolist() == [0] and hits.hit_t.tolist() == [10.0]
+    assert tracer.occluded(origin, down).tolist() == [True]
+    normal = np.array([[0.6, 0.0, 0.8]], np.float32)  # tilted: the origin must be moved in front of the face
+    moved = wp.zeros(1, dtype=wp.vec3, device=tracer.device)
+    inputs = [tracer.scene, tracer.array(origin * [1, 1, 0], wp.vec3), tracer.array(normal, wp.vec3), tracer.epsilon]
+    wp.launch(surface_origin_kernel, 1, inputs=[*inputs, moved], device=tracer.device)
+    assert moved.numpy()[0, 2] >= tracer.epsilon * (1 - FLOAT32_ACCUMULATED), (moved.numpy(), tracer.epsilon)
+
+# -- 7. the native source ------------------------------------------------------------------------
+
+
+def test_native_source_ships_with_the_package():
+    """Every file of kernels/native (the C++ traversal.py reads at import) is matched by pyproject's package
+    data for usdbake.kernels, so an installed package can trace."""
+    config = tomllib.loads((REPO / "pyproject.toml").read_text())
+    patterns = config["tool"]["setuptools"]["package-data"]["usdbake.kernels"]
+    files = [path.relative_to(NATIVE.parent).as_posix() for path in NATIVE.iterdir()]
+    assert files and all(any(fnmatch(name, pattern) for pattern in patterns) for name in files), (files, patterns)

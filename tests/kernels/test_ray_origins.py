@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from lit_scenes import make_scene, merge, quad
-from tolerances import MC_SIGMAS
+from tolerances import FLOAT32_STORAGE, FLOAT64_ROUNDING, MC_SIGMAS
 from usdbake.kernels.tracer import Tracer
 from usdbake.processors.occlusion.ambient_occlusion import compute_vertex_ao
 
@@ -58,7 +58,7 @@ def brute_force_ao(points, tris, p, n, samples, seed) -> float:
             tt = (qv @ e2[f]) / det
         hit_ahead = (bu >= 0) & (bv >= 0) & (bu + bv <= 1) & (tt > 1e-12) & (np.abs(det) > 1e-15)
         blocked |= hit_ahead
-        if abs((p - a[f]) @ face_n[f]) < 1e-12:  # p lies in the face's plane
+        if abs((p - a[f]) @ face_n[f]) < FLOAT64_ROUNDING:  # p lies in the face's plane
             along = d - np.outer(d @ face_n[f], face_n[f])
             stays = points_in_triangle(p + 1e-6 * along, a[f], b[f], c[f], face_n[f])
             blocked |= stays & (d @ face_n[f] < 0)
@@ -103,8 +103,8 @@ def test_vertex_inward_points_into_the_own_face_at_an_unwelded_crease():
     # the -y side face of the box is quad(lo, ex, ez): its corner (-1, -1, 0) lies on the floor
     corner = np.flatnonzero(np.all(points == [-1, -1, 0], axis=1) & (normals[:, 1] < -0.5))
     assert len(corner) == 1
-    np.testing.assert_allclose(inward[corner[0]], [np.sqrt(0.5), 0, np.sqrt(0.5)], atol=1e-6)
-    np.testing.assert_allclose((inward * normals).sum(axis=1), 0, atol=1e-6)
+    np.testing.assert_allclose(inward[corner[0]], [np.sqrt(0.5), 0, np.sqrt(0.5)], atol=FLOAT32_STORAGE)
+    np.testing.assert_allclose((inward * normals).sum(axis=1), 0, atol=FLOAT32_STORAGE)
 
 
 def test_no_light_leaks_out_of_a_closed_room_through_its_corners():

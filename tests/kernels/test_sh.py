@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import warp as wp
 
-from tolerances import (FIBONACCI_MEAN, FLOAT32_ACCUMULATED, FLOAT32_WARP_MATH, FLOAT64_AMPLIFIED, FLOAT64_CONSTANT,
-                        FLOAT64_ROUNDING, GRID_MINIMUM, QUOTED_6_DECIMALS, SH_L2_TRUNCATION, SH_ROTATION)
+from tolerances import (DERING_STRENGTH, FIBONACCI_MEAN, FLOAT32_ACCUMULATED, FLOAT32_WARP_MATH, FLOAT64_AMPLIFIED,
+                        FLOAT64_CONSTANT, FLOAT64_ROUNDING, GRID_MINIMUM, QUOTED_6_DECIMALS, SH_L2_TRUNCATION,
+                        SH_ROTATION)
 from usdbake.kernels import sh
 
 wp.set_module_options({"enable_backward": False})
@@ -275,7 +276,7 @@ def test_dering_windows_only_the_probes_that_ring_and_only_as_much_as_needed():
     smooth[0], smooth[2] = 1.0, 0.3  # constant plus a gentle linear term: positive everywhere
     black = np.zeros((9, 3))
     windowed, strengths = dering(np.stack([ringing, smooth, black]))
-    assert abs(strengths[0] - DERING_NON_NEGATIVE) < 0.01
+    assert abs(strengths[0] - DERING_NON_NEGATIVE) < DERING_STRENGTH
     assert strengths[1] == 0.0 and strengths[2] == 0.0
     np.testing.assert_array_equal(windowed[1], smooth)
     np.testing.assert_array_equal(windowed[2], black)

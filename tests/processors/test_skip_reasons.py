@@ -8,6 +8,8 @@ from pxr import Gf, Usd, UsdGeom, UsdLux
 
 from usdbake.stages.extract import extract_scene
 from usdbake.core.pipeline import Pipeline
+from usdbake.core.runtime import Runtime
+from usdbake.kernels.tracer import Tracer
 
 
 
@@ -37,7 +39,7 @@ def instancer_stage(instances: int) -> Usd.Stage:
 
 
 def plan(stage: Usd.Stage, names, params=None, cache_dir=None) -> dict:
-    pipeline = Pipeline.build(names, params, cache_dir=cache_dir)
+    pipeline = Pipeline.build(names, params, runtime=Runtime(Tracer.from_scene), cache_dir=cache_dir)
     return {step.name: (step.action, step.reason) for step in pipeline.plan(extract_scene(stage))}
 
 
@@ -119,7 +121,7 @@ def test_fields_pay_off_by_the_cost_model():
 def test_up_to_date(tmp_path):
     stage, names = quad_stage(light=True), ["ambient_occlusion"]
     params = {"ambient_occlusion": {"samples": 4}}
-    pipeline = Pipeline.build(names, params, cache_dir=tmp_path)
+    pipeline = Pipeline.build(names, params, runtime=Runtime(Tracer.from_scene), cache_dir=tmp_path)
     pipeline.run(extract_scene(stage))
     assert plan(stage, names, params, cache_dir=tmp_path)["ambient_occlusion"] == (
         "cached", "up to date: fingerprint unchanged")

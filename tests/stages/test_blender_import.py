@@ -36,6 +36,7 @@ import pytest
 from pxr import Usd, UsdGeom, UsdShade
 
 import production_assets
+from tolerances import FLOAT32_STORAGE
 
 pytestmark = pytest.mark.slow
 
@@ -297,7 +298,7 @@ def test_meshes_import_with_their_topology_uvs_and_materials(imported, stages, k
         assert uv == {"domain": "CORNER", "data_type": "FLOAT2", "length": usd["corners"]}, (
             f"{where}: UV attribute {uv_name!r} is {uv}")
         st = usd["primvars"]["st"]["values"]
-        assert np.allclose(np.asarray(ob["values"][uv_name]), st, atol=1e-6), (
+        assert np.allclose(np.asarray(ob["values"][uv_name]), st, atol=FLOAT32_STORAGE), (
             f"{where}: UVs in Blender differ from the flattened primvars:st")
 
         # Material slots, and each polygon's slot is its GeomSubset's material.
@@ -343,7 +344,7 @@ def test_baked_primvars_become_attributes_with_their_values(imported, stages):
             if info["type"].startswith("uchar") and attr["data_type"] == "INT8":
                 usd_values = usd_values.astype(np.uint8).astype(np.int8).astype(np.float64)
             got = np.asarray(ob["values"][pv], dtype=np.float64)
-            assert got.shape == usd_values.shape and np.allclose(got, usd_values, atol=1e-6), (
+            assert got.shape == usd_values.shape and np.allclose(got, usd_values, atol=FLOAT32_STORAGE), (
                 f"{where}: Blender's values differ from the layer's (Blender leaves an attribute zero "
                 f"when the primvar's length does not fit): Blender {got[:8]}..., USD {usd_values[:8]}...")
         ao = np.asarray(ob["values"]["bake:ao"])

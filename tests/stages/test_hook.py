@@ -15,6 +15,8 @@ import usdbake
 from usdbake import core
 from usdbake.stages.hook import last_report
 from usdbake.core.pipeline import Pipeline
+from usdbake.core.runtime import Runtime
+from usdbake.kernels.tracer import Tracer
 
 AO_FAST = {"ambient_occlusion": {"samples": 16}}
 
@@ -139,7 +141,7 @@ def test_processor_from_an_entry_point(fake_distribution, stage, cache):
     cls = core.registry.get("fake_ep")
     assert cls.__module__ == "fakeplugin_mod" and issubclass(cls, core.Processor)
 
-    steps = Pipeline.build(["fake_ep"], cache_dir=cache).run(fakes.make_scene())
+    steps = Pipeline.build(["fake_ep"], runtime=Runtime(Tracer.from_scene), cache_dir=cache).run(fakes.make_scene())
     assert [(step.name, step.action) for step in steps] == [("fake_ep", "run")]
     records = steps[0].result.outputs
     assert len(records) == 1 and isinstance(records[0], core.Primvar)
@@ -192,11 +194,9 @@ def test_bad_thread_count_is_refused_before_any_work(threads):
 
 def test_threads_reach_the_ray_core(monkeypatch):
     """The hook's threads= is the thread count of the tracer the processors share."""
-    from usdbake.kernels import tracer as tracer_module
-
     seen = []
-    original = tracer_module.shared_tracer
-    monkeypatch.setattr(tracer_module, "shared_tracer",
+    original = Tracer.from_scene
+    monkeypatch.setattr(Tracer, "from_scene",
                         lambda scene, **kwargs: seen.append(kwargs.get("threads")) or original(scene, **kwargs))
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.Cube.Define(stage, "/Box")

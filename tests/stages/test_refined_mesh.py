@@ -17,6 +17,7 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from production_assets import add_box, add_floor, new_stage, room_with_box, topology_mismatches
+from tolerances import FLOAT32_ACCUMULATED, FLOAT32_ROUNDING, FLOAT32_STORAGE
 from usdbake.cli.main import main
 from usdbake.core.records import Attribute, Block, Primvar
 from usdbake.processors.daylight.refined_scene import refine_scene
@@ -96,7 +97,7 @@ def test_face_varying_indexed_uvs_are_the_affine_map_of_each_face(room):
         origin, e1, e3 = quad[0], quad[1] - quad[0], quad[3] - quad[0]
         expected = np.stack([(corner_positions - origin) @ e1 / (e1 @ e1),
                              (corner_positions - origin) @ e3 / (e3 @ e3)], 1)
-        np.testing.assert_allclose(corner_uv, expected, atol=1e-6)
+        np.testing.assert_allclose(corner_uv, expected, atol=FLOAT32_STORAGE)
 
 
 def test_vertex_normals_are_carried_and_unit(room):
@@ -104,13 +105,13 @@ def test_vertex_normals_are_carried_and_unit(room):
     box = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Box"))
     normals = np.asarray(box.GetNormalsAttr().Get(), np.float64)
     assert len(normals) == len(box.GetPointsAttr().Get())
-    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=FLOAT32_STORAGE)
     corners = face_corners(box)
     face_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     face_normal /= np.linalg.norm(face_normal, axis=1, keepdims=True)
     indices = np.asarray(box.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
     for k in range(3):  # unwelded box: the authored normal of every corner is its face's normal
-        np.testing.assert_allclose(normals[indices[:, k]], face_normal, atol=1e-6)
+        np.testing.assert_allclose(normals[indices[:, k]], face_normal, atol=FLOAT32_STORAGE)
 
 
 def test_face_varying_normals_primvar_on_the_floor(room):
@@ -118,7 +119,7 @@ def test_face_varying_normals_primvar_on_the_floor(room):
     floor = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Floor"))
     normals = np.asarray(UsdGeom.PrimvarsAPI(floor).GetPrimvar("normals").Get())
     assert len(normals) == len(floor.GetFaceVertexIndicesAttr().Get()) == 3 * 2 * 4 ** LEVELS
-    np.testing.assert_allclose(normals, np.tile([0.0, 1.0, 0.0], (len(normals), 1)), atol=1e-7)
+    np.testing.assert_allclose(normals, np.tile([0.0, 1.0, 0.0], (len(normals), 1)), atol=FLOAT32_ROUNDING)
 
 
 def test_constant_normals_are_left_as_authored(tmp_path):
@@ -176,10 +177,10 @@ def test_time_samples_and_element_size_are_carried(tmp_path):
     temperature = api.GetPrimvar("temperature")
     assert temperature.GetAttr().GetTimeSamples() == [1.0, 2.0]
     for time in (1.0, 2.0):
-        np.testing.assert_allclose(np.asarray(temperature.Get(time)), time * points[:, 0], atol=1e-5)
+        np.testing.assert_allclose(np.asarray(temperature.Get(time)), time * points[:, 0], atol=FLOAT32_ACCUMULATED)
     xz = api.GetPrimvar("xz")
     assert xz.GetElementSize() == 2
-    np.testing.assert_allclose(np.asarray(xz.Get()).reshape(-1, 2), points[:, [0, 2]], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(xz.Get()).reshape(-1, 2), points[:, [0, 2]], atol=FLOAT32_STORAGE)
     assert topology_mismatches(stage) == []
 
 
@@ -198,7 +199,7 @@ def test_a_blocked_time_sample_stays_blocked(tmp_path):
     floor = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Floor"))
     points = np.asarray(floor.GetPointsAttr().Get(), np.float64)
     temperature = UsdGeom.PrimvarsAPI(floor).GetPrimvar("temperature")
-    np.testing.assert_allclose(np.asarray(temperature.Get(1.0)), points[:, 0], atol=1e-5)
+    np.testing.assert_allclose(np.asarray(temperature.Get(1.0)), points[:, 0], atol=FLOAT32_ACCUMULATED)
     assert temperature.Get(2.0) is None and floor.GetVelocitiesAttr().Get(2.0) is None
     assert len(floor.GetVelocitiesAttr().Get(1.0)) == len(points)
 
@@ -219,7 +220,7 @@ def test_crease_edges_are_split_at_their_new_points(tmp_path):
     along = points[chain] - points[0]
     distance = np.linalg.norm(along, axis=1)
     assert np.all(np.diff(distance) > 0)  # ordered from one end to the other
-    np.testing.assert_allclose(np.cross(along, points[1] - points[0]), 0.0, atol=1e-6)  # all on the edge
+    np.testing.assert_allclose(np.cross(along, points[1] - points[0]), 0.0, atol=FLOAT32_STORAGE)  # all on the edge
 
 
 def test_hole_faces_are_left_out_and_hole_indices_cleared(tmp_path):

@@ -19,7 +19,7 @@ import usdbake
 from usdbake import core
 from usdbake.cli.main import main
 from usdbake.core import Attribute, File, Params, Processor, Result, Texture, param
-from usdbake.stages import bake_layer
+from usdbake.stages import bake_layer, sidecars
 
 SAMPLES = Path(__file__).resolve().parents[2] / "samples"
 
@@ -237,7 +237,7 @@ def test_failed_image_write_leaves_only_the_previous_output(tmp_path, stage_in, 
         Path(path).write_bytes(b"half an image")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(bake_layer, "_write_image", failing_write)
+    monkeypatch.setattr(sidecars, "_write_image", failing_write)
     assert bake(stage_in, out, 2, cache) == 130
     # The temporary name is next to the output, recognisably usdbake's and this output's.
     assert [p.parent for p in written] == [tmp_path]

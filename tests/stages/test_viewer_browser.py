@@ -14,7 +14,7 @@ from served_stage import bake_streams, running
 from usdbake.formats.streaming import decode_stream
 from usdbake.kernels.direction24 import dequantize_vectors
 from usdbake.preview.stream_client import stream_scene
-from usdbake.processors.irradiance_grid.irradiance_grid import GridLayout, reconstruct_irradiance, trilinear
+from usdbake.processors.irradiance_grid.vector_grid import GridLayout, reconstruct_irradiance, trilinear
 from usdbake.stages.serve import make_app
 
 playwright = pytest.importorskip("playwright.sync_api")

@@ -6,7 +6,7 @@ are far below tracer.MIN_CHUNK (4096), so it is lowered to 8 here: launch_chunke
 time, and every processor launches through it (Tracer.launch, or launch_chunked directly in
 form_factors). Each run builds a fresh Pipeline with no cache, so everything is recomputed.
 
-Thread counts reach the kernels through Pipeline(threads=...) -> the shared Tracer, and -> ctx.threads for
+Thread counts reach the kernels through the run's Runtime(threads=...) -> its Tracer, and -> ctx.threads for
 the processors that build BVHs of their own (displacement_fields, instance_ao).
 """
 
@@ -20,6 +20,8 @@ from usdbake import core
 from usdbake.kernels import tracer
 from usdbake.stages.extract import extract_scene
 from usdbake.core.pipeline import Pipeline
+from usdbake.core.runtime import Runtime
+from usdbake.kernels.tracer import Tracer
 
 PROCESSORS = sorted(name for name, cls in core.registry.registry().items()
                     if cls.__module__.startswith("usdbake.processors."))
@@ -47,7 +49,7 @@ def record_arrays(value, where: str):
 
 
 def run_once(name: str, scene, threads: int) -> dict[str, np.ndarray]:
-    steps = Pipeline.build([name], fast_params(name), threads=threads).run(scene)
+    steps = Pipeline.build([name], fast_params(name), runtime=Runtime(Tracer.from_scene, threads=threads)).run(scene)
     out = {}
     for step in steps:
         assert step.action == "run", f"{step.name}: {step.action} ({step.reason})"

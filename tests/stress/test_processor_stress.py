@@ -24,6 +24,8 @@ from usdbake.core.errors import StageError
 from usdbake.stages.extract import extract_scene
 from usdbake.stages.hook import last_report
 from usdbake.core.pipeline import Pipeline
+from usdbake.core.runtime import Runtime
+from usdbake.kernels.tracer import Tracer
 
 PROCESSORS = sorted(name for name, cls in core.registry.registry().items()
                     if cls.__module__.startswith("usdbake.processors."))
@@ -137,7 +139,7 @@ def test_hostile_stage_bakes_finite_values_in_range(name, tmp_path):
 @pytest.mark.parametrize("name", PROCESSORS)
 def test_hostile_stage_products_are_finite(name, hostile_scene):
     """Every float array in every step's products and output records (kernel outputs handed downstream)."""
-    steps = Pipeline.build([name], fast_params(name)).run(hostile_scene)
+    steps = Pipeline.build([name], fast_params(name), runtime=Runtime(Tracer.from_scene)).run(hostile_scene)
     for step in steps:
         assert step.action == "run", f"{step.name}: {step.reason}"
         for where, array in walk_arrays({"products": step.result.products,
@@ -151,7 +153,8 @@ def test_form_factor_rows_sum_to_at_most_one(hostile_scene):
     escapes). The multi-bounce operator M = sum_{h<=k} (F rho)^h is non-negative with row sums at most
     sum_{h<=k} rho_max^h (|F rho|_inf <= rho_max, submultiplicative); decoded with row correction, the
     same bound up to float32 rounding."""
-    steps = Pipeline.build(["form_factors"], fast_params("form_factors")).run(hostile_scene)
+    steps = Pipeline.build(["form_factors"], fast_params("form_factors"),
+                           runtime=Runtime(Tracer.from_scene)).run(hostile_scene)
     product = steps[-1].result.products[FormFactorProduct]
     checks = product.checks
     assert checks["row_sum_min"] >= 0
@@ -176,7 +179,7 @@ def test_light_probe_sh_irradiance_is_non_negative(lights, hostile_scene):
         stage = hostile_lit_stage()
         stage.RemovePrim("/World/Sky")
         scene = extract_scene(stage)
-    steps = Pipeline.build(["light_probes"], fast_params("light_probes")).run(scene)
+    steps = Pipeline.build(["light_probes"], fast_params("light_probes"), runtime=Runtime(Tracer.from_scene)).run(scene)
     cloud = steps[-1].result.products[ProbeCloud]
     sh = cloud.probe_sh.astype(np.float64)  # (P, 9, 3) irradiance SH
     assert len(sh) >= 4 and np.isfinite(sh).all()

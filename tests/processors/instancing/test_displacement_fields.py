@@ -115,7 +115,7 @@ def test_uint8_and_bit1_fields_agree_on_hits_and_bit1_is_about_8x_smaller():
 def test_atlas_round_trip_through_a_png(tmp_path, encoding):
     import OpenImageIO as oiio
 
-    from usdbake.stages.bake_layer import write_texture
+    from usdbake.stages.sidecars import write_texture
 
     points, triangles = icosphere(2)
     field = build_field(points * 0.3, triangles, prototype="/World/Proto", positional_samples=25, map_size=8,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from instanced_scenes import build_scene, grid, icosphere, run_processor, translate
 from tolerances import (AO_RMS_FIGURE, CELL_BORDER_FLIPS, FLOAT32_STORAGE, FLOAT64_AMPLIFIED, INSIDE_RMS,
-                        INSTANCE_MEAN_TOL, RAY_MISMATCH, SHARED_FIELD_RMS, SYNTHETIC_RMS)
+                        INSTANCE_MEAN_TOL, RAY_MISMATCH, SHARED_FIELD_RMS, SINGLE_RAY_FLIP, SYNTHETIC_RMS)
 
 from usdbake.core.products import AmbientOcclusionProduct, DisplacementFieldSet, InstanceOcclusionProduct
 from usdbake import core
@@ -366,7 +366,7 @@ def test_moved_and_rounded_copies_share_one_field_folded_into_their_instances():
     folded, _ = field_ao(folded_scene, SHARED_FIELD, {"samples": samples})
     floor = scene.point_prim == 0
     np.testing.assert_allclose(shared[floor], folded.products[InstanceOcclusionProduct].point_ao_by_frame[None][floor],
-                               atol=1 / samples)  # at most one ray of the 256 flips on float32 rounding
+                               atol=SINGLE_RAY_FLIP / samples)
 
     own = {path: build_field(points, triangles, prototype=path, positional_samples=1089, map_size=16)
            for path, points, triangles in prototypes}

@@ -70,7 +70,7 @@ def test_symmetric_and_planar_shapes_match_whatever_rotation_fits():
     cube = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
     quarter = motion(np.array([[0, 1, 0], [-1, 0, 0], [0, 0, 1]], float), [3, 0, 0])
     found = rigid_alignment(cube, moved(cube, quarter), tolerance=1e-9)
-    np.testing.assert_allclose(moved(cube, found), moved(cube, quarter), atol=1e-9)
+    np.testing.assert_allclose(moved(cube, found), moved(cube, quarter), atol=FLOAT64_ROUNDING)
     square = cube[cube[:, 2] == 0]
     found = rigid_alignment(square, moved(square, quarter), tolerance=1e-9)
     assert found is not None and np.linalg.det(found[:3, :3]) > 0

@@ -9,12 +9,12 @@ import numpy as np
 from lit_scenes import cube, make_lights, make_scene, merge, quad
 from stage_builders import base_context
 import pytest
-from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_ROUNDING, FLOAT32_STORAGE, GRID_BOUNCE_SHARE,
-                        MC_SIGMAS,
-                        ON_BOUNDARY)
+from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_ROUNDING, FLOAT32_STORAGE, FLOAT64_ROUNDING,
+                        GRID_BOUNCE_SHARE, MC_SIGMAS, ON_BOUNDARY)
 from usdbake.core.products import IrradianceGridProduct
-from usdbake.processors.irradiance_grid.irradiance_grid import dequantize_vectors
+from usdbake.kernels.direction24 import dequantize_vectors
 from usdbake.processors.irradiance_grid import irradiance_grid as ig
+from usdbake.processors.irradiance_grid.vector_grid import GridLayout, grid_bounds, grid_layout, reconstruct_irradiance
 from usdbake.formats import streaming
 from usdbake.core import Context, ParamError
 from usdbake.kernels import direction24 as dir24
@@ -66,7 +66,7 @@ def test_uniform_sky_gives_pi_l_along_each_axis():
     # Quantized: every direction decodes within the code's bound of its axis, and the paper's
     # guarantee M delta = c (d' . delta) = I . delta holds to RGB9E5 precision.
     directions, colors = ig.quantize_vectors(vectors)
-    decoded = ig.dequantize_vectors(directions, colors)
+    decoded = dequantize_vectors(directions, colors)
     along = np.einsum("vhci,hi->vhc", decoded, dir24.AXES)
     truth = np.einsum("vhci,hi->vhc", vectors, dir24.AXES)
     # RGB9E5 shares one exponent: the error bound is relative to the largest channel.
@@ -86,7 +86,7 @@ def test_single_distant_light_gives_vectors_along_the_light():
         expected = np.outer(e, w) if axis @ w > 0 else np.zeros((3, 3))
         np.testing.assert_allclose(vectors[0, h], expected, rtol=FLOAT32_ACCUMULATED, atol=FLOAT32_ACCUMULATED)
     directions, colors = ig.quantize_vectors(vectors)
-    decoded = ig.dequantize_vectors(directions, colors)[0]
+    decoded = dequantize_vectors(directions, colors)[0]
     for h in (0, 2, 4):
         d = decoded[h].sum(axis=0)
         assert math.degrees(math.acos(min(1.0, d @ w / np.linalg.norm(d)))) <= dir24.MAX_ANGLE_ERROR_DEG
@@ -126,7 +126,7 @@ def test_indirect_only_drops_the_light_but_keeps_its_bounce():
 
 
 def uniform_grid(radiance=1.0):
-    layout = ig.GridLayout(np.zeros(3), np.ones(3), (2, 2, 2))
+    layout = GridLayout(np.zeros(3), np.ones(3), (2, 2, 2))
     vectors = np.broadcast_to(math.pi * radiance * dir24.AXES[None, :, None, :], (8, 6, 3, 3)).copy()
     return layout, vectors
 
@@ -140,19 +140,19 @@ def test_axis_aligned_normals_read_the_quantized_grid_exactly():
     """Paper 3.3: c = I . delta / (d' . delta) keeps I . delta through quantization, so a surface facing an
     axis reads the 42-byte grid as the float one, to RGB9E5 precision (relative to the largest channel)."""
     rng = np.random.default_rng(5)  # fixed seed: arbitrary light
-    layout = ig.GridLayout(np.zeros(3), np.ones(3), (2, 2, 2))
+    layout = GridLayout(np.zeros(3), np.ones(3), (2, 2, 2))
     w = rng.normal(size=(8, 6, 3, 3))
     axes = dir24.AXES[None, :, None, :].astype(np.float64)
     w += (np.abs(np.einsum("vhci,hi->vhc", w, dir24.AXES))[..., None] + 0.1) * axes  # into each hemisphere
     vectors = (w * rng.random((8, 6, 3, 1)) * 10).astype(np.float32)
-    decoded = ig.dequantize_vectors(*ig.quantize_vectors(vectors))
+    decoded = dequantize_vectors(*ig.quantize_vectors(vectors))
     points = rng.random((200, 3))
     normals = dir24.AXES[rng.integers(0, 6, len(points))]
-    exact = ig.reconstruct_irradiance(layout, vectors, points, normals, normal_offset=0.0)
-    quantized = ig.reconstruct_irradiance(layout, decoded, points, normals, normal_offset=0.0)
+    exact = reconstruct_irradiance(layout, vectors, points, normals, normal_offset=0.0)
+    quantized = reconstruct_irradiance(layout, decoded, points, normals, normal_offset=0.0)
     bound = RELATIVE_ERROR * np.abs(vectors).max() * np.sqrt(3) * (1 + FLOAT32_ACCUMULATED)
     assert np.abs(quantized - exact).max() <= bound
-    off_axis = ig.reconstruct_irradiance(layout, decoded, points, random_normals(len(points), 6), normal_offset=0.0)
+    off_axis = reconstruct_irradiance(layout, decoded, points, random_normals(len(points), 6), normal_offset=0.0)
     assert np.isfinite(off_axis).all()
 
 
@@ -162,28 +162,28 @@ def test_paper_reconstruction_closed_form_for_a_uniform_sky():
     layout, vectors = uniform_grid()
     n = random_normals(500, 1)
     points = np.random.default_rng(2).random((500, 3))
-    e = ig.reconstruct_irradiance(layout, vectors, points, n, normal_offset=0.0)
+    e = reconstruct_irradiance(layout, vectors, points, n, normal_offset=0.0)
     np.testing.assert_allclose(e, np.repeat((math.pi * (np.abs(n) ** 3).sum(axis=1))[:, None], 3, 1),
                                rtol=FLOAT32_ACCUMULATED)
-    axes = ig.reconstruct_irradiance(layout, vectors, np.full((6, 3), 0.5), dir24.AXES, normal_offset=0.0)
+    axes = reconstruct_irradiance(layout, vectors, np.full((6, 3), 0.5), dir24.AXES, normal_offset=0.0)
     np.testing.assert_allclose(axes, math.pi, rtol=FLOAT32_ACCUMULATED)
-    normalized = ig.reconstruct_irradiance(layout, vectors, points, n, normal_offset=0.0, reconstruction="normalized")
+    normalized = reconstruct_irradiance(layout, vectors, points, n, normal_offset=0.0, reconstruction="normalized")
     np.testing.assert_allclose(normalized, math.pi, rtol=FLOAT32_ACCUMULATED)
 
 
 def test_reconstruction_is_trilinear_and_zero_normals_give_zero():
-    layout = ig.GridLayout(np.zeros(3), np.full(3, 2.0), (2, 2, 2))
+    layout = GridLayout(np.zeros(3), np.full(3, 2.0), (2, 2, 2))
     coords = streaming.grid_coords(layout.resolution).astype(np.float64)
     value = 1.0 + coords @ [1.0, 2.0, 3.0]  # linear in the vertex coordinates
     vectors = np.zeros((8, 6, 3, 3))
     vectors[:, 4, :, 2] = value[:, None]  # +z hemisphere, along +z
     points = np.random.default_rng(3).random((50, 3)) * 2.0
-    e = ig.reconstruct_irradiance(layout, vectors, points, np.tile([0, 0, 1.0], (50, 1)), normal_offset=0.0)
+    e = reconstruct_irradiance(layout, vectors, points, np.tile([0, 0, 1.0], (50, 1)), normal_offset=0.0)
     np.testing.assert_allclose(e[:, 0], 1.0 + points / 2.0 @ [1.0, 2.0, 3.0], rtol=FLOAT32_ACCUMULATED)
-    zero = ig.reconstruct_irradiance(layout, vectors, points[:2], np.array([[0, 0, 0], [np.nan, 0, 0]]))
+    zero = reconstruct_irradiance(layout, vectors, points[:2], np.array([[0, 0, 0], [np.nan, 0, 0]]))
     np.testing.assert_array_equal(zero, 0.0)
     with pytest.raises(ValueError):
-        ig.reconstruct_irradiance(layout, vectors, points, points, reconstruction="bogus")
+        reconstruct_irradiance(layout, vectors, points, points, reconstruction="bogus")
 
 
 def test_sunlit_ground_end_to_end_matches_the_closed_form():
@@ -205,7 +205,7 @@ def test_sunlit_ground_end_to_end_matches_the_closed_form():
 
 
 def test_grid_layout_bounds_and_target_count():
-    layout = ig.grid_layout(np.array([0, 0, 0.0]), np.array([10, 5, 2.0]), vertices=20000)
+    layout = grid_layout(np.array([0, 0, 0.0]), np.array([10, 5, 2.0]), vertices=20000)
     assert 10000 <= layout.count <= 20000
     lo = layout.grid_origin
     hi = lo + (np.asarray(layout.resolution) - 1) * layout.cell_size
@@ -213,12 +213,12 @@ def test_grid_layout_bounds_and_target_count():
     # Outer vertices lie between h/4 and 3h/4 outside the bounds.
     assert np.all(-lo >= h / 4 - ON_BOUNDARY) and np.all(-lo <= 3 * h / 4 + ON_BOUNDARY)
     assert np.all(hi - [10, 5, 2] >= h / 4 - ON_BOUNDARY)
-    fixed = ig.grid_layout(np.zeros(3), np.ones(3), cell_size=0.25)
+    fixed = grid_layout(np.zeros(3), np.ones(3), cell_size=0.25)
     assert fixed.resolution == (6, 6, 6)
-    flat = ig.grid_layout(np.zeros(3), np.array([1.0, 1.0, 0.0]), vertices=100)
+    flat = grid_layout(np.zeros(3), np.array([1.0, 1.0, 0.0]), vertices=100)
     assert flat.resolution[2] == 2 and flat.count <= 100
     with pytest.raises(ValueError, match="cell_size"):
-        ig.grid_layout(np.zeros(3), np.full(3, 1e4), cell_size=1e-3)
+        grid_layout(np.zeros(3), np.full(3, 1e4), cell_size=1e-3)
 
 
 def test_vertices_inside_closed_geometry_are_flagged_and_filled():
@@ -368,7 +368,7 @@ def test_grid_function_matches_the_numpy_reconstruction():
         out[i] = grid_irradiance(grid, p[i], n[i])
 
     rng = np.random.default_rng(8)  # fixed seed: arbitrary vectors, points in and around the grid
-    layout = ig.GridLayout(np.array([-1.0, 0.5, 2.0]), np.array([0.5, 0.5, 0.5]), (4, 3, 5))
+    layout = GridLayout(np.array([-1.0, 0.5, 2.0]), np.array([0.5, 0.5, 0.5]), (4, 3, 5))
     vectors = rng.normal(size=(layout.count, 6, 3, 3)).astype(np.float32)
     points = (layout.grid_origin - 0.2 + rng.random((400, 3)) * 2.8).astype(np.float32)
     normals = random_normals(400, 9).astype(np.float32)
@@ -376,7 +376,7 @@ def test_grid_function_matches_the_numpy_reconstruction():
     wp.launch(read, 400, [grid_vectors(vectors, layout.resolution, layout.grid_origin, layout.cell_size, "cpu"),
                           wp.array(points, dtype=wp.vec3, device="cpu"), wp.array(normals, dtype=wp.vec3, device="cpu"),
                           out], device="cpu")
-    expected = ig.reconstruct_irradiance(layout, vectors, points, normals, normal_offset=0.0)
+    expected = reconstruct_irradiance(layout, vectors, points, normals, normal_offset=0.0)
     np.testing.assert_allclose(out.numpy(), expected, atol=FLOAT32_ACCUMULATED * np.abs(vectors).max())
 
 
@@ -404,11 +404,11 @@ def test_more_bounces_carry_the_light_a_path_tracer_sees(lit_room):
     from usdbake.benchmarks.references import path_traced_indirect
 
     scene, tracer, points, normals = lit_room
-    layout = ig.grid_layout(scene.points.min(0), scene.points.max(0), vertices=1500)
+    layout = grid_layout(scene.points.min(0), scene.points.max(0), vertices=1500)
     means, shares = [], []
     for bounces in (1, 2, 3):
         grid = ig.bake_grid(tracer, scene, layout, rays=256, include_direct=False, bounces=bounces)
-        estimate = ig.reconstruct_irradiance(layout, grid.vectors, points, normals)
+        estimate = reconstruct_irradiance(layout, grid.vectors, points, normals)
         reference = path_traced_indirect(tracer, scene, points, normals, paths=2048, bounces=bounces)
         means.append(float(estimate.mean()))
         shares.append(float(estimate.mean() / reference.mean()))
@@ -432,7 +432,7 @@ def test_the_grid_goes_where_the_probe_volume_is():
     add_mesh(stage, "/World/Room", box, [4] * 6, [0, 2, 3, 1, 4, 5, 7, 6, 0, 1, 5, 4, 2, 6, 7, 3, 0, 4, 6, 2,
                                                  1, 3, 7, 5])
     UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(1.0)
-    whole = ig.grid_layout(*ig.grid_bounds(extract_scene(stage)), vertices=1000)
+    whole = grid_layout(*grid_bounds(extract_scene(stage)), vertices=1000)
     cube = UsdGeom.Cube.Define(stage, "/World/RoomVolume")
     UsdGeom.Xformable(cube).AddTranslateOp().Set(Gf.Vec3d(0, 0, 1.5))
     UsdGeom.Xformable(cube).AddScaleOp().Set(Gf.Vec3f(2, 2, 1.5))
@@ -440,7 +440,7 @@ def test_the_grid_goes_where_the_probe_volume_is():
     cube.CreateVisibilityAttr(UsdGeom.Tokens.invisible)  # a volume, not a wall: it still counts
     scene = extract_scene(stage)
     assert len(scene.prim_paths) == 2  # the cube is no receiver
-    np.testing.assert_allclose(scene.probe_volumes[0] + scene.origin, [[-2, -2, 0], [2, 2, 3]], atol=1e-9)
+    np.testing.assert_allclose(scene.probe_volumes[0] + scene.origin, [[-2, -2, 0], [2, 2, 3]], atol=FLOAT64_ROUNDING)
     result, _ = run(scene, vertices=1000, rays=16)
     layout = result.products[IrradianceGridProduct].layout
     world_lo = layout.grid_origin + scene.origin

@@ -7,15 +7,21 @@ import math
 import numpy as np
 import pytest
 from lit_scenes import cube, make_lights, make_scene, merge, quad
-from tolerances import MC_SIGMAS
+from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_STORAGE, FLOAT64_ROUNDING,
+                        LEAST_SQUARES_RIDGE, MC_SIGMAS)
 
 from usdbake.core import Context
 from usdbake.core.products import ProbeCloud
 from usdbake.core.scene import LIGHT_DISTANT, LIGHT_SPHERE
 from usdbake.processors.light_probes import conforming
-from usdbake.kernels.lights import scene_lighting
+from usdbake.kernels.light_bundles import scene_lighting
+from usdbake.kernels.sh import sh_basis_np
 from usdbake.kernels.tracer import Tracer
 from usdbake.processors.light_probes import light_probes as lp
+from usdbake.processors.light_probes.capture import classify_points, compute_probe_sh, direct_light_irradiance
+from usdbake.processors.light_probes.interpolation import interpolation_weights, irradiance_at, segment_blocked
+from usdbake.processors.light_probes.placement import (DARK_CLUSTER_SIZE, cloud_edges, cluster_dark_probes,
+                                                      similar_probes)
 
 
 def bake(scene, **params):
@@ -33,9 +39,9 @@ def test_capture_sees_the_geometric_series_of_bounces_in_an_emissive_box(bounces
     scene = make_scene(points, tris, albedo=rho, emission=np.full((len(tris), 3), le, np.float32))
     tracer = Tracer.from_scene(scene)
     rays = 4096
-    got = lp.compute_probe_sh(tracer, scene, np.array([[0.1, -0.2, 0.3]]), rays=rays, seed=5, bounces=bounces)
+    got = compute_probe_sh(tracer, scene, np.array([[0.1, -0.2, 0.3]]), rays=rays, seed=5, bounces=bounces)
     normals = np.array([[0, 0, 1.0], [1, 0, 0], [0, -1, 0]])
-    e = np.einsum("nk,kc->nc", lp.sh_basis_np(normals), got[0].astype(np.float64))
+    e = np.einsum("nk,kc->nc", sh_basis_np(normals), got[0].astype(np.float64))
     expected = math.pi * le * sum(rho ** k for k in range(bounces + 1))
     # Every ray's radiance is bounded by the series' sum (the paths' estimates stay below Le / (1 - rho))
     # and the emitter sampling of a uniform box is exact in the mean: MC_SIGMAS standard deviations.
@@ -59,15 +65,15 @@ def test_decoupled_probes_leave_the_sun_to_the_lookup():
     tracer = Tracer.from_scene(scene)
     points = np.array([[0.0, 0.0, 1.0], [3.0, -2.0, 2.0]], np.float32)
     up = np.array([[0, 0, 1.0]] * 2, np.float32)
-    bounce_only = lp.compute_probe_sh(tracer, scene, points, rays=1024, seed=1, direct_lights=False)
-    e_up = np.einsum("nk,nkc->nc", lp.sh_basis_np(up.astype(np.float64)), bounce_only.astype(np.float64))
+    bounce_only = compute_probe_sh(tracer, scene, points, rays=1024, seed=1, direct_lights=False)
+    e_up = np.einsum("nk,nkc->nc", sh_basis_np(up.astype(np.float64)), bounce_only.astype(np.float64))
     # Looking up, the probe sees the black sky over the upper hemisphere: only L2 ringing of the ground's
     # radiance remains (|E_L2(up)| <= pi/4 - ... of the ground radiance rho E cos45 / pi).
     ground_radiance = 0.5 * 2.0 * math.cos(math.pi / 4) / math.pi
     assert np.abs(e_up).max() <= 0.25 * math.pi * ground_radiance
-    direct = lp.direct_light_irradiance(tracer, scene, points, up)
-    np.testing.assert_allclose(direct, 2.0 * math.cos(math.pi / 4), rtol=1e-5)
-    shadowed = lp.direct_light_irradiance(tracer, scene, np.array([[0, 0, -1.0]], np.float32), up[:1])
+    direct = direct_light_irradiance(tracer, scene, points, up)
+    np.testing.assert_allclose(direct, 2.0 * math.cos(math.pi / 4), rtol=FLOAT32_ACCUMULATED)
+    shadowed = direct_light_irradiance(tracer, scene, np.array([[0, 0, -1.0]], np.float32), up[:1])
     np.testing.assert_array_equal(shadowed, 0.0)  # below the ground: the ground shadows the sun
 
 
@@ -88,13 +94,13 @@ def test_a_baked_cloud_says_whether_its_probes_hold_direct_light():
     assert records["bake:directLights"] == "excluded"
     points = np.array([[-2.2, 0, 2.2], [0, 2.2, 2.1], [2.2, 0.5, 1.0]], np.float32)  # in the sun
     up = np.tile(np.float32([0, 0, 1]), (3, 1))
-    with_sun = lp.irradiance_at(a, points, up, tracer=tracer, scene=scene)
-    without_sun = lp.irradiance_at(a, points, up, tracer=tracer)  # the same visibility-tested probes
+    with_sun = irradiance_at(a, points, up, tracer=tracer, scene=scene)
+    without_sun = irradiance_at(a, points, up, tracer=tracer)  # the same visibility-tested probes
     np.testing.assert_allclose(with_sun - without_sun, 2.0 * math.cos(math.pi / 4),
-                               rtol=1e-4)
+                               rtol=FLOAT32_LONG_CHAIN)
     # With the sun in the probes, the lookup adds nothing.
-    np.testing.assert_array_equal(lp.irradiance_at(b, points, up, tracer=tracer, scene=scene),
-                                  lp.irradiance_at(b, points, up, tracer=tracer))
+    np.testing.assert_array_equal(irradiance_at(b, points, up, tracer=tracer, scene=scene),
+                                  irradiance_at(b, points, up, tracer=tracer))
 
 
 def test_probes_that_see_the_same_light_merge_into_the_more_varied_one():
@@ -103,7 +109,7 @@ def test_probes_that_see_the_same_light_merge_into_the_more_varied_one():
     samples[4] = 10.0  # one probe sees other light
     v = np.array([0.5, 0.1, 0.2, 0.3, 1.0])
     edges = np.array([[0, 1], [0, 2], [2, 3], [3, 4]])
-    gone = lp.similar_probes(positions, samples, v, edges, floor=1e-6, threshold=0.05, max_length=2.0)
+    gone = similar_probes(positions, samples, v, edges, floor=1e-6, threshold=0.05, max_length=2.0)
     # (0, 1) goes first (contrast 0, the first least-contrasted edge): 1 has the lower V. (0, 2) is then
     # skipped (0 was touched); (2, 3) merges 2; (3, 4) is contrasted and too long.
     np.testing.assert_array_equal(gone, [False, True, True, False, False])
@@ -116,23 +122,23 @@ def test_dark_probes_inside_an_unlit_region_become_one_per_cluster():
     sh = np.zeros((len(positions), 9, 3), np.float32)
     lit = positions[:, 0] < 3.5
     sh[lit, 0] = 1.0  # a constant irradiance on the lit half
-    kept_positions, kept_sh, gone = lp.cluster_dark_probes(positions, sh, rng)
+    kept_positions, kept_sh, gone = cluster_dark_probes(positions, sh, rng)
     assert gone > 0 and len(kept_positions) == len(positions) - gone
     # Every lit probe survives, and every survivor is one of the original probes (a valid spot).
-    assert (np.abs(kept_sh[:, 0, 0] - 1.0) < 1e-6).sum() == lit.sum()
+    assert (np.abs(kept_sh[:, 0, 0] - 1.0) < FLOAT32_STORAGE).sum() == lit.sum()
     original = {tuple(p) for p in np.round(positions, 9)}
     assert all(tuple(p) in original for p in np.round(kept_positions, 9))
     # Dark probes beside lit ones keep the shadow's edge: the layer x ~ 4 is whole.
     assert (np.abs(kept_positions[:, 0] - 4.0) < 0.2).sum() == (np.abs(positions[:, 0] - 4.0) < 0.2).sum()
     # The other dark probes with a lit Delaunay neighbour (long hull edges reach a few) stay too; the
     # rest become one probe per k-means cluster.
-    edges = lp.cloud_edges(positions)
+    edges = cloud_edges(positions)
     beside_lit = np.zeros(len(positions), bool)
     for i, j in ((0, 1), (1, 0)):
         beside_lit[edges[lit[edges[:, j]], i]] = True
     interior = (~lit & ~beside_lit).sum()
     assert interior > 100
-    assert len(kept_positions) - lit.sum() - (~lit & beside_lit).sum() == math.ceil(interior / lp.DARK_CLUSTER_SIZE)
+    assert len(kept_positions) - lit.sum() - (~lit & beside_lit).sum() == math.ceil(interior / DARK_CLUSTER_SIZE)
 
 
 def two_rooms():
@@ -186,16 +192,16 @@ def test_conforming_tetrahedra_never_cross_a_wall(conforming_rooms):
     at = cloud.capture_positions
     tets = cloud.tet_vertices
     centroid = cloud.probe_positions[tets].mean(axis=1)
-    inside, _ = lp.classify_points(tracer, scene_lighting(scene, tracer.device), centroid)
+    inside, _ = classify_points(tracer, scene_lighting(scene, tracer.device), centroid)
     open_tets = tets[~inside]
     assert len(open_tets) > 100
     edges = np.unique(np.sort(np.concatenate([open_tets[:, [i, j]] for i, j in
                                               ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))]), axis=1), axis=0)
     edges = edges[np.linalg.norm(at[edges[:, 0]] - at[edges[:, 1]], axis=1) > 0]
-    assert not lp.segment_blocked(tracer, at[edges[:, 0]], at[edges[:, 1]]).any()
+    assert not segment_blocked(tracer, at[edges[:, 0]], at[edges[:, 1]]).any()
     if name == "partitioned room":
         # The partition's vertices are split: two probes at one vertex, captured on either side of it.
-        on_wall = np.isclose(cloud.probe_positions[:, 0], 4.0, atol=1e-4)
+        on_wall = np.isclose(cloud.probe_positions[:, 0], 4.0, atol=FLOAT32_LONG_CHAIN)
         assert (at[on_wall, 0] < 4.0).sum() > 4 and (at[on_wall, 0] > 4.0).sum() > 4
         assert len(np.unique(cloud.probe_positions[on_wall], axis=0)) < on_wall.sum()
 
@@ -206,7 +212,7 @@ def test_conforming_interpolation_beside_the_wall_uses_its_own_room(conforming_r
     wall = 4.05 if name == "two rooms" else 4.0
     rng = np.random.default_rng(3)
     points = np.c_[rng.uniform(wall + 0.01, wall + 0.1, 200), rng.uniform(0.2, 3.8, 200), rng.uniform(0.2, 2.8, 200)]
-    probes, weights = lp.interpolation_weights(cloud, points)
+    probes, weights = interpolation_weights(cloud, points)
     used = probes[weights > 1e-6]
     assert (cloud.capture_positions[used, 0] > wall).all()  # only the dim room's probes
 
@@ -214,11 +220,11 @@ def test_conforming_interpolation_beside_the_wall_uses_its_own_room(conforming_r
 def test_clip_to_box_keeps_the_inside_part_of_a_crossing_triangle():
     triangle = np.array([[[-1.0, 0.5, 0.5], [2.0, 0.5, 0.5], [0.5, 3.0, 0.5]]])
     pieces = conforming.clip_to_box(triangle, np.zeros(3), np.ones(3))
-    assert ((pieces >= -1e-12) & (pieces <= 1 + 1e-12)).all()
+    assert ((pieces >= -FLOAT64_ROUNDING) & (pieces <= 1 + FLOAT64_ROUNDING)).all()
     area = 0.5 * np.linalg.norm(np.cross(pieces[:, 1] - pieces[:, 0], pieces[:, 2] - pieces[:, 0]), axis=1).sum()
     # The triangle covers the unit square's strip y in [0.5, 1] of the plane z = 0.5 (its slanted edges stay
     # outside x in [0, 1] there): area 0.5.
-    assert area == pytest.approx(0.5, rel=1e-9)
+    assert area == pytest.approx(0.5, rel=FLOAT64_ROUNDING)
 
 
 def test_variation_gradient_kernel_recovers_a_linear_field():
@@ -228,10 +234,11 @@ def test_variation_gradient_kernel_recovers_a_linear_field():
     rng = np.random.default_rng(1)
     positions = rng.uniform(-2, 2, (300, 3))
     slope = np.array([0.3, -1.2, 0.7])
-    edges = lp.cloud_edges(positions)
+    edges = cloud_edges(positions)
     tracer = Tracer.from_scene(two_rooms())
     gradient, mean_edge = variation_gradient(tracer, positions, positions @ slope + 5.0, edges)
-    np.testing.assert_allclose(gradient, np.broadcast_to(slope, gradient.shape), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(gradient, np.broadcast_to(slope, gradient.shape), rtol=LEAST_SQUARES_RIDGE,
+                               atol=LEAST_SQUARES_RIDGE)
     length = np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1)
     expected = np.bincount(edges.ravel(), np.repeat(length, 2), 300) / np.bincount(edges.ravel(), minlength=300)
-    np.testing.assert_allclose(mean_edge, expected, rtol=1e-12)
+    np.testing.assert_allclose(mean_edge, expected, rtol=FLOAT64_ROUNDING)

@@ -13,9 +13,13 @@ from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_ROUNDIN
                         FLOAT32_UNIT_ROUNDOFF, GROUND_QUADRATURE, MC_SIGMAS)
 
 from usdbake.core.products import ProbeCloud
-from usdbake.kernels.lights import scene_lighting
+from usdbake.geometry.mesh import backdrop_prims
+from usdbake.kernels.light_bundles import scene_lighting
 from usdbake.processors.light_probes import light_probes as lp
 from usdbake.processors.light_probes import tetrahedra
+from usdbake.processors.light_probes.capture import classify_points, compute_probe_sh
+from usdbake.processors.light_probes.interpolation import build_cloud, cloud_from_arrays, interpolate_sh, irradiance_at
+from usdbake.processors.light_probes.placement import CLEARANCE_FRACTION, RECEIVER_MARGIN
 from usdbake.core import Context, ParamError
 from usdbake.kernels import sh
 from usdbake.core.scene import LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE, Scene
@@ -64,7 +68,7 @@ def test_uniform_dome_gives_pi_l_for_every_normal():
     scene = make_scene(points, tris, lights=make_lights((LIGHT_DOME, dome, (0, 0, 0), (0, 0, -1), (0, 0))))
     tracer = Tracer.from_scene(scene)
     rays = 4096
-    probe_sh = lp.compute_probe_sh(tracer, scene, np.zeros((1, 3)), rays=rays, seed=3)
+    probe_sh = compute_probe_sh(tracer, scene, np.zeros((1, 3)), rays=rays, seed=3)
     # Band 0 is exact: every sample returns L and Y_0 is constant.
     np.testing.assert_allclose(probe_sh[0, 0], math.pi * dome * math.sqrt(4 * math.pi),
                                rtol=FLOAT32_UNIT_ROUNDOFF * rays)
@@ -84,7 +88,7 @@ def test_capture_matches_a_quadrature_oracle_for_a_sunlit_ground():
     tracer = Tracer.from_scene(scene)
     rays = 16384
     probe = np.array([[0.0, 0.0, 1.0]])
-    got = lp.compute_probe_sh(tracer, scene, probe, rays=rays, seed=5)[0, :, 0]
+    got = compute_probe_sh(tracer, scene, probe, rays=rays, seed=5)[0, :, 0]
 
     nodes, weights = np.polynomial.legendre.leggauss(400)  # z in [-1, 0): the lower hemisphere
     z, wz = 0.5 * nodes - 0.5, 0.5 * weights
@@ -127,7 +131,7 @@ def test_sphere_light_is_its_cone_of_radiance_and_a_wall_shadows_it():
         (LIGHT_SPHERE, [radiance] * 3, (0, 0, distance), (0, 0, -1), (radius, radius))))
     tracer = Tracer.from_scene(scene)
     probes = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]])  # the second one has the wall (x = 1.5) between
-    got = lp.compute_probe_sh(tracer, scene, probes, rays=16, seed=1)
+    got = compute_probe_sh(tracer, scene, probes, rays=16, seed=1)
     half = math.asin(radius / distance)
     omega = 2 * math.pi * (1 - math.cos(half))
     basis = sh.sh_basis_np(cone_directions(half))
@@ -146,7 +150,7 @@ def test_back_faces_are_dark_and_front_faces_lit():
     points, tris = cube([-1, -1, -1], [1, 1, 1])
     scene = make_scene(points, tris, lights=make_lights((LIGHT_DOME, [1, 1, 1], (0, 0, 0), (0, 0, -1), (0, 0))))
     tracer = Tracer.from_scene(scene)
-    got = lp.compute_probe_sh(tracer, scene, np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 3.0]]), rays=256, seed=2)
+    got = compute_probe_sh(tracer, scene, np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 3.0]]), rays=256, seed=2)
     np.testing.assert_allclose(got[0], 0.0, atol=FLOAT32_ROUNDING)
     assert got[1, 0, 0] > 0
 
@@ -160,7 +164,7 @@ def test_emissive_surface_lights_probes():
     assert ok
     tracer = Tracer.from_scene(scene)
     rays = 4096
-    got = lp.compute_probe_sh(tracer, scene, np.zeros((1, 3)), rays=rays, seed=3)[0]
+    got = compute_probe_sh(tracer, scene, np.zeros((1, 3)), rays=rays, seed=3)[0]
     e_up = normals_eval(got, np.array([[0.0, 0.0, 1.0]]))[0, 0]
     # L2 truncation of a half-sphere of radiance: E_L2(up) = pi/4 + pi/2 + 0 (band 2 vanishes) in units
     # of Le, vs the exact pi Le; the capture must match the L2 value (not the exact one).
@@ -198,8 +202,8 @@ def test_probes_never_inside_closed_geometry(placement):
     # inside the room's bounds, and clear of every surface by the clearance
     assert (positions >= [-5, -5, 0]).all() and (positions <= [5, 5, 4]).all()
     tracer = Tracer.from_scene(scene)
-    _, nearest = lp.classify_points(tracer, scene_lighting(scene, tracer.device), positions)
-    assert nearest.min() >= lp.CLEARANCE_FRACTION * result.stats["min_spacing"] * (1 - FLOAT32_STORAGE)
+    _, nearest = classify_points(tracer, scene_lighting(scene, tracer.device), positions)
+    assert nearest.min() >= CLEARANCE_FRACTION * result.stats["min_spacing"] * (1 - FLOAT32_STORAGE)
     spacing = np.linalg.norm(positions[:, None] - positions[None], axis=2) + np.eye(len(positions)) * 1e9
     # merged to min_spacing; the probes beside blockers (leak fixing) to half of it
     assert spacing.min() >= 0.5 * result.stats["min_spacing"] * (1 - FLOAT32_STORAGE)
@@ -209,7 +213,7 @@ def test_classify_points_inside_outside():
     points, tris = cube([-1, -1, -1], [1, 1, 1])
     scene = make_scene(points, tris, lights=make_lights((LIGHT_DOME, [1, 1, 1], (0, 0, 0), (0, 0, -1), (0, 0))))
     tracer = Tracer.from_scene(scene)
-    inside, nearest = lp.classify_points(tracer, scene_lighting(scene, tracer.device),
+    inside, nearest = classify_points(tracer, scene_lighting(scene, tracer.device),
                                          np.array([[0, 0, 0], [0.9, 0.2, -0.5], [3, 0, 0], [0, 0, -2.5]]))
     np.testing.assert_array_equal(inside, [True, True, False, False])
     assert nearest[0] == pytest.approx(1.0, rel=FLOAT32_ACCUMULATED)  # the axis rays meet the faces at distance 1
@@ -260,18 +264,18 @@ def test_leak_fix_with_a_wall_synthetic_values():
     left = WALL_PROBES[:, 0] < 0
     values[left, 0, 0] = 1.0
     values[~left, 0, 2] = 1.0
-    fixed = lp.build_cloud(WALL_PROBES, values, tracer, leak_fix=True)
-    leaky = lp.build_cloud(WALL_PROBES, values, tracer, leak_fix=False)
+    fixed = build_cloud(WALL_PROBES, values, tracer, leak_fix=True)
+    leaky = build_cloud(WALL_PROBES, values, tracer, leak_fix=False)
     edges, index = tetrahedra.edge_list(fixed.tet_vertices)
     crossing = (WALL_PROBES[edges[:, 0], 0] < 0) != (WALL_PROBES[edges[:, 1], 0] < 0)
     blocked = np.zeros(len(edges), bool)
     blocked[index[np.unpackbits(fixed.tet_blocked[:, None], axis=1, bitorder="little")[:, :6].astype(bool)]] = True
     np.testing.assert_array_equal(blocked, crossing)  # exactly the edges through the wall
     queries = np.array([[-0.6, 0.2, 0.1], [-0.8, -0.5, 0.4], [0.6, -0.2, 0.3], [0.7, 0.6, -0.6]])
-    got = lp.interpolate_sh(fixed, queries)[:, 0]
+    got = interpolate_sh(fixed, queries)[:, 0]
     np.testing.assert_allclose(got[:2], [[1, 0, 0], [1, 0, 0]], atol=FLOAT32_STORAGE)
     np.testing.assert_allclose(got[2:], [[0, 0, 1], [0, 0, 1]], atol=FLOAT32_STORAGE)
-    mixed = lp.interpolate_sh(leaky, queries)[:, 0]
+    mixed = interpolate_sh(leaky, queries)[:, 0]
     assert (mixed[0, 2] > 0.05) and (mixed[2, 0] > 0.05)  # without the fix, light leaks through
 
 
@@ -286,11 +290,11 @@ def test_visibility_keeps_a_query_on_its_side_where_the_weight_rule_cannot():
     left = positions[:, 0] < 0
     values[left, 0, 0] = 1.0
     values[~left, 0, 2] = 1.0
-    cloud = lp.build_cloud(positions, values, tracer, leak_fix=True)
+    cloud = build_cloud(positions, values, tracer, leak_fix=True)
     queries = np.array([[-0.1, 0.2, 0.1], [-0.05, -0.5, 0.4], [0.1, -0.2, 0.3]])
-    by_rule = lp.interpolate_sh(cloud, queries)[:, 0]
+    by_rule = interpolate_sh(cloud, queries)[:, 0]
     assert by_rule[0, 2] > 0.5  # the rule puts the first query on the right
-    seen = lp.interpolate_sh(cloud, queries, tracer)[:, 0]
+    seen = interpolate_sh(cloud, queries, tracer)[:, 0]
     np.testing.assert_allclose(seen, [[1, 0, 0], [1, 0, 0], [0, 0, 1]], atol=FLOAT32_STORAGE)
 
 
@@ -298,16 +302,16 @@ def test_leak_fix_with_a_wall_captured_light():
     """A lamp left of the wall: right of the wall, interpolated irradiance stays dark with the fix."""
     scene = wall_scene(light_left=True)
     tracer = Tracer.from_scene(scene)
-    probe_sh = lp.compute_probe_sh(tracer, scene, WALL_PROBES, rays=64, seed=1)
+    probe_sh = compute_probe_sh(tracer, scene, WALL_PROBES, rays=64, seed=1)
     right = WALL_PROBES[:, 0] > 0
     assert np.abs(probe_sh[right]).max() < FLOAT32_STORAGE and probe_sh[~right, 0, 0].min() > 0
-    fixed = lp.build_cloud(WALL_PROBES, probe_sh, tracer, leak_fix=True)
-    leaky = lp.build_cloud(WALL_PROBES, probe_sh, tracer, leak_fix=False)
+    fixed = build_cloud(WALL_PROBES, probe_sh, tracer, leak_fix=True)
+    leaky = build_cloud(WALL_PROBES, probe_sh, tracer, leak_fix=False)
     query = np.array([[0.7, 0.1, 0.2]])
     normal = np.array([[-1.0, 0.0, 0.0]])
     # x = 0.7 keeps 15 % of its weight on the lit side: without the fix, that much light leaks through
-    assert lp.irradiance_at(leaky, query, normal)[0, 0] > 0.05 * lp.irradiance_at(leaky, -query, normal)[0, 0]
-    assert abs(lp.irradiance_at(fixed, query, normal)[0, 0]) < FLOAT32_STORAGE
+    assert irradiance_at(leaky, query, normal)[0, 0] > 0.05 * irradiance_at(leaky, -query, normal)[0, 0]
+    assert abs(irradiance_at(fixed, query, normal)[0, 0]) < FLOAT32_STORAGE
 
 
 # -- interpolation API ---------------------------------------------------------------------------
@@ -317,19 +321,19 @@ def test_interpolate_at_probes_returns_their_sh_and_irradiance_matches_evaluatio
     rng = np.random.default_rng(8)  # fixed seed
     positions = rng.random((30, 3)).astype(np.float32) * 4
     values = rng.normal(size=(30, 9, 3)).astype(np.float32)
-    cloud = lp.build_cloud(positions, values)  # no tracer: no leak fixing
-    np.testing.assert_allclose(lp.interpolate_sh(cloud, positions), values, atol=FLOAT32_ACCUMULATED)
+    cloud = build_cloud(positions, values)  # no tracer: no leak fixing
+    np.testing.assert_allclose(interpolate_sh(cloud, positions), values, atol=FLOAT32_ACCUMULATED)
     points = rng.random((50, 3)) * 4
     normals = random_dirs(50, seed=9)
-    expected = np.einsum("nk,nkc->nc", sh.sh_basis_np(normals), lp.interpolate_sh(cloud, points))
-    np.testing.assert_allclose(lp.irradiance_at(cloud, points, normals), expected, rtol=FLOAT32_ACCUMULATED,
+    expected = np.einsum("nk,nkc->nc", sh.sh_basis_np(normals), interpolate_sh(cloud, points))
+    np.testing.assert_allclose(irradiance_at(cloud, points, normals), expected, rtol=FLOAT32_ACCUMULATED,
                                atol=FLOAT32_ACCUMULATED)
     # a linear field in the SH coefficients is reproduced inside the hull
     a = rng.normal(size=(3, 27))
     linear = (positions.astype(np.float64) @ a).reshape(-1, 9, 3).astype(np.float32)
-    cloud = lp.build_cloud(positions, linear)
+    cloud = build_cloud(positions, linear)
     _, _, inside = tetrahedra.locate(cloud.tetra, points)
-    got = lp.interpolate_sh(cloud, points[inside])
+    got = interpolate_sh(cloud, points[inside])
     np.testing.assert_allclose(got, (points[inside] @ a).reshape(-1, 9, 3), atol=FLOAT32_LONG_CHAIN)  # float32 storage
 
 
@@ -387,7 +391,7 @@ def read_cloud(path):
     positions = np.asarray(get("probePositions"), np.float32)
     coefficients = np.asarray(get("shCoefficients"), np.float32)
     assert coefficients.shape == (9 * len(positions), 3)
-    return stage, lp.cloud_from_arrays(positions, coefficients, np.asarray(get("tetrahedra")),
+    return stage, cloud_from_arrays(positions, coefficients, np.asarray(get("tetrahedra")),
                                        np.asarray(get("tetNeighbors")), np.asarray(get("bake:tetBlockedEdges")))
 
 
@@ -404,7 +408,7 @@ def test_end_to_end_small_stage(tmp_path):
     assert 4 <= len(cloud.probe_positions) <= 64
     inside_box = ((cloud.probe_positions > [-1, -1, 0]) & (cloud.probe_positions < [1, 1, 1])).all(axis=1)
     assert not inside_box.any()
-    np.testing.assert_allclose(lp.interpolate_sh(cloud, cloud.probe_positions), cloud.probe_sh,
+    np.testing.assert_allclose(interpolate_sh(cloud, cloud.probe_positions), cloud.probe_sh,
                                atol=FLOAT32_ACCUMULATED)
     # The lamp is at (1.5, 1.5, 2.5): probes near it see more light than probes at the far corner.
     dc = cloud.probe_sh[:, 0] @ [0.2126, 0.7152, 0.0722]
@@ -426,7 +430,7 @@ def test_end_to_end_atrium(tmp_path):
     # Interpolation everywhere in the courtyard volume is finite and blends at most 4 probes.
     lo, hi = cloud.probe_positions.min(axis=0), cloud.probe_positions.max(axis=0)
     points = lo + np.random.default_rng(1).random((500, 3)) * (hi - lo)  # fixed seed
-    e = lp.irradiance_at(cloud, points, random_dirs(500, seed=2))
+    e = irradiance_at(cloud, points, random_dirs(500, seed=2))
     assert np.isfinite(e).all()
 
 
@@ -505,11 +509,11 @@ def test_without_a_probe_volume_probes_surround_the_receivers_not_the_backdrop()
     from usdbake.stages.extract import extract_scene
 
     scene = extract_scene(_room_on_a_lawn())
-    backdrops, others = lp.backdrop_prims(scene)
+    backdrops, others = backdrop_prims(scene)
     assert [scene.prim_paths[b] for b in backdrops] == ["/World/Ground"]
     result, _ = run(scene, probes=64, iterations=1, rays=16, placement_rays=16)
     world = result.products[ProbeCloud].probe_positions + scene.origin
-    margin = lp.RECEIVER_MARGIN * np.linalg.norm([4, 4, 3])
+    margin = RECEIVER_MARGIN * np.linalg.norm([4, 4, 3])
     assert ((world >= np.array([-2, -2, 0]) - margin) & (world <= np.array([2, 2, 3]) + margin)).all()
     assert ((world > [-2, -2, 0]) & (world < [2, 2, 3])).all(axis=1).sum() >= 4
     assert any("/World/Ground" in m for m in result.messages)

@@ -15,7 +15,7 @@ from usdbake.processors.radiosity import form_factors as ff
 from usdbake.processors.radiosity import radiosity as rad
 from usdbake.core import Context, Primvar
 from usdbake.geometry.mesh import vertex_normals
-from usdbake.kernels.lights import emissive_lights
+from usdbake.kernels.light_bundles import emissive_lights
 from usdbake.core.scene import LIGHT_DISK, LIGHT_DISTANT, LIGHT_DOME, LIGHT_SPHERE
 from usdbake.kernels.tracer import Tracer
 

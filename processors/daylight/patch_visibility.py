@@ -1,0 +1,207 @@
+"""Sky patch visibility factors of triangles: the ray casts of ``sky_visibility`` (Bosch, Besuievsky &
+Martin, Sec. 4.1, with ray-core casts instead of occlusion queries; the ``sky_visibility`` docstring has
+the math), per (triangle, patch) pair, and the per-triangle reduction a refinement pass keeps.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ...kernels.sampling import strata_for, stratified_pair, triangle_point
+from ...kernels.sky import SkyPatches, patch_above, patch_mean_cosine, sample_patch
+from ...kernels.tracer import FAR, triangle_origin
+from ...kernels.traversal import TraceScene, trace_any
+
+wp.set_module_options({"enable_backward": False})
+
+QUANT_LEVELS = 255
+"""V is stored as round(V * 255) in uint8: error <= 0.5 / 255 per factor."""
+
+PAIRS_PER_BATCH = 4_000_000
+"""(triangle, patch) pairs per launch: bounds the temporary V/partial arrays to ~32 MB."""
+
+
+@wp.kernel
+def patch_visibility_kernel(
+    start: int,
+    scene: TraceScene,
+    corners: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    tri_ids: wp.array(dtype=int),
+    patch_bounds: wp.array(dtype=wp.vec4),
+    patch_centers: wp.array(dtype=wp.vec3),
+    patch_horizon: wp.array(dtype=float),
+    to_world: wp.mat33,
+    num_patches: int,
+    strata: int,
+    epsilon: float,
+    seed: int,
+    any_partial: int,
+    visible: wp.array(dtype=float),
+    partial: wp.array(dtype=float),
+):
+    """V_ij (cosine-weighted visible share) and min(visible, occluded) for pair k = i * N + j.
+
+    The visibility factor of Bosch, Besuievsky & Martin, Sec. 4.1 (Fig. 4:
+    V_ij += (f_v / f_c) cos theta_ik over the patch's samples k, then averaged),
+    with a ray per sample from a uniform point of the triangle instead of the
+    occlusion query's visible-fragment share f_v / f_c: V_ij = (1/s) sum_k
+    vis_k max(0, n_i . w_k), dimensionless in [0, 1]; for a patch wholly above
+    the triangle's plane, scaled to the exact mean cosine C_ij (``patch_mean_cosine``):
+    V_ij = C_ij sum_k vis_k cos_k / sum_k cos_k. ``partial`` feeds the
+    refinement test of Sec. 4.2 (0 < V_ij < 1 in the paper): min of the
+    visible and occluded cosine-weighted shares (``criterion = share``), or
+    their sum when both are non-zero (``any_partial``).
+    """
+    k = start + wp.tid()
+    i = k // num_patches
+    j = k - i * num_patches
+    n = normals[i]
+    visible[k] = 0.0
+    partial[k] = 0.0
+    if wp.length(n) < 0.5:
+        return
+    if wp.dot(n, patch_centers[j]) < patch_horizon[j]:
+        return  # the whole patch is below the triangle's horizon
+    a = corners[3 * i]
+    b = corners[3 * i + 1]
+    c = corners[3 * i + 2]
+    state = wp.rand_init(seed + 65537 * j, tri_ids[i])
+    bounds = patch_bounds[j]
+    vis = float(0.0)
+    occ = float(0.0)
+    count = strata * strata
+    for s in range(count):
+        u = stratified_pair(s, strata, state)
+        d = sample_patch(bounds, to_world, u[0], u[1])
+        cos_theta = wp.dot(n, d)
+        u1 = wp.randf(state)
+        u2 = wp.randf(state)
+        if cos_theta > 0.0:
+            x = triangle_point(a, b, c, u1, u2)
+            if trace_any(scene, triangle_origin(scene, a, b, c, x, n, epsilon), d, FAR):
+                occ += cos_theta
+            else:
+                vis += cos_theta
+    # A patch wholly above the triangle's plane: its cosine-weighted share is known exactly, so the samples
+    # only split it into visible and occluded (a ratio estimate): an open face sums to exactly 1, not 1 +- noise.
+    n_enu = wp.transpose(to_world) * n
+    if vis + occ > 0.0 and patch_above(bounds, n_enu):
+        scale = patch_mean_cosine(bounds, n_enu) * float(count) / (vis + occ)
+        vis = vis * scale
+        occ = occ * scale
+    visible[k] = vis / float(count)
+    if any_partial != 0:
+        if vis > 0.0 and occ > 0.0:
+            partial[k] = (vis + occ) / float(count)
+    else:
+        partial[k] = wp.min(vis, occ) / float(count)
+
+
+def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, patches: SkyPatches,
+                             to_world: np.ndarray, *, samples: int = 4, seed: int = 0,
+                             tri_ids: np.ndarray | None = None, criterion: str = "share"
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """Visibility factors of triangles for sky patches.
+
+    Bosch, Besuievsky & Martin, Sec. 4.1 (launches ``patch_visibility_kernel``):
+    V_ij = 1 / (A_i dw_j) * integral_{A_i} integral_{patch j} vis(x, w) max(0, n_i . w) dw dA,
+    dimensionless; with patch radiances Lhat_j in W/(m^2 sr), sum_j Lhat_j V_ij
+    dw_j is the sky irradiance of triangle i in W/m^2 (their Eq. 1 without the
+    reflectance).
+
+    Parameters
+    ----------
+    tracer : Tracer over the occluding scene
+    corners : (T, 3, 3) float32 triangle corners (scene frame)
+    normals : (T, 3) float32 unit normals (zero: the triangle gets V = 0)
+    patches : the patch layout (ENU); ``to_world`` (3, 3) maps ENU to the scene frame
+    samples : rays per (triangle, patch) pair
+    tri_ids : (T,) int, optional, stable ids seeding each triangle's random numbers
+
+    Returns
+    -------
+    V : (T, N) float32 cosine-weighted visible share, in [0, 1]
+    partial : (T, N) float32 min(visible, occluded) cosine-weighted shares
+    """
+    corners = np.ascontiguousarray(corners, np.float32).reshape(-1, 3, 3)
+    normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
+    n_tri, n_patch = len(corners), len(patches)
+    tri_ids = np.arange(n_tri, dtype=np.int32) if tri_ids is None else np.asarray(tri_ids, np.int32)
+    to_world = np.asarray(to_world, np.float64)
+    centers = patches.patch_directions @ to_world.T
+    horizon = -np.sin(np.minimum(patches.patch_radius, np.pi / 2))
+    strata = strata_for(samples)
+    bounds_wp = tracer.array(patches.patch_bounds.astype(np.float32), wp.vec4)
+    centers_wp = tracer.array(centers.astype(np.float32), wp.vec3)
+    horizon_wp = tracer.array(horizon.astype(np.float32), float)
+    matrix = wp.mat33(*to_world.astype(np.float32).ravel().tolist())
+    visible = np.zeros((n_tri, n_patch), np.float32)
+    partial = np.zeros((n_tri, n_patch), np.float32)
+    batch = max(1, PAIRS_PER_BATCH // max(n_patch, 1))
+    for lo in range(0, n_tri, batch):
+        hi = min(n_tri, lo + batch)
+        pairs = (hi - lo) * n_patch
+        vis_wp = wp.empty(pairs, dtype=float, device=tracer.device)
+        part_wp = wp.empty(pairs, dtype=float, device=tracer.device)
+        tracer.launch(patch_visibility_kernel, pairs, [
+            tracer.scene, tracer.array(corners[lo:hi].reshape(-1, 3), wp.vec3),
+            tracer.array(normals[lo:hi], wp.vec3), tracer.array(tri_ids[lo:hi], int),
+            bounds_wp, centers_wp, horizon_wp, matrix, n_patch, strata, tracer.epsilon, int(seed),
+            int(criterion == "any"), vis_wp, part_wp,
+        ])
+        visible[lo:hi] = vis_wp.numpy().reshape(hi - lo, n_patch)
+        partial[lo:hi] = part_wp.numpy().reshape(hi - lo, n_patch)
+    tracer.rays_cast += traced_rays(normals, patches, to_world, samples)
+    return visible, partial
+
+
+def traced_rays(normals: np.ndarray, patches: SkyPatches, to_world: np.ndarray, samples: int) -> int:
+    """Rays ``patch_visibility_kernel`` casts for triangles with these (T, 3) normals: strata^2 per pair
+    whose patch is not wholly below the triangle's horizon (samples below the horizon inside such a
+    patch included)."""
+    centers = patches.patch_directions @ np.asarray(to_world, np.float64).T
+    horizon = -np.sin(np.minimum(patches.patch_radius, np.pi / 2))
+    above = int((np.asarray(normals, np.float64) @ centers.T >= horizon[None, :]).sum())
+    return above * strata_for(samples) ** 2
+
+
+def visibility_pass_chunk(tracer, first: int, corners: np.ndarray, normals: np.ndarray, tri_ids: np.ndarray, *,
+                          patches: SkyPatches, to_world: np.ndarray, samples: int, seed: int, criterion: str
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One chunk of a refinement pass (core.chunks): ``compute_patch_visibility`` of the triangles,
+    reduced per triangle to what the pass keeps, so a chunk returns ~N bytes a triangle, not 8 N.
+
+    ``tri_ids`` seed the triangles, so the result does not depend on where the chunk starts.
+    Returns V quantized ((T, N) uint8, V * QUANT_LEVELS rounded), exposure sum_j V_ij dw_j / pi and
+    its quantization error ((T,) float64 each), and the refinement score ((T,) float64; the
+    ``sky_visibility`` docstring).
+    """
+    v, part = compute_patch_visibility(tracer, corners, normals, patches, to_world, samples=samples, seed=seed,
+                                       tri_ids=tri_ids, criterion="any" if criterion == "paper" else criterion)
+    solid = patches.patch_solid_angles.astype(np.float64)
+    quantized = np.clip(np.rint(v * QUANT_LEVELS), 0, QUANT_LEVELS).astype(np.uint8)
+    exposure = row_sums(v, solid) / np.pi
+    quant_error = np.abs(row_sums(quantized / QUANT_LEVELS - v, solid) / np.pi)
+    if criterion == "paper":  # the largest projected-area factor over the partly visible patches
+        centers = patches.patch_directions @ np.asarray(to_world, np.float64).T
+        cosines = row_sums(np.asarray(normals, np.float64)[:, :, None], centers.T)  # (T, N): n_i . c_j
+        score = np.where(part > 0, np.maximum(cosines, 0.0), 0.0).max(axis=1, initial=0.0)
+    else:
+        score = (2.0 if criterion == "share" else 1.0) / np.pi * row_sums(part, solid)
+    return quantized, exposure, quant_error, score
+
+
+def row_sums(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """sum_j values[:, j] * weights[j] in float64, accumulated column by column in a fixed order.
+
+    A BLAS product (``values @ weights``) may round a row differently with the number of rows around
+    it (its kernels block and vectorize by size), so a chunk of faces would not reproduce the whole
+    pass bit for bit; elementwise sums in one order do. ``values`` (T, N) or (T, K, ...) with
+    ``weights`` (N,) or (K, ...) broadcasting against ``values[:, j]``.
+    """
+    total = np.zeros((len(values), *np.shape(weights)[1:]), np.float64)
+    for j in range(values.shape[1]):
+        total += values[:, j].astype(np.float64) * weights[j]
+    return total
