@@ -14,7 +14,7 @@ from usdbake.formats.weather import read_weather
 from usdbake.kernels.sky import overcast_radiance, tregenza_patches
 from usdbake.kernels.tracer import Tracer
 from usdbake.processors.daylight.annual_daylight import compute_annual_daylight
-from usdbake.processors.daylight.daylight import Relighter, compute_daylight, sun_table
+from usdbake.processors.daylight.daylight import DaylightRelighter, compute_daylight, sun_table
 from usdbake.processors.daylight.sky_visibility import compute_sky_visibility
 from usdbake.stages.extract import extract_scene
 
@@ -26,7 +26,7 @@ DESCRIPTION = (
     "(`sky_visibility`, Tregenza patches, 4 rays per face and patch, no refinement) is computed first and not "
     "timed. Seconds: wall time of compute_annual_daylight (sky matrix, sun rays, the hourly products and the "
     "metrics); peak_mb: growth of the process's peak resident memory during it. The issue's figure: <= 60 s on "
-    "2 cores for 100k faces. Interactive relight of the same room (`daylight.Relighter`): the sun table's "
+    "2 cores for 100k faces. Interactive relight of the same room (`daylight.DaylightRelighter`): the sun table's "
     "precompute (shadow rays on a 4 x 3.75 degree declination x hour-angle grid, 2 rays per face and node), its "
     "memory, and one new time (Perez sky + sun from the table, no rays; median and max over 48 times of a year) "
     "against one time of `compute_daylight` (4 sun rays per face). The issue's figure: <= 30 ms for 100k faces.")
@@ -134,7 +134,7 @@ def relight_figures(tracer, scene, product, weather) -> dict:
     started = time.perf_counter()
     table = sun_table(tracer, product, latitude=weather.latitude)
     precompute = time.perf_counter() - started
-    relighter = Relighter(product, table, **site, albedo=scene.tri_albedo[product.face_source])
+    relighter = DaylightRelighter(product, table, **site, albedo=scene.tri_albedo[product.face_source])
     times = np.datetime64("2025-01-04T08:00") + np.arange(48) * np.timedelta64(7 * 24 * 60 + 37, "m")
     sky = {"sky": "perez", "direct_normal": 700.0, "diffuse_horizontal": 120.0}
     relighter.at(times[0], **sky)  # first touch of V's float32 copy

@@ -7,12 +7,8 @@ import time
 import numpy as np
 
 from . import harness
-from usdbake.core.products import (
-    AmbientOcclusionProduct,
-    DisplacementField,
-    DisplacementFieldSet,
-    InstanceOcclusionProduct,
-)
+from usdbake.processors.instancing.products import DisplacementField, DisplacementFieldSet, InstanceOcclusionProduct
+from usdbake.processors.occlusion.products import AmbientOcclusionProduct
 
 NAME = "displacement_fields"
 DESCRIPTION = (

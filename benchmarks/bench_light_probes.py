@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from . import harness
-from usdbake.core.products import ProbeCloud
+from usdbake.processors.light_probes.products import ProbeCloud
 
 NAME = "light_probes"
 DESCRIPTION = (

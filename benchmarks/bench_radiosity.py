@@ -29,7 +29,8 @@ from . import harness
 from .references import path_traced_indirect
 from usdbake.geometry.mesh import vertex_normals
 from usdbake.processors.radiosity.operator_codec import compress_operator
-from usdbake.processors.radiosity.operator_relight import COMPRESSED, DENSE, Relighter, dense_nbytes, launch_rows, relight
+from usdbake.processors.radiosity.operator_relight import (COMPRESSED, DENSE, OperatorRelighter, dense_nbytes,
+                                                          launch_rows, relight_indirect)
 from usdbake.kernels.tracer import Tracer
 from usdbake.processors.radiosity import form_factors as ff
 from usdbake.processors.radiosity import radiosity as rad
@@ -104,7 +105,7 @@ def cornell_sweep(quick: bool):
                                                                      references[bounces])
     for key in ("linear", "no_correction"):
         if key in extra:
-            e = relight(extra[key], extra["e0"], threads=tracer.threads)
+            e = relight_indirect(extra[key], extra["e0"], threads=tracer.threads)
             extra[key] = harness.relative_rms(e, extra["dense_patch"])
     return points, extra, len(ids), paths
 
@@ -140,9 +141,9 @@ def atrium_figures(quick: bool) -> dict:
     repeat = 3 if quick else 20
     threads = tracer.threads
 
-    relighter = Relighter(op, threads=threads, form=COMPRESSED)
+    relighter = OperatorRelighter(op, threads=threads, form=COMPRESSED)
     y_comp = relighter.apply(x)  # leaves x on the device (stored order) for the timed apply_stored calls
-    default = Relighter(op, threads=threads)  # the form the memory budget picks (dense where it fits)
+    default = OperatorRelighter(op, threads=threads)  # the form the memory budget picks (dense where it fits)
     default.apply(x)
     m_rgb = np.ascontiguousarray(operator)  # (3, n, n) float32
 
@@ -269,7 +270,8 @@ def furnished_room(quick: bool) -> dict:
     refined mesh, face sizes relative to the room, not the ground), read at the points by linear interpolation of the vertex values; and the same without
     the refinement. The transfer's share is the final gather's time over the whole bake (all three steps)."""
     from usdbake.core.pipeline import Pipeline
-    from usdbake.core.products import FormFactorProduct, RadiosityProduct, RefinedScene
+    from usdbake.core.products import RefinedScene
+    from usdbake.processors.radiosity.products import FormFactorProduct, RadiosityProduct
     from usdbake.core.runtime import Runtime
     from usdbake.stages.extract import extract_scene
 

@@ -132,7 +132,7 @@ def _exposure_error(product, sources: np.ndarray, bary: np.ndarray, reference: n
 def run(quick: bool = False) -> dict:
     from usdbake.kernels.sky import uniform_patches
     from usdbake.kernels.tracer import Tracer
-    from usdbake.processors.daylight.daylight import compute_daylight, relight
+    from usdbake.processors.daylight.daylight import compute_daylight, relight_daylight
     from usdbake.processors.daylight.sky_visibility import SkyVisibility, compute_sky_visibility
 
     from .references import compute_point_sky_view
@@ -240,9 +240,9 @@ def run(quick: bool = False) -> dict:
     v_patch_major = np.ascontiguousarray(v8.T).astype(np.float32) / 255
     weights = rng.random((256, 3)).astype(np.float32)
     albedo = rng.random((faces, 3)).astype(np.float32)
-    figures["relight_ms_100k_x_256"] = round(_median_ms(lambda: relight(v_patch_major, weights, albedo=albedo,
+    figures["relight_ms_100k_x_256"] = round(_median_ms(lambda: relight_daylight(v_patch_major, weights, albedo=albedo,
                                                                         patch_major=True), 20), 2)
-    figures["relight_ms_100k_x_256_uint8_path"] = round(_median_ms(lambda: relight(v8, weights, scale=1 / 255,
+    figures["relight_ms_100k_x_256_uint8_path"] = round(_median_ms(lambda: relight_daylight(v8, weights, scale=1 / 255,
                                                                                    albedo=albedo), 5), 2)
     figures["visibility_mb_100k_x_256_uint8"] = round(v8.nbytes / 2 ** 20, 1)
     figures["visibility_mb_100k_x_256_float32"] = round(v_patch_major.nbytes / 2 ** 20, 1)

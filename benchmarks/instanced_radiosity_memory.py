@@ -39,6 +39,9 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "samples"))  # samples/ is not a package
+from mesh_builder import icosphere  # noqa: E402
+
 INSTANCERS = 4
 PROTOTYPE_LEVEL = 3
 """Icosphere subdivision level: 20 * 4^3 = 1,280 triangles, the issue's prototype size."""
@@ -48,33 +51,6 @@ SPACING = 1.6
 FLOOR_HALF = 30.0
 COLOURS = ((0.7, 0.7, 0.7), (0.6, 0.2, 0.15), (0.7, 0.7, 0.7), (0.6, 0.2, 0.15))
 """Albedo of each instancer's prototype (two materials among the instances)."""
-
-
-def icosphere(level: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unit icosphere: (P, 3) float64 points, (T, 3) int32 outward-wound triangles (20 * 4^level)."""
-    t = (1 + 5 ** 0.5) / 2
-    points = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
-              (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
-    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
-             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11),
-             (6, 2, 10), (8, 6, 7), (9, 8, 1)]
-    points = [np.array(p, float) / np.linalg.norm(p) for p in points]
-    for _ in range(level):
-        cache, new_faces = {}, []
-
-        def middle(a, b):
-            key = (min(a, b), max(a, b))
-            if key not in cache:
-                m = points[a] + points[b]
-                points.append(m / np.linalg.norm(m))
-                cache[key] = len(points) - 1
-            return cache[key]
-
-        for a, b, c in faces:
-            ab, bc, ca = middle(a, b), middle(b, c), middle(c, a)
-            new_faces += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        faces = new_faces
-    return np.array(points), np.array(faces, np.int32)
 
 
 def _material(stage: Usd.Stage, path: str, colour) -> UsdShade.Material:

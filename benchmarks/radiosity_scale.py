@@ -7,7 +7,7 @@ precompute (form factors traced on the device; operator products, reordering and
 parts and the growth of peak memory, the run-time form the default memory budget picks and the one a
 1 GB budget picks, then y = M x timed (best of ROUNDS, device synchronized) four ways:
 
-- the compressed kernel on the device (``Relighter``, the thesis' in-kernel decode);
+- the compressed kernel on the device (``OperatorRelighter``, the thesis' in-kernel decode);
 - the same product as a dense float32 Warp kernel on the device (bench_radiosity's baseline);
 - cuBLAS through torch on the dense operator, on CUDA where torch is installed;
 - numpy BLAS on the host's cores (what the CPU relight does when the operator fits).
@@ -28,7 +28,7 @@ import warp as wp
 from . import harness
 from .bench_radiosity import relight_dense_kernel
 from usdbake import init_warp
-from usdbake.processors.radiosity.operator_relight import COMPRESSED, Relighter, dense_nbytes, relight_form
+from usdbake.processors.radiosity.operator_relight import COMPRESSED, OperatorRelighter, dense_nbytes, relight_form
 from usdbake.kernels.tracer import Tracer
 from usdbake.processors.radiosity import form_factors as ff
 
@@ -57,7 +57,7 @@ def measure(scene, device: str, target: int) -> dict:
     rng = np.random.default_rng(3)
     x = rng.uniform(0, 1, (n, 3)).astype(np.float32)
     sync = lambda: wp.synchronize_device(device)  # noqa: E731
-    relighter = Relighter(op, device=device, form=COMPRESSED)
+    relighter = OperatorRelighter(op, device=device, form=COMPRESSED)
     y_compressed = relighter.apply(x)
     row = {"patches": n, "precompute_s": sum(seconds.values()), **{f"{k}_s": v for k, v in seconds.items()},
            "dense_mb": dense_nbytes(n) / 2**20, "compressed_runtime_mb": relighter.nbytes / 2**20,

@@ -3,7 +3,7 @@
 A processor is pure compute: arrays in, arrays out, no pxr. It declares
 
 - ``name``, ``version``, ``summary``,
-- ``requires`` / ``provides``: product *types* (classes in core.products),
+- ``requires`` / ``provides``: product *types* (classes in a technique's products.py, or core.products),
 - ``Params``: a frozen dataclass of ``param()`` fields (core.params),
 - ``facets``: the Scene facets its fingerprint reads (see scene.FACETS),
 - ``applies(ctx) -> (bool, reason)`` and ``run(ctx) -> Result``.

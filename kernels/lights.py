@@ -52,7 +52,8 @@ surface (a quad modelled at the light) does not occlude its light."""
 
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-"""Rec. 709 luminance weights: the power an emissive triangle is picked by."""
+"""Rec. 709 luminance weights of linear RGB: the power an emissive triangle is picked by, the tone maps'
+exposure, light-probe placement. Cast with ``.astype(np.float32)`` for float32 products."""
 
 
 @wp.struct

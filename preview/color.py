@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..kernels.lights import LUMINANCE
+
 BACKGROUND = np.array([0.16, 0.16, 0.17], np.float32)
 """Display colour of pixels that hit nothing (and of the legend panel)."""
 
@@ -70,7 +72,7 @@ def srgb_decode(encoded: np.ndarray) -> np.ndarray:
 
 def luminance(rgb: np.ndarray) -> np.ndarray:
     """Rec. 709 luminance of linear RGB (..., 3)."""
-    return np.asarray(rgb, np.float32) @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    return np.asarray(rgb, np.float32) @ LUMINANCE.astype(np.float32)
 
 
 def auto_exposure(linear: np.ndarray) -> float:

@@ -61,6 +61,33 @@ def bilinear_patch(corners, nu, nv):
     return (1 - s) * (1 - t) * c0 + s * (1 - t) * c1 + s * t * c2 + (1 - s) * t * c3
 
 
+def icosphere(level: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit icosphere: (P, 3) float64 points, (T, 3) int32 outward-wound triangles (20 * 4^level)."""
+    t = (1 + 5 ** 0.5) / 2
+    points = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
+              (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
+    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
+             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11),
+             (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    points = [np.array(p, float) / np.linalg.norm(p) for p in points]
+    for _ in range(level):
+        cache, new_faces = {}, []
+
+        def middle(a, b):
+            key = (min(a, b), max(a, b))
+            if key not in cache:
+                m = points[a] + points[b]
+                points.append(m / np.linalg.norm(m))
+                cache[key] = len(points) - 1
+            return cache[key]
+
+        for a, b, c in faces:
+            ab, bc, ca = middle(a, b), middle(b, c), middle(c, a)
+            new_faces += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        faces = new_faces
+    return np.array(points), np.array(faces, np.int32)
+
+
 class MeshBuilder:
     """Accumulates polygons for one UsdGeom.Mesh."""
 

@@ -16,6 +16,7 @@ from typing import Callable
 from ..core.errors import UsageError
 from ..core.pipeline import Pipeline
 from ..core.records import Prim
+from ..core.scene import Scene
 from .bake_layer import save_atomically
 from .composition import check_composition, quiet_composition_warnings
 from .extract import extract_scene
@@ -59,6 +60,24 @@ def default_output(input_path: str, source: str) -> str:
     return str(path.with_name(f"{path.stem}.baked.usdc"))
 
 
+def compute_outputs(stage, pipeline: Pipeline, *, time_code: float | None, allow_missing: bool, deinstance: bool,
+                    on_progress: Callable[[str, float], None] | None = None) -> tuple[Scene, list]:
+    """Read ``stage`` into a Scene, run ``pipeline`` on it, and return the scene and the records to author
+    (refined meshes completed): the bake both the file bake and the hook run. ``on_progress(name,
+    fraction)`` hears READING and each processor. Raises UsageError when every processor skipped (an
+    empty layer would only hide that)."""
+    if on_progress:
+        on_progress(READING, 0.0)
+    scene = extract_scene(stage, time=time_code, allow_missing=allow_missing, deinstance=deinstance)
+    if on_progress:
+        on_progress(READING, 1.0)
+    pipeline.run(scene, on_progress=on_progress, before_compute=refinement_guard(stage, scene))
+    outputs = complete_outputs(stage, pipeline.outputs())
+    if not outputs:
+        raise UsageError(empty_bake_message(pipeline.steps))
+    return scene, outputs
+
+
 def bake_file(input_path: str, output: str | None, pipeline: Pipeline, *, time_code: float | None = None,
               allow_missing: bool = False, deinstance: bool = False,
               on_progress: Callable[[str, float], None] | None = None,
@@ -78,13 +97,8 @@ def bake_file(input_path: str, output: str | None, pipeline: Pipeline, *, time_c
     if before_compute:
         before_compute()
     started = time.perf_counter()
-    report_progress(READING, 0.0)
-    scene = extract_scene(stage, time=time_code, allow_missing=allow_missing, deinstance=deinstance)
-    report_progress(READING, 1.0)
-    pipeline.run(scene, on_progress=report_progress, before_compute=refinement_guard(stage, scene))
-    outputs = complete_outputs(stage, pipeline.outputs())
-    if not outputs:  # every processor skipped: an empty layer would only hide that
-        raise UsageError(empty_bake_message(pipeline.steps))
+    scene, outputs = compute_outputs(stage, pipeline, time_code=time_code, allow_missing=allow_missing,
+                                     deinstance=deinstance, on_progress=report_progress)
     report_progress(WRITING, 0.0)
     save_atomically(output, source, outputs,
                     pipeline.provenance({"source": os.path.relpath(source, Path(output).resolve().parent)}))

@@ -30,11 +30,10 @@ from ..core.pipeline import Pipeline
 from ..core.records import File, Texture
 from ..core.runtime import Runtime
 from ..kernels.tracer import Tracer
+from .bake_file import compute_outputs
 from .bake_layer import author, write_failures
 from .provenance import PROVENANCE_KEY, is_bake_layer, provenance_of
-from .inputs import check_cache_folder, check_device, check_writable_folder, empty_bake_message
-from .extract import extract_scene
-from .refined_mesh import complete_outputs, refinement_guard
+from .inputs import check_cache_folder, check_device, check_writable_folder
 
 
 def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | None = None,
@@ -56,6 +55,7 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     deinstance : bake natively instanced meshes as ordinary ones (per vertex); the layer sets
         ``instanceable = false`` on the instances whose meshes receive data
     threads : CPU threads for ray casting (None, the default: every core)
+    on_progress : ``on_progress(name, fraction)`` hears 'reading stage' and each processor
 
     Warnings (missing assets allowed, textures that could not be read and the fallback used, faces
     left out) are issued as Python warnings and kept in the layer's report: ``last_warnings(layer)``.
@@ -71,14 +71,11 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     target = layer if layer is not None else _session_bake_layer(stage)
     muted = _mute_for_extraction(stage, target)
     try:  # the stage is read without an earlier bake's opinions, also where refined meshes are completed
-        scene = extract_scene(stage, time=time, allow_missing=allow_missing, deinstance=deinstance)
-        pipeline.run(scene, on_progress=on_progress, before_compute=refinement_guard(stage, scene))
-        outputs = complete_outputs(stage, pipeline.outputs())
+        scene, outputs = compute_outputs(stage, pipeline, time_code=time, allow_missing=allow_missing,
+                                         deinstance=deinstance, on_progress=on_progress)
     finally:
         if muted:
             stage.UnmuteLayer(target.identifier)
-    if not outputs:
-        raise UsageError(empty_bake_message(pipeline.steps))
     if layer is None and target.identifier not in stage.GetSessionLayer().subLayerPaths:
         stage.GetSessionLayer().subLayerPaths.insert(0, target.identifier)
     if texture_dir is None and any(isinstance(record, (Texture, File)) for record in outputs):

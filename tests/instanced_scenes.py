@@ -1,41 +1,20 @@
 """Synthetic instanced scenes built without pxr, for the displacement-field and instance AO tests:
-an icosphere prototype, ground grids, instance transforms, and a processor runner.
+an icosphere prototype (samples/mesh_builder.py), ground grids, instance transforms, and a processor runner.
 
 A plain module (not a conftest): tests/conftest.py puts this folder on sys.path.
 """
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 from usdbake import core
 from usdbake.core.scene import Instances, Scene
 
-
-def icosphere(level: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unit icosphere: (P, 3) float64 points, (T, 3) int32 outward-wound triangles (20 * 4^level)."""
-    t = (1 + 5 ** 0.5) / 2
-    points = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
-              (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
-    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
-             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11),
-             (6, 2, 10), (8, 6, 7), (9, 8, 1)]
-    points = [np.array(p, float) / np.linalg.norm(p) for p in points]
-    for _ in range(level):
-        cache, new_faces = {}, []
-
-        def middle(a, b):
-            key = (min(a, b), max(a, b))
-            if key not in cache:
-                m = points[a] + points[b]
-                points.append(m / np.linalg.norm(m))
-                cache[key] = len(points) - 1
-            return cache[key]
-
-        for a, b, c in faces:
-            ab, bc, ca = middle(a, b), middle(b, c), middle(c, a)
-            new_faces += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        faces = new_faces
-    return np.array(points), np.array(faces, np.int32)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "samples"))  # samples/ is not a package
+from mesh_builder import icosphere  # noqa: E402,F401  (re-exported: the instancing tests import it from here)
 
 
 def grid(half: float, cells: int, height: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

@@ -54,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...core import Attribute, Context, File, ParamError, Params, Prim, Primvar, Processor, Result, param
-from ...core.products import AnnualDaylightProduct, SkyVisibilityProduct
+from .products import AnnualDaylightProduct, SkyVisibilityProduct
 from ...core.scene import Scene
 from ...formats.weather import Weather, check_site, read_weather
 from ...kernels.sky import LUMINOUS_EFFICACY, enu_to_world, overcast_radiance, patch_samples

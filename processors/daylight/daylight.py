@@ -14,7 +14,7 @@ with V_ij and the refined mesh from the ``sky_visibility`` product, E_sun the
 sun's direct normal irradiance (Preetham's transmittances) and S_i the sun's
 visibility: the share of ``sun_samples`` rays from random points of the face
 toward random points of the 0.53 degree solar disk that escape. The sky part
-is one (F, N) x (N, 3) float32 matrix product (``relight``), no ray casts;
+is one (F, N) x (N, 3) float32 matrix product (``relight_daylight``), no ray casts;
 only the sun term casts rays. Units: visible-equivalent W/(m^2 sr) (luminance
 in cd/m^2 divided by 179 lm/W, as Radiance); ``bake:daylight`` times 179 is
 luminance, and rho_i can be divided out to get irradiance. The Perez sky is in
@@ -50,8 +50,9 @@ import numpy as np
 import warp as wp
 
 from ...core import Context, ParamError, Params, Primvar, Processor, Result, param
-from ...core.products import DaylightProduct, SkyVisibilityProduct
+from .products import DaylightProduct, SkyVisibilityProduct
 from ...core.scene import Scene
+from ...kernels.lights import LUMINANCE
 from ...kernels.sky import enu_to_world, patch_radiance, sun_normal_irradiance
 from ...kernels.solar import SunPosition, day_of_year, horizontal_position, parse_times, sun_position
 from .sun_visibility import SunFaces, sun_bin_hits
@@ -62,7 +63,7 @@ RELIGHT_CHUNK = 16384
 """Rows per chunk when V is uint8: the float32 copy of a chunk (16 MB at 256 patches) stays small."""
 
 
-def relight(visibility: np.ndarray, sky_weights: np.ndarray, *, scale: float = 1.0,
+def relight_daylight(visibility: np.ndarray, sky_weights: np.ndarray, *, scale: float = 1.0,
             albedo: np.ndarray | None = None, sun: np.ndarray | None = None, patch_major: bool = False,
             chunk: int = RELIGHT_CHUNK) -> np.ndarray:
     """Paper Eq. 1 as one matrix product: (F, 3) float32 radiance (or irradiance without ``albedo``).
@@ -131,7 +132,7 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
     Bosch, Besuievsky & Martin, Sec. 5 and 5.1: for each time, the sun position
     (kernels/solar.py), the sky patch radiances Lhat_j (W/(m^2 sr)), the sun's
     direct normal irradiance (W/m^2) and visibility S_i, then Eq. 1 reusing the
-    precomputed V_ij (``relight``). Returns (T, F, 3) float32 radiance in
+    precomputed V_ij (``relight_daylight``). Returns (T, F, 3) float32 radiance in
     W/(m^2 sr) in the product, and timing figures.
     """
     position = sun_position(times, latitude, longitude, timezone)
@@ -157,7 +158,7 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
             sun_rays += int((cos_i > 0).sum()) * sun_samples
             direct = (cos_i * seen)[:, None] * e_normal[None, :].astype(np.float32)
         started = _time.perf_counter()
-        out[k] = relight(visibility, weights, albedo=albedo, sun=direct, patch_major=True)
+        out[k] = relight_daylight(visibility, weights, albedo=albedo, sun=direct, patch_major=True)
         relight_seconds.append(_time.perf_counter() - started)
         progress((k + 1) / len(times))
     stats = {"times": float(len(times)), "faces": float(product.num_faces),
@@ -209,8 +210,8 @@ def sun_table(tracer, product, *, latitude: float, north: float = 0.0,
               progress=lambda f: None) -> SunTable:
     """Shadow rays toward the sun at every node of a declination x hour-angle grid (``declination_step``
     and ``hour_step`` degrees at most; 3.75 degrees of hour angle = 15 minutes) that is above the horizon at
-    ``latitude``, ``samples`` per face: the precompute of ``Relighter``. The sun's path depends on the
-    latitude alone; the longitude and time zone only turn clock time into hour angle (``Relighter.at``)."""
+    ``latitude``, ``samples`` per face: the precompute of ``DaylightRelighter``. The sun's path depends on the
+    latitude alone; the longitude and time zone only turn clock time into hour angle (``DaylightRelighter.at``)."""
     count = int(np.ceil(2 * MAX_DECLINATION / declination_step)) + 1
     declinations = np.linspace(-MAX_DECLINATION, MAX_DECLINATION, count)
     hours = int(np.ceil(360.0 / hour_step))
@@ -228,7 +229,7 @@ def sun_table(tracer, product, *, latitude: float, north: float = 0.0,
     return SunTable(declinations, hour_angles, node_row.reshape(dec.shape), hits, samples)
 
 
-class Relighter:
+class DaylightRelighter:
     """Interactive relighting (Bosch, Besuievsky & Martin, Sec. 5, Eq. 1) of the refined faces for any time at
     one site, no rays: the sky by one BLAS product over V (patch-major float32), the sun from a ``SunTable``.
 
@@ -261,14 +262,14 @@ class Relighter:
             seen = self.table.visibility(float(position.declination[0]), float(position.hour_angle[0]))
             cos_i = np.maximum(self.product.face_normals @ sun_world, 0.0) * seen
             direct = cos_i[:, None] * e_normal.astype(np.float32)[None, :]
-        return relight(self.visibility, weights, albedo=self.albedo, sun=direct, patch_major=True)
+        return relight_daylight(self.visibility, weights, albedo=self.albedo, sun=direct, patch_major=True)
 
 
-def tone_map(radiance: np.ndarray, exposure: float = 0.0) -> tuple[np.ndarray, float]:
+def reinhard_tone_map(radiance: np.ndarray, exposure: float = 0.0) -> tuple[np.ndarray, float]:
     """Reinhard x / (1 + x) of radiance * k; k = exposure, or 1 / the 90th percentile of the luminance."""
     k = float(exposure)
     if k <= 0:
-        luminance = radiance @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+        luminance = radiance @ LUMINANCE.astype(np.float32)
         positive = luminance[luminance > 0]
         k = 1.0 / float(np.percentile(positive, 90)) if len(positive) else 1.0
     x = radiance * np.float32(k)
@@ -328,7 +329,8 @@ class Daylight(Processor):
             sun_samples=p.sun_samples, seed=p.seed, progress=ctx.progress)
         result = Result(products={DaylightProduct: daylight}, stats=stats)
         sampled = len(times) > 1
-        mapped, k = tone_map(daylight.face_radiance.reshape(-1, 3), p.exposure) if p.display_color else (None, 0)
+        mapped, k = (reinhard_tone_map(daylight.face_radiance.reshape(-1, 3), p.exposure) if p.display_color
+                     else (None, 0))
         if mapped is not None:
             mapped = mapped.reshape(daylight.face_radiance.shape)
         for prim in product.prims:

@@ -69,7 +69,8 @@ import numpy as np
 
 from ...core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
 from ...core.chunks import SceneChunks
-from ...core.products import RefinedScene, SkyVisibilityProduct
+from ...core.products import RefinedScene
+from .products import SkyVisibilityProduct
 from ...core.scene import Scene
 from ...geometry.mesh import backdrop_prims, detail_diagonal, missing_receivers, receiver_prims
 from ...kernels.sky import SkyPatches, enu_to_world, patch_layout

@@ -80,7 +80,7 @@ import numpy as np
 import warp as wp
 
 from ...core import Attribute, Context, ParamError, Params, Prim, Processor, Result, Texture, param
-from ...core.products import DisplacementField, DisplacementFieldSet
+from .products import DisplacementField, DisplacementFieldSet
 from ...core.scene import Scene
 from .transforms import invertible, rigid_alignment, rotation_quaternion
 from .field_kernels import (

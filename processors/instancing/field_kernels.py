@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ...core.products import DisplacementField
+from .products import DisplacementField
 from ...kernels.sampling import cosine_hemisphere, tangent_frame
 from .sphere_maps import (
     equal_area_sphere_to_square,

@@ -72,7 +72,7 @@ import numpy as np
 import warp as wp
 
 from ...core import Context, Params, Primvar, Processor, Result, param
-from ...core.products import DisplacementFieldSet, InstanceOcclusionProduct
+from .products import DisplacementFieldSet, InstanceOcclusionProduct
 from ...geometry.mesh import missing_receivers, receiver_prims, vertex_inward, vertex_normals
 from .transforms import invertible
 from .field_kernels import INTERPOLATION_MODES, FieldArrays, FieldSet, field_visibility

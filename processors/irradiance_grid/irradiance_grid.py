@@ -105,7 +105,7 @@ and on every writable mesh ``primvars:bake:irradianceGrid`` (color3f[],
 vertex): the reconstructed irradiance E at its points with the area-weighted
 vertex normals (``usdbake preview --channel irradianceGrid``).
 
-Product: an ``IrradianceGridProduct`` (core/products.py; scene frame).
+Product: an ``IrradianceGridProduct`` (products.py; scene frame).
 
 Parameters: ``usdbake list irradiance_grid`` or docs/irradiance_grid.md, both generated from ``Params`` below.
 """
@@ -120,7 +120,7 @@ import warp as wp
 
 from ...core import Attribute, Context, File, Params, Prim, Primvar, Processor, Result, param
 from ...core.chunks import SceneChunks
-from ...core.products import IrradianceGridProduct
+from .products import IrradianceGridProduct
 from ...core.scene import Scene
 from ...formats import streaming
 from ...geometry.mesh import receiver_prims, vertex_normals

@@ -72,7 +72,7 @@ import fast_simplification
 import numpy as np
 
 from ...core import Attribute, Context, File, Params, Primvar, Processor, Result, param
-from ...core.products import ProgressiveMeshProduct
+from .products import ProgressiveMeshProduct
 from ...formats.mesh_stream import encode_mesh_stream
 from ...geometry.mesh import missing_receivers, receiver_prims
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core.products import ProbeCloud
+from .products import ProbeCloud
 from ...core.scene import Scene
 from ...kernels.sh import sh_basis_np
 from . import tetrahedra

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...core import Attribute, Context, Params, Prim, Processor, Result, param
-from ...core.products import ProbeCloud
+from .products import ProbeCloud
 from ...geometry.mesh import backdrop_prims
 from ...kernels.light_bundles import NO_LIGHTS, has_light, scene_lighting
 from ...kernels.sh import dering

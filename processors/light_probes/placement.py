@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 from ...core.scene import Scene
 from ...geometry.mesh import receiver_detail_box
 from ...kernels.light_bundles import SceneLighting, scene_lighting
+from ...kernels.lights import LUMINANCE
 from ...kernels.sh import sh_basis_np
 from . import tetrahedra
 from .ascent import variation_gradient
@@ -131,7 +132,7 @@ def sample_irradiance(sh: np.ndarray) -> np.ndarray:
     """(P, 26) luminance of irradiance SH (P, 9, 3) at Sukys' 26 directions (clamped at 0)."""
     basis = sh_basis_np(PROBE_DIRECTIONS)  # (26, 9)
     e = np.einsum("dk,pkc->pdc", basis, np.asarray(sh, np.float64))
-    return np.maximum(e @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
+    return np.maximum(e @ LUMINANCE, 0.0)
 
 
 def edge_contrast(samples: np.ndarray, edges: np.ndarray, floor: float) -> np.ndarray:

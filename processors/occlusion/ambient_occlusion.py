@@ -45,7 +45,7 @@ import numpy as np
 import warp as wp
 
 from ...core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
-from ...core.products import AmbientOcclusionProduct
+from .products import AmbientOcclusionProduct
 from ...core.scene import Scene
 from .instances import instanced_receivers, per_instance_means
 from ...geometry.mesh import NO_RECEIVERS, face_means, receiver_prims, vertex_inward, vertex_normals

@@ -85,7 +85,7 @@ import warp as wp
 
 from ...core import Attribute, Context, File, Params, Prim, Processor, Result, param
 from ...core.chunks import SceneChunks
-from ...core.products import FormFactorProduct, Patches
+from .products import FormFactorProduct, Patches
 from ...core.scene import Scene
 from . import dds
 from .sparse_operator import sparse_file_bytes
@@ -210,7 +210,7 @@ def compute_form_factors(tracer, patches: Patches, tri_normals: np.ndarray, *, r
     Parameters
     ----------
     tracer : kernels.tracer.Tracer over the scene's triangles
-    patches : core.products.Patches from processors.radiosity.patches.build_patches
+    patches : products.Patches from processors.radiosity.patches.build_patches
     tri_normals : (T, 3) float32 unit triangle normals
     rays : rays per patch, rounded to a square (``rays_square``)
     seed : random seed; ray k of patch i draws from (seed, i * rays + k), so results depend neither on

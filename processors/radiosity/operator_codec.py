@@ -43,7 +43,7 @@ import math
 import numpy as np
 import warp as wp
 
-from ...core.products import CompressedOperator
+from .products import CompressedOperator
 from .bc1 import blocks_to_image, decode_bc1_texels, encode_bc1
 
 wp.set_module_options({"enable_backward": False})

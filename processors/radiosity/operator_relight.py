@@ -5,7 +5,7 @@ indirect irradiance E_ind = M E0 with M = sum_h (F^C)^h the k-bounce operator
 that ``form_factors`` compressed (section 4.2: top values exact in a sparse
 part, the rest as log-quantized codes in BC1 blocks, rows and columns
 reordered). The compressed operator is the stored and transferred form (the
-.dds and the sparse .npz); a ``Relighter`` decodes it once, at load, into one
+.dds and the sparse .npz); an ``OperatorRelighter`` decodes it once, at load, into one
 of two run-time forms:
 
 - ``dense``: the float32 operator (12 n^2 bytes) multiplied by BLAS (numpy),
@@ -229,7 +229,7 @@ def launch_rows(kernel, dim: int, inputs: list, device, threads: int) -> None:
     launch_chunked(kernel, dim, inputs, device=device, threads=threads, min_chunk=1)
 
 
-class Relighter:
+class OperatorRelighter:
     """The operator decoded once into its run-time form (``form``: DENSE or COMPRESSED, see the module
     docstring; ``relight_form`` picks by the memory budget); ``apply(E0)`` -> indirect irradiance."""
 
@@ -300,7 +300,7 @@ class Relighter:
         return out
 
 
-def relight(compressed, irradiance: np.ndarray, *, device="cpu", threads: int = 1,
+def relight_indirect(compressed, irradiance: np.ndarray, *, device="cpu", threads: int = 1,
             memory_budget: int | None = None) -> np.ndarray:
-    """Indirect irradiance (n, 3) = M E0 with the operator in its fastest run-time form (see Relighter)."""
-    return Relighter(compressed, device=device, threads=threads, memory_budget=memory_budget).apply(irradiance)
+    """Indirect irradiance (n, 3) = M E0 with the operator in its fastest run-time form (see OperatorRelighter)."""
+    return OperatorRelighter(compressed, device=device, threads=threads, memory_budget=memory_budget).apply(irradiance)

@@ -20,7 +20,7 @@ names the step but not its rule, so the rule below is usdbake's:
   normal, area-weighted mean albedo and emission, and the area CDF of its
   fragments (for sampling points on it).
 
-Pure numpy: arrays in, a ``core.products.Patches`` out.
+Pure numpy: arrays in, a ``products.Patches`` out.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from ...core.products import Patches
+from .products import Patches
 
 MAX_SUBDIVISION = 64
 """Largest m (m^2 fragments) a triangle is split into: bounds fragment counts on huge ground planes."""

@@ -44,7 +44,7 @@ primvars:bake:irradianceDirect    color3f[] vertex        direct irradiance E0 (
 primvars:bake:irradianceIndirect  color3f[] vertex        indirect irradiance (W/m^2)
 ================================= ========= ============= ==============================
 
-Product ``RadiosityProduct`` (core/products.py, for later processors): patch centroids, normals, areas,
+Product ``RadiosityProduct`` (products.py, for later processors): patch centroids, normals, areas,
 direct and indirect irradiance, and outgoing radiosity ``B = rho (E0 + E_ind)
 + pi L_e`` (W/m^2), one row per patch.
 
@@ -61,12 +61,12 @@ import numpy as np
 import warp as wp
 
 from ...core import Context, Params, Primvar, Processor, Result, param
-from ...core.products import FormFactorProduct, RadiosityProduct
+from .products import FormFactorProduct, RadiosityProduct
 from ...core.scene import Scene
 from ...geometry.mesh import missing_receivers, receiver_prims, vertex_normals
 from ...kernels.light_bundles import NO_LIGHTS, has_light, light_bundle, shadow_rays_per_point
 from ...kernels.lights import Lights, direct_irradiance
-from .operator_relight import Relighter
+from .operator_relight import OperatorRelighter
 from .patch_kernels import fragment_of_hit
 from ...kernels.sampling import cosine_hemisphere, strata_for, tangent_frame
 from ...kernels.tracer import FAR, surface_origin
@@ -330,7 +330,7 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
     indirect light (``final_gather``: the gather adds one reflection, k + 1 in all, as a probe or any
     point looking at the patches sees), with direct light evaluated at near hits; with 0 the patches'
     k-bounce indirect light interpolated (``transfer_to_vertices``: no rays, smooth, blurred in corners).
-    ``apply_operator(E0) -> E_ind`` replaces the relight (run: a Relighter for the step's memory budget; benchmarks: the dense operator).
+    ``apply_operator(E0) -> E_ind`` replaces the relight (run: an OperatorRelighter for the step's memory budget; benchmarks: the dense operator).
     ``transfer_seconds`` in the result: the time of the transfer to the points (the gather or the blend).
     """
     patches, op = product.patches, product.operator
@@ -375,10 +375,10 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
             "transfer_seconds": transfer_seconds}
 
 
-def relighter_for(tracer, op, p) -> Relighter:
+def relighter_for(tracer, op, p) -> OperatorRelighter:
     """The operator in its run-time form for ``p.relight_memory_mb`` (0: the default budget)."""
     budget = int(p.relight_memory_mb * 2**20) if p.relight_memory_mb > 0 else None
-    return Relighter(op, device=tracer.device, threads=tracer.threads, memory_budget=budget)
+    return OperatorRelighter(op, device=tracer.device, threads=tracer.threads, memory_budget=budget)
 
 
 class Radiosity(Processor):

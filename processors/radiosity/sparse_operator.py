@@ -24,7 +24,7 @@ import io
 
 import numpy as np
 
-from ...core.products import CompressedOperator
+from .products import CompressedOperator
 
 
 def sparse_file_bytes(compressed: CompressedOperator) -> bytes:

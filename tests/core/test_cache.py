@@ -36,8 +36,10 @@ from usdbake.core import plain_data
 from usdbake.core.cache import STALE_SECONDS, CacheWarning, ResultCache, entry_sha256, misfit
 from usdbake.core.pipeline import Pipeline
 from usdbake.core.processor import Processor, Result
-from usdbake.core.products import (AmbientOcclusionProduct, InstanceOcclusionProduct, RefinedScene,
-                                   SkyVisibilityProduct)
+from usdbake.core.products import RefinedScene
+from usdbake.processors.daylight.products import SkyVisibilityProduct
+from usdbake.processors.instancing.products import InstanceOcclusionProduct
+from usdbake.processors.occlusion.products import AmbientOcclusionProduct
 from usdbake.core.records import Attribute, Block, File, Primvar
 from usdbake.core.runtime import Runtime
 from usdbake.kernels.tracer import Tracer
@@ -322,6 +324,17 @@ def values_swapped_between_prims(manifest, arrays):
     manifest.write_text(json.dumps(content))
 
 
+def product_type_moved(where: str):
+    """An entry written before its product type moved (to ``where``, a module that lacks it or none at all)."""
+    def corrupt(manifest, arrays):
+        text = manifest.read_text()
+        now = "usdbake.processors.occlusion.products:AmbientOcclusionProduct"
+        assert now in text
+        reseal(manifest, json.loads(text.replace(now, f"{where}:AmbientOcclusionProduct")))
+    corrupt.__name__ = f"product_type_moved_from_{where}"
+    return corrupt
+
+
 def manifest_without_its_hash(manifest, arrays):
     content = json.loads(manifest.read_text())
     del content["sha256"]
@@ -341,6 +354,8 @@ def manifest_with_a_number_json_cannot_hold(manifest, arrays):
     (manifest_of_another_entry, "the manifest is for"),
     (manifest_of_another_format, "format 99"),
     (array_of_another_shape, "cannot decode"),
+    (product_type_moved("usdbake.core.products"), "is not a dataclass type of usdbake.core.products"),
+    (product_type_moved("usdbake.processors.occlusion.former"), "No module named"),
     (a_typo_in_the_manifest, "entry hash mismatch (the manifest was edited)"),
     (values_swapped_between_prims, "entry hash mismatch (the manifest was edited)"),
     (manifest_without_its_hash, "entry hash mismatch (the manifest was edited)"),
@@ -740,7 +755,7 @@ def test_an_array_two_fields_share_is_stored_once_and_shared_again():
     "usdbake.core.scene:Scene.fingerprint",  # not a type
     "usdbake.core.scene:np.ndarray",  # a type, not a dataclass of that module
     "usdbake.core.scene:Scene.__init__.__globals__",
-    "usdbake.core.products:DaylightProduct.<locals>",
+    "usdbake.core.products:RefinedScene.<locals>",
 ])
 def test_only_dataclass_types_of_trusted_modules_are_resolved(name):
     with pytest.raises(ValueError):

@@ -13,6 +13,7 @@ from pxr import Sdf, Usd, UsdGeom
 import fake_processors as fakes
 import usdbake
 from usdbake import core
+from usdbake.stages.bake_file import READING
 from usdbake.stages.hook import last_report
 from usdbake.core.pipeline import Pipeline
 from usdbake.core.runtime import Runtime
@@ -81,6 +82,13 @@ def test_bake_into_a_given_layer(stage, cache):
     assert spec is not None and len(spec.default) == fakes.GROUND_POINTS
     assert spec.GetInfo("interpolation") == "vertex"
     assert ao_values(stage, "/World/Ground") is None  # the stage does not see a layer it does not hold
+
+
+def test_progress_hears_the_reading_then_each_processor(stage, cache):
+    heard = []
+    usdbake.bake(stage, params=AO_FAST, cache_dir=cache, on_progress=lambda name, f: heard.append((name, f)))
+    assert heard[:2] == [(READING, 0.0), (READING, 1.0)]  # the same sequence as the file bake (compute_outputs)
+    assert ("ambient_occlusion", 1.0) in heard[2:]
 
 
 def test_failed_bake_authors_nothing(stage, cache, monkeypatch):

@@ -16,7 +16,8 @@ import usdbake
 from pxr import Gf, Sdf, Usd, UsdGeom
 from stress.stage_builders_stress import FAST_PARAMS, fast_params, hostile_lit_stage, small_lit_stage, walk_values
 from tolerances import FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_STORAGE, PROCESSOR_RAY_FLIPS
-from usdbake.core.products import FormFactorProduct, ProbeCloud
+from usdbake.processors.light_probes.products import ProbeCloud
+from usdbake.processors.radiosity.products import FormFactorProduct
 from usdbake import core
 from usdbake.processors.radiosity.operator_codec import decompress_operator
 from usdbake.kernels.sh import sh_basis_np

@@ -12,8 +12,8 @@ from usdbake.core import ParamError
 from usdbake.processors.daylight.sun_visibility import compute_sun_visibility
 from usdbake.processors.daylight.daylight import (
     Daylight,
-    relight,
-    tone_map,
+    reinhard_tone_map,
+    relight_daylight,
 )
 from usdbake.kernels.sky import (
     LUMINOUS_EFFICACY,
@@ -63,17 +63,17 @@ def test_relight_is_linear_and_uint8_matches_float():
     w1, w2 = rng.random((64, 3)).astype(np.float32), rng.random((64, 3)).astype(np.float32)
     albedo = rng.random((500, 3)).astype(np.float32)
     sun = rng.random((500, 3)).astype(np.float32)
-    base = relight(v, w1, albedo=albedo)
-    np.testing.assert_allclose(relight(v, 2 * w1, albedo=albedo), 2 * base, rtol=FLOAT32_STORAGE)
-    np.testing.assert_allclose(relight(v, w1 + w2, albedo=albedo, sun=sun),
-                               base + relight(v, w2, albedo=albedo) + albedo / np.pi * sun,
+    base = relight_daylight(v, w1, albedo=albedo)
+    np.testing.assert_allclose(relight_daylight(v, 2 * w1, albedo=albedo), 2 * base, rtol=FLOAT32_STORAGE)
+    np.testing.assert_allclose(relight_daylight(v, w1 + w2, albedo=albedo, sun=sun),
+                               base + relight_daylight(v, w2, albedo=albedo) + albedo / np.pi * sun,
                                rtol=FLOAT32_ACCUMULATED, atol=FLOAT32_STORAGE)
-    np.testing.assert_allclose(relight(v8, w1, scale=1 / 255, albedo=albedo, chunk=77), base,
+    np.testing.assert_allclose(relight_daylight(v8, w1, scale=1 / 255, albedo=albedo, chunk=77), base,
                                rtol=FLOAT32_ACCUMULATED)
-    np.testing.assert_allclose(relight(np.ascontiguousarray(v.T), w1, albedo=albedo, patch_major=True), base,
+    np.testing.assert_allclose(relight_daylight(np.ascontiguousarray(v.T), w1, albedo=albedo, patch_major=True), base,
                                rtol=FLOAT32_ACCUMULATED)
     with pytest.raises(ValueError):
-        relight(v, w1[:10])
+        relight_daylight(v, w1[:10])
 
 
 def test_open_plane_under_uniform_sky_reflects_albedo_times_radiance():
@@ -82,9 +82,9 @@ def test_open_plane_under_uniform_sky_reflects_albedo_times_radiance():
     product, _ = compute_sky_visibility(tracer, scene, patches=uniform_patches(256), samples=16)
     radiance = 700.0
     weights = np.full((256, 3), radiance, np.float32) * product.patches.patch_solid_angles[:, None].astype(np.float32)
-    irradiance = relight(product.visibility, weights, scale=product.visibility_scale)
+    irradiance = relight_daylight(product.visibility, weights, scale=product.visibility_scale)
     np.testing.assert_allclose(irradiance, np.pi * radiance, rtol=SKY_PATCH_INTEGRATION)
-    out = relight(product.visibility_float(), weights, albedo=scene.tri_albedo[product.face_source])
+    out = relight_daylight(product.visibility_float(), weights, albedo=scene.tri_albedo[product.face_source])
     np.testing.assert_allclose(out, 0.5 * radiance, rtol=SKY_PATCH_INTEGRATION)
 
 
@@ -158,7 +158,7 @@ def test_bad_times_are_param_errors():
 
 def test_tone_map_is_bounded_and_monotone():
     values = np.array([[0, 0, 0], [1, 1, 1], [10, 5, 1], [1e6, 1e6, 1e6]], np.float32)
-    mapped, k = tone_map(values)
+    mapped, k = reinhard_tone_map(values)
     assert k > 0 and (mapped >= 0).all() and (mapped < 1).all()
     assert (np.diff(mapped[:, 0]) >= 0).all()
 
@@ -247,13 +247,13 @@ def walled_plane():
 
 
 def test_relighter_sky_is_compute_daylight_and_its_sun_table_the_rays(walled_plane):
-    from usdbake.processors.daylight.daylight import Relighter, compute_daylight, sun_table
+    from usdbake.processors.daylight.daylight import DaylightRelighter, compute_daylight, sun_table
 
     scene, tracer, product = walled_plane
     site = {"latitude": 41.98, "longitude": 2.82, "timezone": 1.0}
     table = sun_table(tracer, product, latitude=site["latitude"], samples=64)
     albedo = scene.tri_albedo[product.face_source]
-    relighter = Relighter(product, table, **site, albedo=albedo)
+    relighter = DaylightRelighter(product, table, **site, albedo=albedo)
     areas = product.face_areas.astype(np.float64)
     for when in ("2026-03-02T09:20", "2026-06-21T08:35", "2031-11-05T10:10"):  # morning: the shadow is east
         time = np.datetime64(when)

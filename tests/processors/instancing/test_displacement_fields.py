@@ -10,7 +10,7 @@ from tolerances import (BOUNDING_SPHERE_SLACK, FIELD_GRAZING_ERROR, FLOAT32_STOR
                         ICOSPHERE_SAGITTA, ROUNDING_MEAN_SHARE, UINT8_CODE_STEP)
 
 from kernel_twins import cosine_hemisphere_np, grid_cell_centers_np
-from usdbake.core.products import DisplacementFieldSet
+from usdbake.processors.instancing.products import DisplacementFieldSet
 from usdbake import core
 from usdbake.processors.instancing.field_kernels import MAX_HIT_CODE, MISS_CODE, field_atlas, field_from_atlas
 from usdbake.processors.instancing.displacement_fields import (DisplacementFields, build_field, choose_prototypes,

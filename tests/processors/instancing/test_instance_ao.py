@@ -12,7 +12,8 @@ from instanced_scenes import build_scene, grid, icosphere, run_processor, transl
 from tolerances import (AO_RMS_FIGURE, CELL_BORDER_FLIPS, FLOAT32_STORAGE, FLOAT64_AMPLIFIED, INSIDE_RMS,
                         INSTANCE_MEAN_TOL, RAY_MISMATCH, SHARED_FIELD_RMS, SINGLE_RAY_FLIP, SYNTHETIC_RMS)
 
-from usdbake.core.products import AmbientOcclusionProduct, DisplacementFieldSet, InstanceOcclusionProduct
+from usdbake.processors.instancing.products import DisplacementFieldSet, InstanceOcclusionProduct
+from usdbake.processors.occlusion.products import AmbientOcclusionProduct
 from usdbake import core
 from usdbake.processors.instancing import instance_ao as ia
 from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion

@@ -11,7 +11,7 @@ from stage_builders import base_context
 import pytest
 from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_ROUNDING, FLOAT32_STORAGE, FLOAT64_ROUNDING,
                         GRID_BOUNCE_SHARE, MC_SIGMAS, ON_BOUNDARY)
-from usdbake.core.products import IrradianceGridProduct
+from usdbake.processors.irradiance_grid.products import IrradianceGridProduct
 from usdbake.kernels.direction24 import dequantize_vectors
 from usdbake.processors.irradiance_grid import irradiance_grid as ig
 from usdbake.processors.irradiance_grid.vector_grid import GridLayout, grid_bounds, grid_layout, reconstruct_irradiance

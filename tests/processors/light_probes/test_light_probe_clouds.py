@@ -11,7 +11,7 @@ from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_STORAGE
                         LEAST_SQUARES_RIDGE, MC_SIGMAS)
 
 from usdbake.core import Context
-from usdbake.core.products import ProbeCloud
+from usdbake.processors.light_probes.products import ProbeCloud
 from usdbake.core.scene import LIGHT_DISTANT, LIGHT_SPHERE
 from usdbake.processors.light_probes import conforming
 from usdbake.kernels.light_bundles import scene_lighting

@@ -12,7 +12,7 @@ import pytest
 from tolerances import (FLOAT32_ACCUMULATED, FLOAT32_LONG_CHAIN, FLOAT32_ROUNDING, FLOAT32_STORAGE,
                         FLOAT32_UNIT_ROUNDOFF, GROUND_QUADRATURE, MC_SIGMAS)
 
-from usdbake.core.products import ProbeCloud
+from usdbake.processors.light_probes.products import ProbeCloud
 from usdbake.geometry.mesh import backdrop_prims
 from usdbake.kernels.light_bundles import scene_lighting
 from usdbake.processors.light_probes import light_probes as lp

@@ -9,11 +9,11 @@ from tolerances import (BOUNCE_ENERGY, CATALOG_FORM_FACTOR, CLOSED_BOX_ESCAPES, 
                         FLOAT32_ROUNDING, FLOAT32_STORAGE, MC_SIGMAS, RECIPROCITY_FACE_SUMS, RECIPROCITY_FLOOR,
                         RELIGHT_TOLERANCE)
 from usdbake.core import File, Prim
-from usdbake.core.products import FormFactorProduct
+from usdbake.processors.radiosity.products import FormFactorProduct
 from patch_scenes import box_parts, make_scene, quad
 from usdbake.processors.radiosity import patches as geo_patches
 from usdbake.processors.radiosity import operator_codec as codec
-from usdbake.processors.radiosity.operator_relight import COMPRESSED, DENSE, Relighter, relight
+from usdbake.processors.radiosity.operator_relight import COMPRESSED, DENSE, OperatorRelighter, relight_indirect
 from usdbake.kernels.tracer import Tracer
 from usdbake.processors.radiosity import form_factors as ff
 
@@ -216,12 +216,12 @@ def test_compressed_relight_matches_dense_and_permutation_is_consistent(box_oper
     results = {}
     for passes in (0, 2):
         compressed = codec.compress_operator(operator, reorder_passes=passes, quantization=quantization)
-        relit = relight(compressed, e0)
+        relit = relight_indirect(compressed, e0)
         # Both run-time forms (the Warp kernel decoding blocks, BLAS on the dense decode) equal the
         # numpy decode of the same data.
         decoded = np.einsum("cij,jc->ic", codec.decompress_operator(compressed), e0)
         for form in (COMPRESSED, DENSE):
-            np.testing.assert_allclose(Relighter(compressed, form=form).apply(e0), decoded,
+            np.testing.assert_allclose(OperatorRelighter(compressed, form=form).apply(e0), decoded,
                                        rtol=FLOAT32_LONG_CHAIN, atol=FLOAT32_ROUNDING)
         error = np.sqrt(np.mean((relit - dense) ** 2) / np.mean(dense ** 2))
         assert error < RELIGHT_TOLERANCE, (passes, error)

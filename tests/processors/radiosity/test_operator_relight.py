@@ -7,10 +7,10 @@ import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from tolerances import FLOAT32_ACCUMULATED
-from usdbake.core.products import CompressedOperator
+from usdbake.processors.radiosity.products import CompressedOperator
 from usdbake.processors.radiosity import bc1
-from usdbake.processors.radiosity.operator_relight import (COMPRESSED, DENSE, Relighter, dense_nbytes, palette_blocks,
-                                              relight_form)
+from usdbake.processors.radiosity.operator_relight import (COMPRESSED, DENSE, OperatorRelighter, dense_nbytes,
+                                                          palette_blocks, relight_form)
 
 
 def operator_from(block_bytes: bytes, size: int, seed: int) -> CompressedOperator:
@@ -56,7 +56,7 @@ def test_both_forms_equal_the_decoded_operator(block_bytes, size, seed):
     # The compressed form as the CPU runs it (one item a block row) and as CUDA does (lanes per block row,
     # atomic partial sums; 3 lanes here so that lanes share block rows unevenly).
     for form, lanes in ((DENSE, None), (COMPRESSED, 0), (COMPRESSED, 3)):
-        got = Relighter(op, form=form, threads=2, lanes=lanes).apply(x)
+        got = OperatorRelighter(op, form=form, threads=2, lanes=lanes).apply(x)
         np.testing.assert_allclose(got / scale, expected / scale, atol=FLOAT32_ACCUMULATED, err_msg=f"{form} {lanes}")
 
 
@@ -76,19 +76,19 @@ def test_memory_budget_picks_the_form():
     op = operator_from(bytes(range(256)), 40, 3)
     assert relight_form(40, "cpu", memory_budget=dense_nbytes(40)) == DENSE
     assert relight_form(40, "cpu", memory_budget=dense_nbytes(40) - 1) == COMPRESSED
-    assert Relighter(op, memory_budget=0).form == COMPRESSED
-    dense, compressed = Relighter(op, memory_budget=10**9), Relighter(op, memory_budget=0)
+    assert OperatorRelighter(op, memory_budget=0).form == COMPRESSED
+    dense, compressed = OperatorRelighter(op, memory_budget=10**9), OperatorRelighter(op, memory_budget=0)
     assert dense.form == DENSE and dense.nbytes >= dense_nbytes(40)
     assert compressed.nbytes < 0.5 * dense_nbytes(40)  # 16 bytes a 4x4 block, plus the sparse part
     with pytest.raises(ValueError, match="form="):
-        Relighter(op, form="sparse")
+        OperatorRelighter(op, form="sparse")
 
 
 @pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device")
 def test_cuda_runs_the_compressed_form_and_agrees():
     op = operator_from(bytes(range(256)), 57, 4)
     x = np.random.default_rng(2).uniform(0, 1, (57, 3)).astype(np.float32)
-    on_gpu = Relighter(op, device="cuda:0")
+    on_gpu = OperatorRelighter(op, device="cuda:0")
     assert on_gpu.form == COMPRESSED
-    np.testing.assert_allclose(on_gpu.apply(x), Relighter(op, form=DENSE).apply(x), rtol=FLOAT32_ACCUMULATED,
+    np.testing.assert_allclose(on_gpu.apply(x), OperatorRelighter(op, form=DENSE).apply(x), rtol=FLOAT32_ACCUMULATED,
                                atol=FLOAT32_ACCUMULATED)

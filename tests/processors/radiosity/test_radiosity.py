@@ -10,7 +10,7 @@ import pytest
 from patch_scenes import box_parts, make_scene, quad
 from tolerances import (DIRECT_TOLERANCE, DISTANT_CONE, FLOAT32_ACCUMULATED, FLOAT32_ROUNDING, FLOAT32_STORAGE,
                         RADIOSITY_PATH_TRACED)
-from usdbake.core.products import FormFactorProduct, RadiosityProduct
+from usdbake.processors.radiosity.products import FormFactorProduct, RadiosityProduct
 from usdbake.processors.radiosity import form_factors as ff
 from usdbake.processors.radiosity import radiosity as rad
 from usdbake.core import Context, Primvar
