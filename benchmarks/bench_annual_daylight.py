@@ -92,7 +92,9 @@ def radiance_comparison(weather) -> dict:
     tracer = Tracer.from_scene(scene)
     product, _ = compute_sky_visibility(tracer, scene, patches=tregenza_patches(), samples=16, adaptive=False,
                                         max_face_area=0.0)
-    metrics, _ = compute_annual_daylight(tracer, scene, product, weather, sun_samples=16)
+    # Radiance's solar units x 179 and a black interior, both sides: the direct-view check (the bounced,
+    # photometric figures are bench_daylight_bounces's)
+    metrics, _ = compute_annual_daylight(tracer, scene, product, weather, sun_samples=16, efficacy="179")
     corners = product.face_points[product.face_vertices]
     floor = np.flatnonzero((product.face_normals[:, 2] > 0.9) & (corners[:, :, 2].max(axis=1) < 0.01))
     picks = np.random.default_rng(1).choice(floor, SENSORS, replace=False)

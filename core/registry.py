@@ -20,6 +20,7 @@ ENTRY_POINT_GROUP = "usdbake.processors"
 BUILTIN = (
     "usdbake.processors.occlusion.ambient_occlusion:AmbientOcclusion",
     "usdbake.processors.daylight.sky_visibility:SkyVisibility",
+    "usdbake.processors.daylight.interreflection:Interreflection",
     "usdbake.processors.daylight.daylight:Daylight",
     "usdbake.processors.daylight.annual_daylight:AnnualDaylight",
     "usdbake.processors.instancing.displacement_fields:DisplacementFields",

@@ -181,12 +181,17 @@ class Scene:
     """Per prim: the native instances (instanceable prims) it is an instance proxy under, outermost
     first; () for a prim that is not (the default). Where per-instance results go, and what
     de-instancing a receiver unsets."""
+    tri_transmittance: np.ndarray | None = None
+    """(T,) float32 visible transmittance at normal incidence in [0, 1] (glazing: ``bake:transmittance``, or
+    1 - opacity of a UsdPreviewSurface), 0 for opaque faces (the default)."""
 
     def __post_init__(self) -> None:
         if self.prim_instance_roots is None:
             object.__setattr__(self, "prim_instance_roots", ((),) * len(self.prim_paths))
         if self.tri_corner is None:
             object.__setattr__(self, "tri_corner", np.full((len(self.tri_vertices), 3), -1, np.int32))
+        if self.tri_transmittance is None:
+            object.__setattr__(self, "tri_transmittance", np.zeros(len(self.tri_vertices), np.float32))
         for f in fields(self):
             value = getattr(self, f.name)
             if isinstance(value, np.ndarray):
@@ -237,7 +242,7 @@ FACETS: dict[str, tuple[str, ...]] = {
         "point_prim", "prim_paths", "prim_point_start", "prim_writable", "prim_skip", "prim_instance_roots",
         "origin", "up_axis", "meters_per_unit", "prim_to_world", "probe_volumes",
     ),
-    "materials": ("tri_albedo", "tri_emission", "prim_surface"),
+    "materials": ("tri_albedo", "tri_emission", "tri_transmittance", "prim_surface"),
     "lights": (
         "lights.light_paths", "lights.light_kind", "lights.light_radiance",
         "lights.light_position", "lights.light_direction", "lights.light_size", "lights.dome_texture",

@@ -7,6 +7,14 @@ month, hour 1..24, 29 February only in a leap year), because a broken file
 should fail with one line naming the file, the line, the field and its value,
 not with a pandas traceback. Times are local standard time at the
 middle of each hour (both formats give the hour *ending* at the stamp).
+
+Beside the irradiance the file may carry the hour's direct normal and diffuse
+horizontal illuminance and its dew point (for the Perez luminous efficacy
+model, ``kernels/luminous_efficacy.py``); these are optional: read from the rows
+here, a missing or unreadable value is NaN, and a column with no value (or only
+zeros, for illuminance) is None. Illuminance stored in hundreds of lux (TMY2,
+and TMY3 files from before NREL's 2015 revision, such as the Greensboro file
+pvlib ships) is recognised by its ratio to the irradiance and scaled to lux.
 """
 
 from __future__ import annotations
@@ -26,10 +34,26 @@ EPW_HEADER_LINES = 8
 EPW_COLUMNS = 35
 EPW_DNI, EPW_DHI = 14, 15
 """0-based EPW fields: direct normal and diffuse horizontal irradiance, W/m^2."""
+EPW_DNI_ILLUMINANCE, EPW_DHI_ILLUMINANCE = 17, 18
+"""0-based EPW fields: direct normal and diffuse horizontal illuminance, lux (999999 = missing)."""
+EPW_DEW_POINT = 7
+"""0-based EPW field: dew point temperature, degC (99.9 = missing)."""
 
 TMY3_HEADER_LINES = 2
 TMY3_COLUMNS = 71
 TMY3_DNI, TMY3_DHI = 7, 10
+TMY3_DNI_ILLUMINANCE, TMY3_DHI_ILLUMINANCE = 16, 19
+"""0-based TMY3 columns 'DN illum (lx)' and 'DH illum (lx)'."""
+TMY3_DEW_POINT = 34
+"""0-based TMY3 column 'Dew-point (C)'."""
+
+MISSING_ILLUMINANCE = 999900.0
+"""Illuminance at or above this (EPW writes 999999) or below 0 (TMY3 writes -9900) is missing."""
+DEW_POINT_RANGE = (-90.0, 70.0)
+"""degC; a dew point outside it (EPW writes 99.9, TMY3 -9900) is missing."""
+HECTOLUX_RATIO = 10.0
+"""A median illuminance / irradiance below this (daylight gives ~100 lm/W) means the file counts
+illuminance in hundreds of lux."""
 
 
 @dataclass(frozen=True)
@@ -54,6 +78,13 @@ class Weather:
     """Metres."""
     lines: np.ndarray
     """(H,) int64 1-based line of each hour's row in the file, for messages."""
+    direct_normal_illuminance: np.ndarray | None = None
+    """(H,) float64 direct normal illuminance from the file, lux; NaN where the file says it is missing;
+    None when the file has no such values (all missing or zero)."""
+    diffuse_horizontal_illuminance: np.ndarray | None = None
+    """(H,) float64 diffuse horizontal illuminance from the file, lux; NaN and None as above."""
+    dew_point: np.ndarray | None = None
+    """(H,) float64 dew point temperature, degC; NaN where missing; None when the file gives none."""
 
     def __len__(self) -> int:
         return len(self.times)
@@ -226,6 +257,49 @@ def _year(path: Path, header: int, months: list[int], days: list[int], hours: li
     return times, frame["dni"].to_numpy(np.float64)[keep], frame["dhi"].to_numpy(np.float64)[keep], lines
 
 
+def _optional_column(rows: list[list[str]], lines: np.ndarray, field: int, low: float,
+                     high: float) -> np.ndarray | None:
+    """The (H,) float64 values of ``field`` in the kept rows (``lines``, 1-based), NaN where a value is not a
+    number or is outside [low, high) (the file's code for missing); None when no value is left."""
+    values = np.full(len(lines), np.nan)
+    for index, line in enumerate(lines):
+        try:
+            value = float(rows[line - 1][field])
+        except (ValueError, IndexError):
+            continue
+        if low <= value < high:
+            values[index] = value
+    return None if np.isnan(values).all() else values
+
+
+def _illuminance(rows: list[list[str]], lines: np.ndarray, fields: tuple[int, int],
+                 irradiance: tuple[np.ndarray, np.ndarray]) -> list[np.ndarray | None]:
+    """[direct normal, diffuse horizontal] illuminance in lux from ``fields``, each None when the file has no
+    non-zero value. Counted in hundreds of lux (TMY2, pre-2015 TMY3) when the median ratio to the
+    irradiance over hours above 50 W/m^2 is below ``HECTOLUX_RATIO``, then scaled to lux."""
+    columns = []
+    for field in fields:
+        column = _optional_column(rows, lines, field, 0.0, MISSING_ILLUMINANCE)
+        columns.append(column if column is not None and np.nanmax(column) > 0.0 else None)
+    ratios = []
+    for column, watts in zip(columns, irradiance):
+        if column is not None:
+            lit = (watts > 50.0) & (column > 0.0)
+            ratios.append(column[lit] / watts[lit])
+    ratios = np.concatenate(ratios) if ratios else np.empty(0)
+    if ratios.size and np.median(ratios) < HECTOLUX_RATIO:
+        columns = [None if column is None else column * 100.0 for column in columns]
+    return columns
+
+
+def _photometry(rows: list[list[str]], lines: np.ndarray, illuminance: tuple[int, int], dew_point: int,
+                dni: np.ndarray, dhi: np.ndarray) -> dict:
+    """Weather's optional fields: illuminance (lux) and dew point (degC) of the kept rows."""
+    direct, diffuse = _illuminance(rows, lines, illuminance, (dni, dhi))
+    return {"direct_normal_illuminance": direct, "diffuse_horizontal_illuminance": diffuse,
+            "dew_point": _optional_column(rows, lines, dew_point, *DEW_POINT_RANGE)}
+
+
 def _pvlib_frame(path: Path, read, **kwargs):
     """pvlib's data frame of the file; a failure left after the checks here is still one line, naming the file."""
     try:
@@ -262,7 +336,8 @@ def _read_epw(path: Path) -> Weather:
     when = _times(path, EPW_HEADER_LINES, rows[EPW_HEADER_LINES:], _epw_time)
     frame = _pvlib_frame(path, read_epw)
     times, dni, dhi, lines = _year(path, EPW_HEADER_LINES, *zip(*when), frame)
-    return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation, lines)
+    extra = _photometry(rows, lines, (EPW_DNI_ILLUMINANCE, EPW_DHI_ILLUMINANCE), EPW_DEW_POINT, dni, dhi)
+    return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation, lines, **extra)
 
 
 def _read_tmy3(path: Path) -> Weather:
@@ -279,4 +354,5 @@ def _read_tmy3(path: Path) -> Weather:
     when = _times(path, TMY3_HEADER_LINES, rows[TMY3_HEADER_LINES:], _tmy3_time)
     frame = _pvlib_frame(path, read_tmy3, map_variables=True)
     times, dni, dhi, lines = _year(path, TMY3_HEADER_LINES, *zip(*when), frame)
-    return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation, lines)
+    extra = _photometry(rows, lines, (TMY3_DNI_ILLUMINANCE, TMY3_DHI_ILLUMINANCE), TMY3_DEW_POINT, dni, dhi)
+    return Weather(str(path), times, dni, dhi, latitude, longitude, timezone, elevation, lines, **extra)

@@ -37,7 +37,9 @@ def extract_scene(stage: Usd.Stage, *, time: float | None = None, allow_missing:
     (NaN/inf points, out-of-range indices, mismatched counts), and naming the asset and
     the layer that asks for it for a missing or unreadable sublayer, reference or payload
     (unless ``allow_missing``: then each becomes a warning and its geometry is left out).
-    A texture that cannot be read becomes a warning naming the fallback albedo used.
+    A texture that cannot be read becomes a warning naming the fallback albedo used. A glazing value
+    (``bake:transmittance``, a UsdPreviewSurface's opacity) that is not a float in [0, 1] raises StageError
+    too (``stages.materials``).
     """
     timecode = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     xforms = UsdGeom.XformCache(timecode)
@@ -109,6 +111,7 @@ def _assemble(stage, builder: SceneBuilder, light_prims, volume_prims, instances
     return Scene(
         points=points, tri_vertices=tri_vertices, tri_normals=tri_normals, tri_areas=tri_areas,
         tri_albedo=per_tri("tri_albedo", (0, 3)), tri_emission=per_tri("tri_emission", (0, 3)),
+        tri_transmittance=per_tri("tri_transmittance", 0),
         tri_prim=tri_prim, tri_face=cat(face_parts, 0, np.int32), tri_corner=cat(corner_parts, (0, 3), np.int32),
         tri_instance=np.array([inst for _, _, _, inst in builder.meshes], np.int32)[tri_prim]
         if len(tri_prim) else np.zeros(0, np.int32),

@@ -17,6 +17,15 @@ or a source shader other than UsdUVTexture) gives the texture's authored
 ``inputs:fallback`` (what Hydra shows), else the UsdPreviewSurface default
 (diffuseColor 0.18 grey, emissiveColor black), and one warning line naming
 the texture, the shader input and the value used.
+
+Glazing (``face_transmittance``): the visible transmittance at normal incidence of each face, in order
+of precedence: ``bake:transmittance`` (a float) on the mesh prim, else on the face's bound Material
+(GeomSubset bindings included), else 1 - ``inputs:opacity`` of its UsdPreviewSurface (a constant, or
+the mean of the r, g or b channel of the UsdUVTexture it is connected to), else 0 (opaque). A
+UsdPreviewSurface with ``opacityThreshold`` > 0 is a cutout mask, not glass: opaque. An opacity the
+reader cannot evaluate (a texture's alpha, another shader, an unreadable file) is opaque, with one
+warning line. A value that is not a float, not finite or outside [0, 1] raises StageError naming the
+prim, the attribute and the value.
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ import re
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
+from ..core.errors import StageError
 from .images import image_mean
 
 DEFAULT_ALBEDO = (0.5, 0.5, 0.5)
@@ -33,6 +43,11 @@ COLOR_TYPE = re.compile(r"^(color3[fdh]|(float|double|half)3)$")
 """Scalar types whose values are RGB colours (displayColor is declared color3f[])."""
 PREVIEW_SURFACE = "UsdPreviewSurface"
 UV_TEXTURE = "UsdUVTexture"
+TRANSMITTANCE = "bake:transmittance"
+"""Float attribute on a mesh prim or a Material: the visible transmittance at normal incidence (glazing)."""
+FLOAT_TYPES = (Sdf.ValueTypeNames.Float, Sdf.ValueTypeNames.Double, Sdf.ValueTypeNames.Half)
+CHANNELS = {"r": 0, "g": 1, "b": 2}
+"""UsdUVTexture outputs whose mean the reader evaluates (stages.images reads RGB, not alpha)."""
 
 
 class MaterialReader:
@@ -44,6 +59,7 @@ class MaterialReader:
         """Textures that could not be read and the fallback used instead, one line each."""
         self._materials: dict[str, tuple[np.ndarray | None, np.ndarray, str]] = {}
         self._textures: dict[tuple[str, bool], tuple[np.ndarray | None, str]] = {}
+        self._transmittances: dict[str, float] = {}
 
     def face_shading(self, prim: Usd.Prim, face_count: int) -> tuple[np.ndarray, np.ndarray, str]:
         """(F, 3) albedo, (F, 3) emission and the prim-level surface shader path ('' if none)."""
@@ -68,6 +84,78 @@ class MaterialReader:
                 albedo[faces] = diffuse
             emission[faces] = emissive
         return np.clip(albedo, 0.0, 1.0), np.maximum(emission, 0.0), surface
+
+    def face_transmittance(self, prim: Usd.Prim, face_count: int) -> np.ndarray:
+        """(F,) float32 visible transmittance at normal incidence per face, in [0, 1], 0 for opaque faces
+        (precedence in the module docstring). Raises StageError for a bad ``bake:transmittance`` or opacity."""
+        own = self._authored_transmittance(prim)
+        if own is not None:
+            return np.full(face_count, own, np.float32)
+        transmittance = np.zeros(face_count, np.float32)
+        binding = UsdShade.MaterialBindingAPI(prim)
+        material, _ = binding.ComputeBoundMaterial()
+        if material:
+            transmittance[:] = self._material_transmittance(material)
+        for subset in UsdShade.MaterialBindingAPI.GetMaterialBindSubsets(binding):
+            subset_material, _ = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()
+            if not subset_material:
+                continue
+            faces = np.asarray(subset.GetIndicesAttr().Get(self.timecode) or [], np.int64)
+            faces = faces[(faces >= 0) & (faces < face_count)]
+            transmittance[faces] = self._material_transmittance(subset_material)
+        return transmittance
+
+    def _material_transmittance(self, material: UsdShade.Material) -> float:
+        key = str(material.GetPath())
+        if key not in self._transmittances:
+            own = self._authored_transmittance(material.GetPrim())
+            self._transmittances[key] = own if own is not None else self._opacity_transmittance(material)
+        return self._transmittances[key]
+
+    def _authored_transmittance(self, prim: Usd.Prim) -> float | None:
+        """The prim's ``bake:transmittance``, checked; None where it has no value authored."""
+        attribute = prim.GetAttribute(TRANSMITTANCE)
+        if not attribute or not attribute.HasAuthoredValue():
+            return None
+        return _unit_share(attribute, attribute.Get(self.timecode))
+
+    def _opacity_transmittance(self, material: UsdShade.Material) -> float:
+        """1 - opacity of the material's UsdPreviewSurface (0 without one, or for a cutout mask)."""
+        shader = material.ComputeSurfaceSource()[0]
+        if not shader or shader.GetIdAttr().Get() != PREVIEW_SURFACE:
+            return 0.0
+        threshold = _value_of(shader.GetInput("opacityThreshold"), self.timecode)
+        if isinstance(threshold, (int, float)) and threshold > 0:
+            return 0.0  # alpha-tested cutout: a renderer draws the face opaque or not at all, never as glass
+        shader_input = shader.GetInput("opacity")
+        sources = shader_input.GetValueProducingAttributes() if shader_input else []
+        if not sources:
+            return 0.0
+        source = sources[0]
+        if UsdShade.Utils.GetType(source.GetName()) == UsdShade.AttributeType.Input:
+            if not source.HasAuthoredValue():
+                return 0.0
+            return 1.0 - _unit_share(source, source.Get(self.timecode))
+        where = f"{shader.GetPath()}.inputs:opacity"
+        texture = UsdShade.Shader(source.GetPrim())
+        output = source.GetBaseName()
+        if texture.GetIdAttr().Get() != UV_TEXTURE:
+            shader_id = texture.GetIdAttr().Get() or "a shader with no info:id"
+            return self._opaque(f"{where}: connected to {texture.GetPath()}, {shader_id}, which is not evaluated")
+        if output not in CHANNELS:
+            return self._opaque(f"{where}: connected to {source.GetPath()}; only the r, g and b outputs of a "
+                                f"UsdUVTexture are read")
+        mean, problem = self._texture_mean(texture)
+        if mean is None:
+            return self._opaque(f"{where}: {problem}")
+        return float(np.clip(1.0 - mean[CHANNELS[output]], 0.0, 1.0))
+
+    def _opaque(self, problem: str) -> float:
+        """No transmittance, and one warning line saying why."""
+        warning = f"{problem}; the faces bound to it are treated as opaque (no glazing)"
+        if warning not in self.warnings:
+            self.warnings.append(warning)
+        return 0.0
 
     def _display_color(self, prim: Usd.Prim, face_count: int) -> np.ndarray:
         primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
@@ -209,6 +297,18 @@ def authored_type(attribute: Usd.Attribute) -> Sdf.ValueTypeName:
     reports its schema's type whatever a layer wrote, but holds the value the layer wrote."""
     stack = attribute.GetPropertyStack(Usd.TimeCode.Default())
     return Sdf.ValueTypeNames.Find(str(stack[0].typeName)) if stack else attribute.GetTypeName()
+
+
+def _unit_share(attribute: Usd.Attribute, value) -> float:
+    """``value`` of ``attribute`` (a transmittance or an opacity) as a float in [0, 1]; StageError naming
+    the prim, the attribute and the value when it is not a float, not finite, or outside [0, 1]."""
+    path, name = str(attribute.GetPrim().GetPath()), attribute.GetName()
+    declared = authored_type(attribute)
+    if declared not in FLOAT_TYPES or not isinstance(value, (float, np.floating)):
+        raise StageError(path, name, f"{declared} {_plain(value)} is not a float (a share of light in [0, 1])")
+    if not np.isfinite(value) or not 0.0 <= value <= 1.0:
+        raise StageError(path, name, f"{_plain(value)} is outside [0, 1]")
+    return float(value)
 
 
 def _plain(value, *, limit: int = 4) -> str:

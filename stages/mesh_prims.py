@@ -27,6 +27,7 @@ class LocalMesh:
     face_count: int
     tri_albedo: np.ndarray    # (T, 3) float32
     tri_emission: np.ndarray  # (T, 3) float32
+    tri_transmittance: np.ndarray  # (T,) float32 visible transmittance at normal incidence, 0: opaque
     left_handed: bool
     double_sided: bool
     skip: bool
@@ -79,10 +80,11 @@ def read_mesh(prim: Usd.Prim, timecode: Usd.TimeCode, materials: "MaterialReader
     tri_corner, tri_face = triangulate_corners(points, counts, indices, skip_faces)
     triangles = indices[tri_corner].astype(np.int32).reshape(-1, 3)
     albedo, emission, surface = materials.face_shading(prim, len(counts))
+    transmittance = materials.face_transmittance(prim, len(counts))
     skip_attr = prim.GetAttribute("bake:skip")
     return LocalMesh(
         path=path, points=points, triangles=triangles, tri_corner=tri_corner, tri_face=tri_face, face_count=len(counts),
-        tri_albedo=albedo[tri_face], tri_emission=emission[tri_face],
+        tri_albedo=albedo[tri_face], tri_emission=emission[tri_face], tri_transmittance=transmittance[tri_face],
         left_handed=mesh.GetOrientationAttr().Get(timecode) == UsdGeom.Tokens.leftHanded,
         double_sided=bool(mesh.GetDoubleSidedAttr().Get(timecode)),
         skip=bool(skip_attr and skip_attr.Get(timecode)), surface=surface,

@@ -54,10 +54,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...core import Attribute, Context, File, ParamError, Params, Prim, Primvar, Processor, Result, param
-from .products import AnnualDaylightProduct, SkyVisibilityProduct
+from .products import AnnualDaylightProduct, InterreflectionProduct, SkyVisibilityProduct
 from ...core.scene import Scene
 from ...formats.weather import Weather, check_site, read_weather
+from ...kernels.lights import LUMINANCE
+from .luminous_efficacy import perez_efficacy
 from ...kernels.sky import LUMINOUS_EFFICACY, enu_to_world, overcast_radiance, patch_samples
+from .glazing import Glazing
+from .interreflection import SUN_PATCHES, horizontal_cosines
 from .sky_matrix import perez_sky_matrix
 from ...kernels.solar import day_of_year, sun_position
 from .sun_visibility import sun_bin_hits, sun_bins
@@ -82,28 +86,91 @@ class AnnualMetrics:
     mean_illuminance: np.ndarray
 
 
-def overcast_factors(product: SkyVisibilityProduct) -> np.ndarray:
-    """(F,) daylight factor in percent: E under the CIE overcast sky over E of an open horizontal face."""
+def overcast_factors(product: SkyVisibilityProduct, bounced: "BouncedLight | None" = None) -> np.ndarray:
+    """(F,) daylight factor in percent: E under the CIE overcast sky (with the interreflected light and the
+    ground outside the model of ``bounced``) over E of an open horizontal face (sky only)."""
     patches = product.patches
     samples = patch_samples(patches, 3)
     radiance = overcast_radiance(samples, np.array([0.0, 0.0, 1.0]))[..., 0]  # its shape is the sun's altitude's
     weights = radiance.mean(axis=1) * patches.patch_solid_angles
     horizontal = float((radiance * np.maximum(samples[..., 2], 0.0)).mean(axis=1) @ patches.patch_solid_angles)
-    return (100.0 * (product.visibility_float() @ weights) / horizontal).astype(np.float32)
+    illuminance = product.visibility_float() @ weights
+    if bounced is not None:
+        illuminance = illuminance + bounced.sky @ weights + bounced.ground * (bounced.reflectance * horizontal / np.pi)
+    return (100.0 * illuminance / horizontal).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class BouncedLight:
+    """The interreflection product reduced to luminance, for a grey sky (as gendaymtx's, and every hour's)."""
+
+    sky: np.ndarray
+    """(F, N) float32 sum_c Y_c D_c: luminance of the indirect daylight coefficients."""
+    ground: np.ndarray
+    """(F,) float32 pi g_i + sum_c Y_c D^g_c: irradiance per unit radiance of the ground outside the model."""
+    reflectance: float
+    bounces: int
+
+    @classmethod
+    def of(cls, product: InterreflectionProduct) -> "BouncedLight":
+        weights = [float(LUMINANCE[c]) for c in range(3)]
+        sky = sum(weights[c] * product.sky_indirect[product.channel(c)] for c in range(3))
+        ground = product.ground_direct + sum(weights[c] * product.ground_indirect[product.channel(c)]
+                                             for c in range(3))
+        return cls(np.asarray(sky, np.float32), np.asarray(ground, np.float32), product.ground_reflectance,
+                   product.bounces)
+
+
+def luminous_efficacies(weather: Weather, zenith: np.ndarray, days: np.ndarray, efficacy: str
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """(H,) lm/W of the beam and of the diffuse sky for every hour: ``perez`` (Perez et al. 1990, gendaymtx -O0
+    with its default dew point, as from a .wea file), ``weather`` (the file's own illuminance columns over its
+    irradiance) or ``179`` (Radiance's visible-equivalent factor, gendaymtx -O1 x 179)."""
+    hours = len(weather)
+    if efficacy == "179":
+        return np.full(hours, LUMINOUS_EFFICACY), np.full(hours, LUMINOUS_EFFICACY)
+    if efficacy == "weather":
+        return (_ratio(weather.direct_normal_illuminance, weather.direct_normal),
+                _ratio(weather.diffuse_horizontal_illuminance, weather.diffuse_horizontal))
+    return perez_efficacy(weather.direct_normal, weather.diffuse_horizontal, zenith, days)
+
+
+def _ratio(light: np.ndarray, irradiance: np.ndarray) -> np.ndarray:
+    light = np.nan_to_num(np.asarray(light, np.float64), nan=0.0)
+    return np.where(irradiance > 0, light / np.maximum(irradiance, 1e-300), 0.0)
+
+
+def sun_patch_matrix(patches, suns: np.ndarray, direct_normal: np.ndarray) -> np.ndarray:
+    """(N, H) float32 each hour's direct normal illuminance spread over the ``SUN_PATCHES`` patches nearest the
+    sun, weights 1 / (1.002 - cos) (``interreflection.sun_patch_weights`` for every hour at once)."""
+    out = np.zeros((len(patches), len(suns)), np.float32)
+    up = np.flatnonzero((suns[:, 2] > 0) & (direct_normal > 0))
+    if len(up) == 0:
+        return out
+    cosines = suns[up] @ patches.patch_directions.T  # (H', N)
+    nearest = np.argpartition(-cosines, SUN_PATCHES - 1, axis=1)[:, :SUN_PATCHES]
+    weights = 1.0 / (1.002 - np.take_along_axis(cosines, nearest, axis=1))
+    weights *= (direct_normal[up] / weights.sum(axis=1))[:, None]
+    out[nearest, up[:, None]] = weights
+    return out
 
 
 def compute_annual_daylight(tracer, scene: Scene, product: SkyVisibilityProduct, weather: Weather, *,
                             north: float = 0.0, occupied: tuple[float, float] = (8.0, 18.0),
                             threshold: float = 300.0, udi: tuple[float, float] = (100.0, 3000.0),
                             ase_lux: float = 1000.0, sun: bool = True, sun_samples: int = 2, sun_subdivision: int = 4,
-                            seed: int = 0, progress=lambda f: None) -> tuple[AnnualMetrics, dict]:
+                            seed: int = 0, interreflection: InterreflectionProduct | None = None,
+                            efficacy: str = "perez", progress=lambda f: None) -> tuple[AnnualMetrics, dict]:
     """Hourly illuminance of every face over the weather file's year, reduced to the module's metrics."""
     started = _time.perf_counter()
     position = sun_position(weather.times, weather.latitude, weather.longitude, weather.timezone)
     suns = position.enu() @ enu_to_world("Z", north).T  # site ENU -> layout ENU (north turned about up)
-    sky = perez_sky_matrix(product.patches, suns, weather.direct_normal, weather.diffuse_horizontal,
-                           day_of_year(weather.times))
-    weights = (sky * product.patches.patch_solid_angles[:, None].astype(np.float32)) * np.float32(LUMINOUS_EFFICACY)
+    days = day_of_year(weather.times)
+    sky = perez_sky_matrix(product.patches, suns, weather.direct_normal, weather.diffuse_horizontal, days)
+    beam, diffuse = luminous_efficacies(weather, position.zenith, days, efficacy)
+    weights = sky * product.patches.patch_solid_angles[:, None].astype(np.float32) * diffuse[None, :].astype(np.float32)
+    sun_light = np.where(suns[:, 2] > 0.0, weather.direct_normal * beam, 0.0)  # direct normal illuminance, lux
+    bounced = BouncedLight.of(interreflection) if interreflection is not None else None
     sky_seconds = _time.perf_counter() - started
     progress(0.1)
 
@@ -112,14 +179,16 @@ def compute_annual_daylight(tracer, scene: Scene, product: SkyVisibilityProduct,
     corners = product.face_points[product.face_vertices].astype(np.float32)
     normals = product.face_normals
     rays_before = tracer.rays_cast
+    glazing = Glazing.of_scene(scene, device=str(tracer.device), threads=tracer.threads)
     hits = sun_bin_hits(tracer, corners, normals, bin_directions @ product.to_world.T, samples=sun_samples,
+                        glazing=glazing,
                         seed=seed, progress=lambda f: progress(0.1 + 0.6 * f))
     sun_seconds = _time.perf_counter() - started - sky_seconds
 
     hour = (weather.times - weather.times.astype("datetime64[D]")).astype(np.float64) / 60.0
     occupied_hours = (hour >= occupied[0]) & (hour < occupied[1])
     sun_world = (suns @ product.to_world.T).astype(np.float32)
-    direct = np.where(up, weather.direct_normal, 0.0).astype(np.float32) * np.float32(LUMINOUS_EFFICACY)
+    direct = np.where(up, sun_light, 0.0).astype(np.float32)
     count = max(1, int(occupied_hours.sum()))
     autonomy = np.zeros(product.num_faces, np.float32)
     useful = np.zeros((product.num_faces, 3), np.float32)
@@ -127,10 +196,21 @@ def compute_annual_daylight(tracer, scene: Scene, product: SkyVisibilityProduct,
     mean = np.zeros(product.num_faces, np.float32)
     hours = np.flatnonzero(occupied_hours)
     weights_occupied = np.ascontiguousarray(weights[:, hours])
+    if bounced is not None:  # [V | D] @ [sky; sky + sun in patches], and the ground outside the model
+        sun_in_patches = sun_patch_matrix(product.patches, suns[hours], sun_light[hours] * up[hours] if sun
+                                          else np.zeros(len(hours)))
+        weights_occupied = np.concatenate([weights_occupied, weights_occupied + sun_in_patches])
+        horizontal = horizontal_cosines(product.patches) @ weights[:, hours] + sun_light[hours] * np.maximum(
+            suns[hours, 2], 0.0) * sun
+        ground_light = (bounced.reflectance * horizontal / np.pi).astype(np.float32)
     for lo in range(0, product.num_faces, FACE_CHUNK):
         faces = slice(lo, min(product.num_faces, lo + FACE_CHUNK))
-        illuminance = product.visibility[faces].astype(np.float32) * np.float32(product.visibility_scale)
-        illuminance = illuminance @ weights_occupied  # (chunk, occupied hours) sky illuminance, lux
+        coefficients = product.visibility[faces].astype(np.float32) * np.float32(product.visibility_scale)
+        if bounced is not None:
+            coefficients = np.concatenate([coefficients, bounced.sky[faces]], axis=1)
+        illuminance = coefficients @ weights_occupied  # (chunk, occupied hours) sky illuminance, lux
+        if bounced is not None:
+            illuminance += bounced.ground[faces, None] * ground_light[None, :]
         cos_sun = np.maximum(normals[faces] @ sun_world[hours].T, 0.0)
         lit_bins = bins[hours]
         if len(bin_directions):
@@ -147,8 +227,8 @@ def compute_annual_daylight(tracer, scene: Scene, product: SkyVisibilityProduct,
         sun_hours[faces] = (sunlight >= ase_lux).sum(axis=1)
         mean[faces] = illuminance.mean(axis=1)
         progress(0.7 + 0.3 * faces.stop / max(1, product.num_faces))
-    metrics = AnnualMetrics(overcast_factors(product), autonomy, useful, sun_hours, mean)
-    stats = {"hours": float(len(weather)), "occupied_hours": float(count), "sun_bins": float(len(bin_directions)),
+    metrics = AnnualMetrics(overcast_factors(product, bounced), autonomy, useful, sun_hours, mean)
+    stats = {"hours": float(len(weather)), "bounces": float(bounced.bounces if bounced else 0), "occupied_hours": float(count), "sun_bins": float(len(bin_directions)),
              "faces": float(product.num_faces), "rays": float(tracer.rays_cast - rays_before),
              "sky_matrix_s": sky_seconds, "sun_rays_s": sun_seconds,
              "metrics_s": _time.perf_counter() - started - sky_seconds - sun_seconds}
@@ -190,7 +270,7 @@ class AnnualDaylight(Processor):
     facets = ("geometry",)
     writes = ("primvars:bake:daylightFactor", "primvars:bake:daylightAutonomy", "primvars:bake:usefulDaylight",
               "primvars:bake:annualSunHours", "primvars:bake:meanIlluminance")
-    requires = (SkyVisibilityProduct,)
+    requires = (SkyVisibilityProduct, InterreflectionProduct)
     provides = (AnnualDaylightProduct,)
 
     @dataclass(frozen=True)
@@ -214,6 +294,9 @@ class AnnualDaylight(Processor):
         sun_bins: int = param(4, "sun positions snapped to Reinhart MF:n patches (4: 2305, ~3 degrees)",
                               low=1, high=16)
         seed: int = param(0, "random seed of the sun rays", low=0)
+        efficacy: str = param("perez", "solar W/m^2 to lux: perez (the Perez et al. 1990 luminous efficacy model, as "
+                              "gendaymtx -O0), weather (the file's own illuminance columns) or 179 (Radiance's "
+                              "visible-equivalent factor, as gendaymtx -O1 x 179)", choices=("perez", "weather", "179"))
 
         def __post_init__(self) -> None:
             super().__post_init__()
@@ -228,6 +311,10 @@ class AnnualDaylight(Processor):
             return False, "no weather file: set annual_daylight.weather=FILE.epw (or an NREL TMY3 .csv)"
         self.weather = read_weather(self.params.weather)
         check_site(self.weather, ctx.scene.site)
+        if self.params.efficacy == "weather" and (self.weather.direct_normal_illuminance is None
+                                                  or self.weather.diffuse_horizontal_illuminance is None):
+            raise ParamError(f"annual_daylight.efficacy=weather: {self.weather.source} has no direct normal and "
+                             f"diffuse horizontal illuminance columns; use efficacy=perez")
         return True, ""
 
     def run(self, ctx: Context) -> Result:
@@ -237,7 +324,8 @@ class AnnualDaylight(Processor):
         metrics, stats = compute_annual_daylight(
             ctx.tracer, scene, product, weather, north=p.north, occupied=parse_hours(p.occupied),
             threshold=p.threshold, udi=(p.udi_low, p.udi_high), ase_lux=p.ase_lux, sun=p.sun,
-            sun_samples=p.sun_samples, sun_subdivision=p.sun_bins, seed=p.seed, progress=ctx.progress)
+            sun_samples=p.sun_samples, sun_subdivision=p.sun_bins, seed=p.seed,
+            interreflection=ctx.products[InterreflectionProduct], efficacy=p.efficacy, progress=ctx.progress)
         sensors = sensor_faces(scene, product, p.sensors, p.sensor_prims)
         areas = product.face_areas.astype(np.float64)
         sda = spatial_share(metrics.autonomy >= p.sda_share, areas, sensors)
@@ -245,7 +333,9 @@ class AnnualDaylight(Processor):
         result = Result(products={AnnualDaylightProduct: AnnualDaylightProduct(
             metrics.daylight_factor, metrics.autonomy, metrics.useful, metrics.sun_hours, metrics.mean_illuminance,
             sensors, sda, ase)}, stats=stats)
-        report = {"weather": weather.source, "latitude": weather.latitude, "longitude": weather.longitude,
+        inter = ctx.products[InterreflectionProduct]
+        report = {"weather": weather.source, "bounces": inter.bounces, "ground_reflectance": inter.ground_reflectance,
+                  "efficacy": p.efficacy, "latitude": weather.latitude, "longitude": weather.longitude,
                   "timezone": weather.timezone, "occupied": p.occupied, "sensor_faces": int(sensors.sum()),
                   "sensor_area": float(areas[sensors].sum()), "sDA": sda, "ASE": ase, "prims": {}}
         for prim in product.prims:
@@ -281,7 +371,8 @@ class AnnualDaylight(Processor):
                                    f"sDA and ASE are 0")
         result.messages.append(f"sDA {100 * sda:.1f}% (DA >= {p.sda_share:g} at {p.threshold:g} lx), ASE "
                                f"{100 * ase:.1f}% ({p.ase_lux:g} lx for {p.ase_hours:g} h) over "
-                               f"{int(sensors.sum())} sensor faces; weather {weather.source}")
+                               f"{int(sensors.sum())} sensor faces; weather {weather.source}; {inter.bounces} bounces, "
+                               f"ground {inter.ground_reflectance:g}, efficacy {p.efficacy}")
         return result
 
 

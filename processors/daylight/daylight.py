@@ -50,11 +50,14 @@ import numpy as np
 import warp as wp
 
 from ...core import Context, ParamError, Params, Primvar, Processor, Result, param
-from .products import DaylightProduct, SkyVisibilityProduct
+from .products import DaylightProduct, InterreflectionProduct, SkyVisibilityProduct
 from ...core.scene import Scene
 from ...kernels.lights import LUMINANCE
-from ...kernels.sky import enu_to_world, patch_radiance, sun_normal_irradiance
+from .luminous_efficacy import perez_efficacy
+from ...kernels.sky import LUMINOUS_EFFICACY, enu_to_world, patch_radiance, sun_normal_irradiance
 from ...kernels.solar import SunPosition, day_of_year, horizontal_position, parse_times, sun_position
+from .glazing import Glazing
+from .interreflection import ground_radiance, sun_patch_weights
 from .sun_visibility import SunFaces, sun_bin_hits
 
 wp.set_module_options({"enable_backward": False})
@@ -103,54 +106,94 @@ def relight_daylight(visibility: np.ndarray, sky_weights: np.ndarray, *, scale: 
 
 
 def sky_weights(product, model: str, sun_layout: np.ndarray, *, turbidity: float, radiance: float,
-                direct_normal: float = 0.0, diffuse_horizontal: float = 0.0, day_of_year: int = 172) -> np.ndarray:
-    """(N, 3) Lhat_j * dw_j for the product's patches; ``sun_layout`` is the sun in the layout's ENU frame."""
+                direct_normal: float = 0.0, diffuse_horizontal: float = 0.0, day_of_year: int = 172,
+                efficacy: str = "perez") -> np.ndarray:
+    """(N, 3) Lhat_j * dw_j for the product's patches; ``sun_layout`` is the sun in the layout's ENU frame.
+    The Perez sky (solar W/m^2 from the weather's DHI) is turned into visible-equivalent watts by
+    ``visible_factors``; the other models are visible already."""
     values = patch_radiance(product.patches, model, sun_layout, turbidity=turbidity, radiance=radiance,
                             direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal,
                             day_of_year=day_of_year)
+    if model == "perez":
+        values = values * visible_factors(efficacy, direct_normal, diffuse_horizontal, sun_layout, day_of_year)[1]
     return (values * product.patches.patch_solid_angles[:, None]).astype(np.float32)
 
 
+def visible_factors(efficacy: str, direct_normal: float, diffuse_horizontal: float, sun_enu: np.ndarray,
+                    day: int) -> tuple[float, float]:
+    """(beam, diffuse) factors from solar to visible-equivalent W/m^2 (lux / 179): the Perez et al. 1990
+    luminous efficacies over Radiance's 179 lm/W (``efficacy = perez``, as gendaymtx -O0), or 1 (``179``:
+    solar watts taken as visible, gendaymtx -O1)."""
+    if efficacy == "179":
+        return 1.0, 1.0
+    zenith = np.degrees(np.arccos(np.clip(sun_enu[2] / np.linalg.norm(sun_enu), -1.0, 1.0)))
+    beam, diffuse = perez_efficacy(np.array([direct_normal]), np.array([diffuse_horizontal]), np.array([zenith]),
+                                   np.array([day]))
+    return float(beam[0]) / LUMINOUS_EFFICACY, float(diffuse[0]) / LUMINOUS_EFFICACY
+
+
 def sun_normal(sky: str, sun_site: np.ndarray, *, turbidity: float, direct_normal: float,
-               day_of_year: int) -> np.ndarray | None:
-    """(3,) direct normal irradiance of the sun (W/m^2) for the sky model, or None when the model has no
-    sun (overcast, uniform) or it is below the horizon (``sun_site``: unit ENU direction)."""
+               day_of_year: int, diffuse_horizontal: float = 0.0, efficacy: str = "perez") -> np.ndarray | None:
+    """(3,) direct normal irradiance of the sun (visible-equivalent W/m^2) for the sky model, or None when the
+    model has no sun (overcast, uniform) or it is below the horizon (``sun_site``: unit ENU direction)."""
     if sky not in ("preetham", "perez") or sun_site[2] <= 0:
         return None
     if sky == "preetham":
         return sun_normal_irradiance(sun_site, turbidity, day_of_year)
-    return np.full(3, float(direct_normal))
+    beam, _ = visible_factors(efficacy, direct_normal, diffuse_horizontal, sun_site, day_of_year)
+    return np.full(3, float(direct_normal) * beam)
+
+
+def add_interreflection(irradiance: np.ndarray, interreflection: InterreflectionProduct | None, patches,
+                        weights: np.ndarray, sun_layout: np.ndarray, e_normal: np.ndarray | None) -> np.ndarray:
+    """``irradiance`` (F, 3) plus the sky's and the sun's light after 1..k bounces and the ground outside the
+    model (``interreflection`` module: sum_j D_ij (w_j + s_j) + (pi g_i + D^g_i) L_g); unchanged without a
+    product."""
+    if interreflection is None:
+        return irradiance
+    bounced = weights if e_normal is None else weights + sun_patch_weights(patches, sun_layout, e_normal)
+    ground = ground_radiance(patches, weights, sun_layout, e_normal, interreflection.ground_reflectance)
+    for c in range(3):
+        k = interreflection.channel(c)
+        irradiance[:, c] += interreflection.sky_indirect[k] @ bounced[:, c]
+        irradiance[:, c] += (interreflection.ground_direct + interreflection.ground_indirect[k]) * ground[c]
+    return irradiance
 
 
 def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitude: float, longitude: float,
                      timezone: float, north: float = 0.0, sky: str = "preetham", turbidity: float = 3.0,
                      uniform_radiance: float = 1000.0, direct_normal: float = 600.0,
                      diffuse_horizontal: float = 150.0, sun: bool = True, sun_samples: int = 4, seed: int = 0,
+                     interreflection: InterreflectionProduct | None = None, efficacy: str = "perez",
                      progress=lambda f: None) -> tuple[DaylightProduct, dict]:
     """Radiance of every refined face at every time (see the module docstring).
 
     Bosch, Besuievsky & Martin, Sec. 5 and 5.1: for each time, the sun position
     (kernels/solar.py), the sky patch radiances Lhat_j (W/(m^2 sr)), the sun's
     direct normal irradiance (W/m^2) and visibility S_i, then Eq. 1 reusing the
-    precomputed V_ij (``relight_daylight``). Returns (T, F, 3) float32 radiance in
-    W/(m^2 sr) in the product, and timing figures.
+    precomputed V_ij (``relight_daylight``), plus the interreflected light and the ground of
+    ``interreflection`` (``add_interreflection``). Returns (T, F, 3) float32 irradiance (W/m^2) and
+    radiance (W/(m^2 sr)) in the product, and timing figures.
     """
     position = sun_position(times, latitude, longitude, timezone)
     turn = enu_to_world("Z", north)  # rotation about up: site ENU -> layout ENU
-    faces = SunFaces(tracer, product.face_points[product.face_vertices], product.face_normals) if sun else None
+    faces = SunFaces(tracer, product.face_points[product.face_vertices], product.face_normals,
+                     Glazing.of_scene(scene, device=str(tracer.device), threads=tracer.threads)) if sun else None
     albedo = scene.tri_albedo[product.face_source]
     visibility = product.visibility_patch_major()
     out = np.zeros((len(times), product.num_faces, 3), np.float32)
+    irradiance = np.zeros_like(out)
     relight_seconds = []
     sun_rays = 0
     for k, sun_site in enumerate(position.enu()):
         sun_layout = turn @ sun_site
         day = int(day_of_year(times[k])[0])
         weights = sky_weights(product, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
-                              direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day)
+                              direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day,
+                              efficacy=efficacy)
         direct = None
-        e_normal = sun_normal(sky, sun_site, turbidity=turbidity, direct_normal=direct_normal, day_of_year=day) \
-            if sun else None
+        e_normal = sun_normal(sky, sun_site, turbidity=turbidity, direct_normal=direct_normal, day_of_year=day,
+                              diffuse_horizontal=diffuse_horizontal, efficacy=efficacy) if sun else None
         if e_normal is not None:
             sun_world = product.to_world @ sun_layout
             cos_i = np.maximum(product.face_normals @ sun_world.astype(np.float32), 0.0)
@@ -158,13 +201,15 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
             sun_rays += int((cos_i > 0).sum()) * sun_samples
             direct = (cos_i * seen)[:, None] * e_normal[None, :].astype(np.float32)
         started = _time.perf_counter()
-        out[k] = relight_daylight(visibility, weights, albedo=albedo, sun=direct, patch_major=True)
+        irradiance[k] = add_interreflection(relight_daylight(visibility, weights, sun=direct, patch_major=True),
+                                            interreflection, product.patches, weights, sun_layout, e_normal)
+        out[k] = irradiance[k] * albedo * np.float32(1.0 / np.pi)
         relight_seconds.append(_time.perf_counter() - started)
         progress((k + 1) / len(times))
     stats = {"times": float(len(times)), "faces": float(product.num_faces),
              "relight_ms": 1000.0 * float(np.median(relight_seconds)) if relight_seconds else 0.0,
              "sun_rays": float(sun_rays)}
-    return DaylightProduct(times, out, position.zenith, position.azimuth), stats
+    return DaylightProduct(times, out, position.zenith, position.azimuth, irradiance), stats
 
 
 MAX_DECLINATION = 23.45
@@ -207,7 +252,7 @@ class SunTable:
 
 def sun_table(tracer, product, *, latitude: float, north: float = 0.0,
               declination_step: float = 4.0, hour_step: float = 3.75, samples: int = 2, seed: int = 0,
-              progress=lambda f: None) -> SunTable:
+              glazing=None, progress=lambda f: None) -> SunTable:
     """Shadow rays toward the sun at every node of a declination x hour-angle grid (``declination_step``
     and ``hour_step`` degrees at most; 3.75 degrees of hour angle = 15 minutes) that is above the horizon at
     ``latitude``, ``samples`` per face: the precompute of ``DaylightRelighter``. The sun's path depends on the
@@ -225,44 +270,70 @@ def sun_table(tracer, product, *, latitude: float, north: float = 0.0,
     node_row[up] = np.arange(int(up.sum()))
     corners = product.face_points[product.face_vertices].astype(np.float32)
     hits = sun_bin_hits(tracer, corners, product.face_normals, suns[up] @ product.to_world.T, samples=samples,
+                        glazing=glazing,
                         seed=seed, progress=progress)
     return SunTable(declinations, hour_angles, node_row.reshape(dec.shape), hits, samples)
 
 
 class DaylightRelighter:
     """Interactive relighting (Bosch, Besuievsky & Martin, Sec. 5, Eq. 1) of the refined faces for any time at
-    one site, no rays: the sky by one BLAS product over V (patch-major float32), the sun from a ``SunTable``.
+    one site, no rays: the sky by one BLAS product over V (patch-major float32), the sun from a ``SunTable``,
+    and with an ``interreflection`` product the bounced light in the same product (V and the indirect
+    coefficients D stacked patch-major, ``add_interreflection``'s terms).
 
     ``at(time)`` returns (F, 3) float32 radiance (W/(m^2 sr), with ``albedo``) or irradiance (W/m^2)."""
 
     def __init__(self, product, table: SunTable, *, latitude: float, longitude: float, timezone: float,
-                 north: float = 0.0, albedo: np.ndarray | None = None):
+                 north: float = 0.0, albedo: np.ndarray | None = None,
+                 interreflection: InterreflectionProduct | None = None):
         """``table`` from ``sun_table`` at the same latitude and north."""
         self.product, self.table, self.albedo = product, table, albedo
+        self.interreflection = interreflection
         self.site = (latitude, longitude, timezone)
         self.turn = enu_to_world("Z", north)
         self.visibility = product.visibility_patch_major()
+        if interreflection is not None:  # [V; D_1 ..; D_K], (N (1 + K), F): one pass over memory per time
+            self.visibility = np.concatenate([self.visibility] + [np.ascontiguousarray(d.T)
+                                                                  for d in interreflection.sky_indirect])
 
     def at(self, time: np.datetime64, *, sky: str = "preetham", turbidity: float = 3.0,
            uniform_radiance: float = 1000.0, direct_normal: float = 600.0, diffuse_horizontal: float = 150.0,
-           sun: bool = True) -> np.ndarray:
+           sun: bool = True, efficacy: str = "perez") -> np.ndarray:
         """Eq. 1 at local standard ``time`` with the sky model's parameters (as ``compute_daylight``)."""
         times = np.atleast_1d(np.datetime64(time))
         position = sun_position(times, *self.site)
         sun_site = position.enu()[0]
         sun_layout = self.turn @ sun_site
         day = int(day_of_year(times)[0])
+        patches = self.product.patches
         weights = sky_weights(self.product, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
-                              direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day)
+                              direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day,
+                              efficacy=efficacy)
         direct = None
-        e_normal = sun_normal(sky, sun_site, turbidity=turbidity, direct_normal=direct_normal, day_of_year=day) \
-            if sun else None
+        e_normal = sun_normal(sky, sun_site, turbidity=turbidity, direct_normal=direct_normal, day_of_year=day,
+                              diffuse_horizontal=diffuse_horizontal, efficacy=efficacy) if sun else None
         if e_normal is not None:
             sun_world = (self.product.to_world @ sun_layout).astype(np.float32)
             seen = self.table.visibility(float(position.declination[0]), float(position.hour_angle[0]))
             cos_i = np.maximum(self.product.face_normals @ sun_world, 0.0) * seen
             direct = cos_i[:, None] * e_normal.astype(np.float32)[None, :]
-        return relight_daylight(self.visibility, weights, albedo=self.albedo, sun=direct, patch_major=True)
+        inter = self.interreflection
+        if inter is None:
+            return relight_daylight(self.visibility, weights, albedo=self.albedo, sun=direct, patch_major=True)
+        bounced = weights if e_normal is None else weights + sun_patch_weights(patches, sun_layout, e_normal)
+        stacked = [weights]
+        for k in range(len(inter.sky_indirect)):  # one block per set of coefficients (grey: all three channels)
+            block = bounced.copy() if len(inter.sky_indirect) == 1 else np.zeros_like(bounced)
+            if len(inter.sky_indirect) > 1:
+                block[:, k] = bounced[:, k]
+            stacked.append(block)
+        out = relight_daylight(self.visibility, np.concatenate(stacked), sun=direct, patch_major=True)
+        ground = ground_radiance(patches, weights, sun_layout, e_normal, inter.ground_reflectance)
+        for c in range(3):
+            out[:, c] += (inter.ground_direct + inter.ground_indirect[inter.channel(c)]) * ground[c]
+        if self.albedo is not None:
+            out *= np.asarray(self.albedo, np.float32) * np.float32(1.0 / np.pi)
+        return out
 
 
 def reinhard_tone_map(radiance: np.ndarray, exposure: float = 0.0) -> tuple[np.ndarray, float]:
@@ -281,8 +352,8 @@ class Daylight(Processor):
     version = "2"
     summary = "Sky (Preetham/Perez/CIE overcast/uniform) + sun relighting of the sky_visibility mesh, time-sampled."
     facets = ("geometry", "materials")
-    writes = ("primvars:bake:daylight", "primvars:displayColor")
-    requires = (SkyVisibilityProduct,)
+    writes = ("primvars:bake:daylight", "primvars:bake:daylightIrradiance", "primvars:displayColor")
+    requires = (SkyVisibilityProduct, InterreflectionProduct)
     provides = (DaylightProduct,)
 
     @dataclass(frozen=True)
@@ -304,6 +375,9 @@ class Daylight(Processor):
         diffuse_horizontal: float = param(150.0, "Perez sky: diffuse-horizontal irradiance, W/m^2", low=0.0)
         sun: bool = param(True, "add the direct sun (Preetham and Perez skies)")
         sun_samples: int = param(4, "rays per face toward the solar disk", low=1, high=4096)
+        efficacy: str = param("perez", "Perez sky: solar W/m^2 to light by the Perez et al. 1990 luminous efficacy "
+                              "(perez, as gendaymtx -O0) or by Radiance's 179 lm/W (179, as gendaymtx -O1)",
+                              choices=("perez", "179"))
         display_color: bool = param(False, "also write a tone-mapped primvars:displayColor")
         exposure: float = param(0.0, "tone-mapping scale for displayColor (0: automatic)", low=0.0)
         seed: int = param(0, "random seed of the sun rays", low=0)
@@ -326,7 +400,8 @@ class Daylight(Processor):
             ctx.tracer, scene, product, times, latitude=p.latitude, longitude=p.longitude, timezone=p.timezone,
             north=p.north, sky=p.sky, turbidity=p.turbidity, uniform_radiance=p.uniform_radiance,
             direct_normal=p.direct_normal, diffuse_horizontal=p.diffuse_horizontal, sun=p.sun,
-            sun_samples=p.sun_samples, seed=p.seed, progress=ctx.progress)
+            sun_samples=p.sun_samples, seed=p.seed, interreflection=ctx.products[InterreflectionProduct],
+            efficacy=p.efficacy, progress=ctx.progress)
         result = Result(products={DaylightProduct: daylight}, stats=stats)
         sampled = len(times) > 1
         mapped, k = (reinhard_tone_map(daylight.face_radiance.reshape(-1, 3), p.exposure) if p.display_color
@@ -340,9 +415,14 @@ class Daylight(Processor):
                 code = float(index) if sampled else None
                 result.outputs.append(Primvar(path, "bake:daylight", daylight.face_radiance[index, faces],
                                               "color3f", "uniform", time=code))
+                result.outputs.append(Primvar(path, "bake:daylightIrradiance", daylight.face_irradiance[index, faces],
+                                              "color3f", "uniform", time=code))
                 if mapped is not None:
                     result.outputs.append(Primvar(path, "displayColor", mapped[index, faces], "color3f", "uniform",
                                                   time=code))
+        bounces = ctx.products[InterreflectionProduct].bounces
+        result.messages.append(f"interreflected light: {bounces} bounce{'s' * (bounces != 1)}, ground outside the "
+                               f"model of reflectance {ctx.products[InterreflectionProduct].ground_reflectance:g}")
         if sampled:
             result.messages.append(f"time codes 0..{len(times) - 1} are {times[0]} .. {times[-1]} (local time)")
         if p.display_color:

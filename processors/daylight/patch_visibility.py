@@ -12,6 +12,7 @@ from ...kernels.sampling import strata_for, stratified_pair, triangle_point
 from ...kernels.sky import SkyPatches, patch_above, patch_mean_cosine, sample_patch
 from ...kernels.tracer import FAR, triangle_origin
 from ...kernels.traversal import TraceScene, trace_any
+from .glazing import GlassPanes, glass_arguments, segment_transmittance
 
 wp.set_module_options({"enable_backward": False})
 
@@ -38,6 +39,10 @@ def patch_visibility_kernel(
     epsilon: float,
     seed: int,
     any_partial: int,
+    has_glass: int,
+    glass: TraceScene,
+    glass_tn: wp.array(dtype=float),
+    glass_normal: wp.array(dtype=wp.vec3),
     visible: wp.array(dtype=float),
     partial: wp.array(dtype=float),
 ):
@@ -52,7 +57,10 @@ def patch_visibility_kernel(
     V_ij = C_ij sum_k vis_k cos_k / sum_k cos_k. ``partial`` feeds the
     refinement test of Sec. 4.2 (0 < V_ij < 1 in the paper): min of the
     visible and occluded cosine-weighted shares (``criterion = share``), or
-    their sum when both are non-zero (``any_partial``).
+    their sum when both are non-zero (``any_partial``). With glazing (``has_glass``), ``scene`` holds the
+    opaque triangles and a ray that escapes them counts its transmittance through the panes of ``glass``
+    (``glazing.segment_transmittance``); for ``partial`` it counts as seen, so a face behind a window is not
+    refined for the glass alone.
     """
     k = start + wp.tid()
     i = k // num_patches
@@ -70,6 +78,7 @@ def patch_visibility_kernel(
     state = wp.rand_init(seed + 65537 * j, tri_ids[i])
     bounds = patch_bounds[j]
     vis = float(0.0)
+    seen = float(0.0)
     occ = float(0.0)
     count = strata * strata
     for s in range(count):
@@ -80,28 +89,34 @@ def patch_visibility_kernel(
         u2 = wp.randf(state)
         if cos_theta > 0.0:
             x = triangle_point(a, b, c, u1, u2)
-            if trace_any(scene, triangle_origin(scene, a, b, c, x, n, epsilon), d, FAR):
+            origin = triangle_origin(scene, a, b, c, x, n, epsilon)
+            if trace_any(scene, origin, d, FAR):
                 occ += cos_theta
             else:
-                vis += cos_theta
+                seen += cos_theta
+                through = float(1.0)
+                if has_glass != 0:
+                    through = segment_transmittance(glass, glass_tn, glass_normal, origin, d, FAR, epsilon)
+                vis += cos_theta * through
     # A patch wholly above the triangle's plane: its cosine-weighted share is known exactly, so the samples
     # only split it into visible and occluded (a ratio estimate): an open face sums to exactly 1, not 1 +- noise.
     n_enu = wp.transpose(to_world) * n
-    if vis + occ > 0.0 and patch_above(bounds, n_enu):
-        scale = patch_mean_cosine(bounds, n_enu) * float(count) / (vis + occ)
+    if seen + occ > 0.0 and patch_above(bounds, n_enu):
+        scale = patch_mean_cosine(bounds, n_enu) * float(count) / (seen + occ)
         vis = vis * scale
+        seen = seen * scale
         occ = occ * scale
     visible[k] = vis / float(count)
     if any_partial != 0:
-        if vis > 0.0 and occ > 0.0:
-            partial[k] = (vis + occ) / float(count)
+        if seen > 0.0 and occ > 0.0:
+            partial[k] = (seen + occ) / float(count)
     else:
-        partial[k] = wp.min(vis, occ) / float(count)
+        partial[k] = wp.min(seen, occ) / float(count)
 
 
 def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, patches: SkyPatches,
                              to_world: np.ndarray, *, samples: int = 4, seed: int = 0,
-                             tri_ids: np.ndarray | None = None, criterion: str = "share"
+                             tri_ids: np.ndarray | None = None, criterion: str = "share", glazing=None
                              ) -> tuple[np.ndarray, np.ndarray]:
     """Visibility factors of triangles for sky patches.
 
@@ -119,6 +134,8 @@ def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, p
     patches : the patch layout (ENU); ``to_world`` (3, 3) maps ENU to the scene frame
     samples : rays per (triangle, patch) pair
     tri_ids : (T,) int, optional, stable ids seeding each triangle's random numbers
+    glazing : ``glazing.Glazing``, optional: rays cross its panes with their transmittance (``tracer`` is
+        then its opaque tracer)
 
     Returns
     -------
@@ -137,6 +154,7 @@ def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, p
     centers_wp = tracer.array(centers.astype(np.float32), wp.vec3)
     horizon_wp = tracer.array(horizon.astype(np.float32), float)
     matrix = wp.mat33(*to_world.astype(np.float32).ravel().tolist())
+    glass = glass_arguments(tracer, glazing)
     visible = np.zeros((n_tri, n_patch), np.float32)
     partial = np.zeros((n_tri, n_patch), np.float32)
     batch = max(1, PAIRS_PER_BATCH // max(n_patch, 1))
@@ -149,7 +167,7 @@ def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, p
             tracer.scene, tracer.array(corners[lo:hi].reshape(-1, 3), wp.vec3),
             tracer.array(normals[lo:hi], wp.vec3), tracer.array(tri_ids[lo:hi], int),
             bounds_wp, centers_wp, horizon_wp, matrix, n_patch, strata, tracer.epsilon, int(seed),
-            int(criterion == "any"), vis_wp, part_wp,
+            int(criterion == "any"), *glass, vis_wp, part_wp,
         ])
         visible[lo:hi] = vis_wp.numpy().reshape(hi - lo, n_patch)
         partial[lo:hi] = part_wp.numpy().reshape(hi - lo, n_patch)
@@ -168,18 +186,21 @@ def traced_rays(normals: np.ndarray, patches: SkyPatches, to_world: np.ndarray, 
 
 
 def visibility_pass_chunk(tracer, first: int, corners: np.ndarray, normals: np.ndarray, tri_ids: np.ndarray, *,
-                          patches: SkyPatches, to_world: np.ndarray, samples: int, seed: int, criterion: str
-                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                          patches: SkyPatches, to_world: np.ndarray, samples: int, seed: int, criterion: str,
+                          glass: GlassPanes | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One chunk of a refinement pass (core.chunks): ``compute_patch_visibility`` of the triangles,
     reduced per triangle to what the pass keeps, so a chunk returns ~N bytes a triangle, not 8 N.
 
-    ``tri_ids`` seed the triangles, so the result does not depend on where the chunk starts.
+    ``tri_ids`` seed the triangles, so the result does not depend on where the chunk starts. ``glass``: the
+    scene's panes (plain arrays, so a chunk can travel to another process), traced as ``Glazing``.
     Returns V quantized ((T, N) uint8, V * QUANT_LEVELS rounded), exposure sum_j V_ij dw_j / pi and
     its quantization error ((T,) float64 each), and the refinement score ((T,) float64; the
     ``sky_visibility`` docstring).
     """
-    v, part = compute_patch_visibility(tracer, corners, normals, patches, to_world, samples=samples, seed=seed,
-                                       tri_ids=tri_ids, criterion="any" if criterion == "paper" else criterion)
+    glazing = glass.glazing(tracer) if glass is not None else None
+    v, part = compute_patch_visibility(glazing.opaque_tracer if glazing else tracer, corners, normals, patches,
+                                       to_world, samples=samples, seed=seed, tri_ids=tri_ids,
+                                       criterion="any" if criterion == "paper" else criterion, glazing=glazing)
     solid = patches.patch_solid_angles.astype(np.float64)
     quantized = np.clip(np.rint(v * QUANT_LEVELS), 0, QUANT_LEVELS).astype(np.uint8)
     exposure = row_sums(v, solid) / np.pi

@@ -110,3 +110,25 @@ class DaylightProduct:
     """(K,) degrees."""
     sun_azimuth: np.ndarray
     """(K,) degrees from north towards east."""
+    face_irradiance: np.ndarray
+    """(K, F, 3) float32 total irradiance (sky, sun, interreflected light, ground), visible-equivalent W/m^2
+    (x 179 = lux)."""
+
+
+@dataclass(frozen=True)
+class InterreflectionProduct:
+    """Indirect daylight coefficients per refined face (product of ``interreflection``)."""
+
+    bounces: int
+    ground_reflectance: float
+    sky_indirect: np.ndarray
+    """(K, F, N) float32 D_ij: irradiance after 1..bounces reflections per unit L_j dw_j of sky patch j; K = 1
+    when every face is grey (one set serves the three channels), else 3 (R, G, B)."""
+    ground_direct: np.ndarray
+    """(F,) float32 pi g_i: irradiance per unit radiance of the ground outside the model, seen directly."""
+    ground_indirect: np.ndarray
+    """(K, F) float32 the same ground's light after 1..bounces reflections, per unit ground radiance."""
+
+    def channel(self, c: int) -> int:
+        """Index into the K axis for colour channel c."""
+        return min(c, len(self.sky_indirect) - 1)

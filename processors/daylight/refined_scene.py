@@ -88,7 +88,7 @@ def refine_scene(scene: Scene, points: np.ndarray, point_source: np.ndarray, tri
         scene, points=new_points, tri_vertices=tri_vertices,
         tri_normals=scene.tri_normals[all_source], tri_areas=areas.astype(np.float32),
         tri_albedo=scene.tri_albedo[all_source], tri_emission=scene.tri_emission[all_source],
-        tri_prim=tri_prim, tri_face=np.concatenate(parts["face"]).astype(np.int32),
+        tri_transmittance=scene.tri_transmittance[all_source], tri_prim=tri_prim, tri_face=np.concatenate(parts["face"]).astype(np.int32),
         tri_instance=scene.tri_instance[all_source], tri_double_sided=scene.tri_double_sided[all_source],
         tri_corner=np.concatenate(parts["corner"]).astype(np.int32).reshape(-1, 3),
         point_prim=np.repeat(np.arange(len(scene.prim_paths), dtype=np.int32), np.diff(point_start)),

@@ -69,6 +69,7 @@ import numpy as np
 
 from ...core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
 from ...core.chunks import SceneChunks
+from .glazing import GlassPanes
 from ...core.products import RefinedScene
 from .products import SkyVisibilityProduct
 from ...core.scene import Scene
@@ -115,6 +116,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
     Returns the product and a dict of figures (triangles in/out, iterations, rays).
     """
     chunks = chunks if chunks is not None else SceneChunks(tracer)
+    glass = GlassPanes.of_scene(scene)  # panes transmit the sky with their transmittance (glazing.py)
     prims = receiver_prims(scene) if prims is None else np.asarray(prims, np.int32)
     to_world = enu_to_world(scene.up_axis)
     n_patch = len(patches)
@@ -181,7 +183,7 @@ def compute_sky_visibility(tracer, scene: Scene, *, patches: SkyPatches, samples
             seeds = (ids[part_todo] % (2 ** 31 - 1)).astype(np.int32)
             q, exposure[part_todo], q_error, score[part_todo] = chunks.map(
                 visibility_pass_chunk, (points[triangles[part_todo]].astype(np.float32), normals, seeds),
-                patches=patches, to_world=to_world, samples=samples, seed=seed, criterion=criterion)
+                patches=patches, to_world=to_world, samples=samples, seed=seed, criterion=criterion, glass=glass)
             quantized[part_todo] = q
             quant_error = max(quant_error, float(q_error.max(initial=0.0)))
             rays += traced_rays(normals, patches, to_world, samples)
@@ -234,7 +236,10 @@ SKY_CHECK_BATCH = 1 << 18
 
 def sees_sky(tracer, scene: Scene, directions: np.ndarray) -> bool:
     """Whether any receiver face sees the sky along any patch centre direction (a ray from its
-    centroid that escapes the scene). Scenes open to the sky answer in the first batch."""
+    centroid that escapes the scene's opaque triangles: glazing lets the sky in). Scenes open to the sky
+    answer in the first batch."""
+    glass = GlassPanes.of_scene(scene)
+    tracer = glass.glazing(tracer).opaque_tracer if glass is not None else tracer
     faces = np.flatnonzero(np.isin(scene.tri_prim, receiver_prims(scene)) & (scene.tri_areas > 0))
     corners = scene.points[scene.tri_vertices[faces]].astype(np.float64)
     centroids, normals = corners.mean(axis=1), scene.tri_normals[faces].astype(np.float64)

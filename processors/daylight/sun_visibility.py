@@ -15,6 +15,7 @@ from ...kernels.sampling import tangent_frame, triangle_point
 from ...kernels.sky import SUN_ANGULAR_DIAMETER, reinhart_patches
 from ...kernels.tracer import FAR, triangle_origin
 from ...kernels.traversal import TraceScene, trace_any
+from .glazing import glass_arguments, segment_transmittance
 
 wp.set_module_options({"enable_backward": False})
 
@@ -31,6 +32,10 @@ def sun_visibility_kernel(
     samples: int,
     epsilon: float,
     seed: int,
+    has_glass: int,
+    glass: TraceScene,
+    glass_tn: wp.array(dtype=float),
+    glass_normal: wp.array(dtype=wp.vec3),
     visible: wp.array(dtype=float),
 ):
     """Share of rays from random points of face faces[i] toward random points of the solar disk that escape.
@@ -40,7 +45,8 @@ def sun_visibility_kernel(
     half-angle acos(``cos_half_angle``) about ``sun`` (the 0.53 degree disk;
     uniform cone sampling, Pharr, Jakob & Humphreys, "Physically Based
     Rendering" (3rd ed.), sec. 13.6.4), origins uniform on the face.
-    Dimensionless in [0, 1]; rays below the face's horizon count as blocked.
+    Dimensionless in [0, 1]; rays below the face's horizon count as blocked. With glazing (``has_glass``:
+    ``scene`` the opaque triangles) a ray that escapes counts its transmittance through the panes.
     """
     i = start + wp.tid()
     f = faces[i]
@@ -50,7 +56,7 @@ def sun_visibility_kernel(
     c = corners[3 * f + 2]
     frame = tangent_frame(sun)
     state = wp.rand_init(seed, i)
-    hits = int(0)
+    hits = float(0.0)
     for k in range(samples):
         cos_t = 1.0 - wp.randf(state) * (1.0 - cos_half_angle)
         sin_t = wp.sqrt(wp.max(0.0, 1.0 - cos_t * cos_t))
@@ -58,16 +64,23 @@ def sun_visibility_kernel(
         d = frame * wp.vec3(sin_t * wp.cos(phi), sin_t * wp.sin(phi), cos_t)
         x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))
         if wp.dot(n, d) > 0.0:
-            if not trace_any(scene, triangle_origin(scene, a, b, c, x, n, epsilon), d, FAR):
-                hits += 1
-    visible[i] = float(hits) / float(samples)
+            origin = triangle_origin(scene, a, b, c, x, n, epsilon)
+            if not trace_any(scene, origin, d, FAR):
+                through = float(1.0)
+                if has_glass != 0:
+                    through = segment_transmittance(glass, glass_tn, glass_normal, origin, d, FAR, epsilon)
+                hits += through
+    visible[i] = hits / float(samples)
 
 
 class SunFaces:
     """Faces uploaded once for shadow rays toward any number of sun directions."""
 
-    def __init__(self, tracer, corners: np.ndarray, normals: np.ndarray):
+    def __init__(self, tracer, corners: np.ndarray, normals: np.ndarray, glazing=None):
+        """``glazing`` (``glazing.Glazing``): rays cross its panes, and trace its opaque tracer, not ``tracer``."""
+        tracer = glazing.opaque_tracer if glazing is not None else tracer
         self.tracer = tracer
+        self.glass = glass_arguments(tracer, glazing)
         self.normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
         self.corners = tracer.array(np.ascontiguousarray(corners, np.float32).reshape(-1, 3), wp.vec3)
         self.normals_device = tracer.array(self.normals, wp.vec3)
@@ -86,17 +99,17 @@ class SunFaces:
         cos_half = math.cos(math.radians(SUN_ANGULAR_DIAMETER / 2))
         tracer.launch(sun_visibility_kernel, len(facing), [
             tracer.scene, tracer.array(facing.astype(np.int32), wp.int32), self.corners, self.normals_device,
-            wp.vec3(*sun.tolist()), cos_half, int(samples), tracer.epsilon, int(seed), visible])
+            wp.vec3(*sun.tolist()), cos_half, int(samples), tracer.epsilon, int(seed), *self.glass, visible])
         tracer.rays_cast += len(facing) * samples
         result[facing] = visible.numpy()
         return result
 
 
 def compute_sun_visibility(tracer, corners: np.ndarray, normals: np.ndarray, sun: np.ndarray, *,
-                           samples: int = 4, seed: int = 0) -> np.ndarray:
+                           samples: int = 4, seed: int = 0, glazing=None) -> np.ndarray:
     """(F,) float32 share of the solar disk visible from each face (0 for faces turned away): S_i of the
     module docstring (Bosch, Besuievsky & Martin, Sec. 5: the sun's visibility from its current position)."""
-    return SunFaces(tracer, corners, normals).visibility(sun, samples=samples, seed=seed)
+    return SunFaces(tracer, corners, normals, glazing).visibility(sun, samples=samples, seed=seed)
 
 
 def sun_bins(suns: np.ndarray, up: np.ndarray, subdivision: int) -> tuple[np.ndarray, np.ndarray]:
@@ -116,12 +129,13 @@ def sun_bins(suns: np.ndarray, up: np.ndarray, subdivision: int) -> tuple[np.nda
 
 
 def sun_bin_hits(tracer, corners: np.ndarray, normals: np.ndarray, directions: np.ndarray, *, samples: int,
-                 seed: int = 0, progress=lambda f: None) -> np.ndarray:
+                 seed: int = 0, glazing=None, progress=lambda f: None) -> np.ndarray:
     """(B, F) uint8 shadow rays of ``samples`` (at most 255) that reach the sun from each face, per sun
-    direction (world, (B, 3)): S_i of every bin, as exact counts in a byte each."""
+    direction (world, (B, 3)): S_i of every bin, as counts in a byte each (through glazing, the rays'
+    transmittances summed and rounded to a count)."""
     if not 1 <= samples <= 255:
         raise ValueError(f"sun samples {samples}: a count per face is kept in a byte (1..255)")
-    faces = SunFaces(tracer, corners, normals)  # uploaded once for every bin
+    faces = SunFaces(tracer, corners, normals, glazing)  # uploaded once for every bin
     hits = np.zeros((len(directions), len(faces.normals)), np.uint8)
     for b, direction in enumerate(directions):
         share = faces.visibility(direction, samples=samples, seed=seed + b)

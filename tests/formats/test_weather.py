@@ -22,9 +22,12 @@ def tmy3_rows() -> list[list[str]]:
         return list(csv.reader(handle))
 
 
-def write_epw(path: Path, *, latitude="36.10", timezone="-5.0", drop_row=None, short_row=None, edits=None) -> Path:
+def write_epw(path: Path, *, latitude="36.10", timezone="-5.0", drop_row=None, short_row=None, edits=None,
+              photometry=False) -> Path:
     """An EPW with the TMY3 file's irradiance (fields 15 and 16), other fields zero; ``edits`` maps (data row,
-    0-based field) to the text written there instead."""
+    0-based field) to the text written there instead. ``photometry`` writes the TMY3 file's dew point (field
+    8) and its direct normal and diffuse horizontal illuminance in lux (fields 18 and 19; the TMY3 file
+    counts hundreds of lux)."""
     rows = tmy3_rows()[2:]
     lines = [f"LOCATION,Greensboro,NC,USA,TMY3,723170,{latitude},-79.95,{timezone},273.0"]
     lines += [f"HEADER{k}" for k in range(7)]
@@ -35,6 +38,8 @@ def write_epw(path: Path, *, latitude="36.10", timezone="-5.0", drop_row=None, s
         hour = int(row[1].split(":")[0])
         fields = [year, str(int(month)), str(int(day)), str(hour), "60", "A7"] + ["0"] * (EPW_COLUMNS - 6)
         fields[14], fields[15] = row[7], row[10]
+        if photometry:
+            fields[7], fields[17], fields[18] = row[34], str(100 * int(row[16])), str(100 * int(row[19]))
         if index == short_row:
             fields = fields[:-1]
         for (at, field), text in (edits or {}).items():
@@ -182,3 +187,75 @@ def test_a_weather_file_from_elsewhere_than_the_stage_is_refused():
         f"that place or remake the sky")
     with pytest.raises(UsageError, match="disagrees"):
         check_site(weather, {**here, "timezone": -6.0})
+
+
+def test_shipped_tmy3_file_gives_illuminance_in_lux_and_dew_point():
+    """The Greensboro file (TMY3 from before NREL's 2015 revision) counts illuminance in hundreds of lux
+    although its header says lx: read as lux (x 100)."""
+    weather = read_weather(TMY3)
+    rows = tmy3_rows()
+    noon = 12 + 24 * 171  # 21 June, the hour ending 13:00
+    assert weather.direct_normal_illuminance[noon] == 100.0 * float(rows[2 + noon][16])
+    assert weather.diffuse_horizontal_illuminance[noon] == 100.0 * float(rows[2 + noon][19])
+    assert weather.dew_point[noon] == float(rows[2 + noon][34])
+    for column in (weather.direct_normal_illuminance, weather.diffuse_horizontal_illuminance, weather.dew_point):
+        assert column.shape == (HOURS,) and column.dtype == np.float64 and not np.isnan(column).any()
+    assert 50_000.0 < weather.direct_normal_illuminance.max() < 130_000.0  # lux of full sun
+
+
+def test_an_epw_reads_the_same_illuminance_and_dew_point(tmp_path):
+    epw = read_weather(write_epw(tmp_path / "greensboro.epw", photometry=True))
+    tmy3 = read_weather(TMY3)
+    np.testing.assert_array_equal(epw.direct_normal_illuminance, tmy3.direct_normal_illuminance)
+    np.testing.assert_array_equal(epw.diffuse_horizontal_illuminance, tmy3.diffuse_horizontal_illuminance)
+    np.testing.assert_array_equal(epw.dew_point, tmy3.dew_point)
+
+
+def test_illuminance_and_dew_point_the_file_lacks_are_none(tmp_path):
+    """Zero illuminance fields (a file without them) and EPW's missing codes: 999999 lux, 99.9 degC."""
+    zero = read_weather(write_epw(tmp_path / "zero.epw"))
+    assert zero.direct_normal_illuminance is None and zero.diffuse_horizontal_illuminance is None
+    missing = {(row, field): text for row in range(HOURS) for field, text in ((7, "99.9"), (17, "999999"),
+                                                                               (18, "999999"))}
+    weather = read_weather(write_epw(tmp_path / "missing.epw", photometry=True, edits=missing))
+    assert weather.direct_normal_illuminance is None and weather.diffuse_horizontal_illuminance is None
+    assert weather.dew_point is None
+    np.testing.assert_array_equal(weather.direct_normal, read_weather(TMY3).direct_normal)
+
+
+def test_a_missing_hour_of_illuminance_or_dew_point_is_nan(tmp_path):
+    noon = 12 + 24 * 171
+    edits = {(noon, 17): "999999", (noon, 7): "99.9", (noon + 1, 18): "n/a"}
+    weather = read_weather(write_epw(tmp_path / "gaps.epw", photometry=True, edits=edits))
+    tmy3 = read_weather(TMY3)
+    assert np.isnan(weather.direct_normal_illuminance[noon]) and np.isnan(weather.dew_point[noon])
+    assert np.isnan(weather.diffuse_horizontal_illuminance[noon + 1])
+    assert np.isnan(weather.direct_normal_illuminance).sum() == np.isnan(weather.dew_point).sum() == 1
+    assert weather.diffuse_horizontal_illuminance[noon] == tmy3.diffuse_horizontal_illuminance[noon]
+
+
+@pytest.mark.parametrize("field, text, problem", [
+    (14, "9999", "irradiance 9999.0 W/m^2 in field 15 is outside 0..2000"),
+    (15, "9999", "irradiance 9999.0 W/m^2 in field 16 is outside 0..2000"),
+    (14, "", "field 15 is '', not a number"),
+    (15, "", "field 16 is '', not a number"),
+], ids=["dni-missing", "dhi-missing", "dni-empty", "dhi-empty"])
+def test_an_epw_without_dni_or_dhi_is_refused_though_it_has_illuminance(tmp_path, field, text, problem):
+    """9999 is EPW's code for missing irradiance: the illuminance and dew point columns never stand in for it,
+    and the refusal comes when the file is read (annual_daylight reads it before any compute)."""
+    path = write_epw(tmp_path / "no_irradiance.epw", photometry=True, edits={(100, field): text})
+    with pytest.raises(UsageError) as error:
+        read_weather(path)
+    assert str(error.value) == f"{path}, line 109: {problem}"
+
+
+def test_a_tmy3_file_without_dhi_is_refused(tmp_path):
+    rows = tmy3_rows()
+    for row in rows[2:]:
+        row[10] = ""
+    path = tmp_path / "no_dhi.csv"
+    with open(path, "w", newline="") as handle:
+        csv.writer(handle).writerows(rows)
+    with pytest.raises(UsageError) as error:
+        read_weather(path)
+    assert str(error.value) == f"{path}, line 3: field 11 is '', not a number"

@@ -12,7 +12,8 @@ import pytest
 from pxr import Usd
 
 from stage_builders import add_mesh, new_stage
-from tolerances import FLOAT32_STORAGE, SKY_MATRIX_NORMALISATION, SKY_PATCH_INTEGRATION, TREGENZA_PATCH_INTEGRATION
+from tolerances import (FLOAT32_STORAGE, PEREZ_EFFICACY_ANNUAL, SKY_MATRIX_NORMALISATION, SKY_PATCH_INTEGRATION,
+                        TREGENZA_PATCH_INTEGRATION)
 from usdbake.cli.main import main
 from usdbake.formats.weather import read_weather
 from usdbake.kernels.sky import LUMINOUS_EFFICACY, patch_radiance, patch_samples, tregenza_patches
@@ -70,19 +71,29 @@ def test_open_horizontal_face_has_daylight_factor_100():
 
 
 def test_open_horizontal_face_sees_the_global_horizontal_illuminance(weather):
+    """In Radiance's units (179 lm/W) and in the file's own lux: its illuminance columns, independent of the
+    Perez efficacy model, which the default reproduces within its scatter."""
     scene, tracer, product = open_plane()
-    metrics, stats = compute_annual_daylight(tracer, scene, product, weather, occupied=(0.0, 24.0))
     suns = sun_position(weather.times, weather.latitude, weather.longitude, weather.timezone).enu()
-    global_horizontal = weather.diffuse_horizontal * (suns[:, 2] > 0) + weather.direct_normal * np.maximum(suns[:, 2], 0)
-    expected = LUMINOUS_EFFICACY * global_horizontal.mean()
-    np.testing.assert_allclose(metrics.mean_illuminance, expected, rtol=SKY_PATCH_INTEGRATION)
+    up = suns[:, 2] > 0
+    global_horizontal = weather.diffuse_horizontal * up + weather.direct_normal * np.maximum(suns[:, 2], 0)
+    metrics, stats = compute_annual_daylight(tracer, scene, product, weather, occupied=(0.0, 24.0), efficacy="179")
+    np.testing.assert_allclose(metrics.mean_illuminance, LUMINOUS_EFFICACY * global_horizontal.mean(),
+                               rtol=SKY_PATCH_INTEGRATION)
     assert stats["occupied_hours"] == 8760 and 100 < stats["sun_bins"] < 2305
+    lux = (np.nan_to_num(weather.diffuse_horizontal_illuminance) * up
+           + np.nan_to_num(weather.direct_normal_illuminance) * np.maximum(suns[:, 2], 0)).mean()
+    metrics, _ = compute_annual_daylight(tracer, scene, product, weather, occupied=(0.0, 24.0), efficacy="weather")
+    np.testing.assert_allclose(metrics.mean_illuminance, lux, rtol=SKY_PATCH_INTEGRATION)
+    metrics, _ = compute_annual_daylight(tracer, scene, product, weather, occupied=(0.0, 24.0))
+    np.testing.assert_allclose(metrics.mean_illuminance, lux, rtol=PEREZ_EFFICACY_ANNUAL)
 
 
 def test_annual_sky_illuminance_is_the_sum_of_hourly_relights(weather):
     """Without the sun, the annual mean is the mean of per-hour products V (L dw) K with the per-hour model."""
     scene, tracer, product = open_plane()
-    metrics, _ = compute_annual_daylight(tracer, scene, product, weather, sun=False, occupied=(12.0, 13.0))
+    metrics, _ = compute_annual_daylight(tracer, scene, product, weather, sun=False, occupied=(12.0, 13.0),
+                                         efficacy="179")
     patches = product.patches
     suns = sun_position(weather.times, weather.latitude, weather.longitude, weather.timezone).enu()
     days = day_of_year(weather.times)

@@ -1,0 +1,179 @@
+"""Daylight with interreflections, glazing and photometry (issue 29) against Radiance, and its speed.
+
+Figures:
+- the LM-83-style side-lit office (``daylight_scenes.lm83_office``: floor 0.2, walls 0.5, ceiling 0.7, window
+  VLT 0.6, no ground in the stage): the whole `annual_daylight` bake from the stage (sky visibility,
+  interreflection, the year; Greensboro TMY3) against Radiance (rcontrib -ab 6 daylight coefficients with
+  glass x gendaymtx -O0 visible, ground 0.2) at the 170 floor sensors: mean occupied-hour illuminance, daylight
+  factor, sDA and ASE, and the wall times of both;
+- the furnished room (``daylight_scenes.furnished_daylight_room``: ~129k triangles, glazing VLT 0.7, on its own
+  ground) under one uniform sky: `daylight`'s total irradiance at 150 random surface points against Radiance
+  rtrace -ab 6;
+- 100k faces x 8760 hours with bounces (``bench_annual_daylight.room_stage``): the annual run after visibility
+  and interreflection, the interreflection precompute itself, and one new time of ``DaylightRelighter`` with
+  bounces.
+Quick mode (the smoke run): the office without Radiance and a 10k-face room.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from . import harness
+from .bench_annual_daylight import room_stage, tmy3
+from .daylight_scenes import furnished_daylight_room, furnished_reference, lm83_office, office_reference, sample_baked
+from usdbake.formats.weather import read_weather
+from usdbake.kernels.sky import tregenza_patches
+from usdbake.kernels.tracer import Tracer
+from usdbake.processors.daylight.annual_daylight import compute_annual_daylight
+from usdbake.processors.daylight.daylight import DaylightRelighter, sun_table
+from usdbake.processors.daylight.interreflection import compute_interreflection
+from usdbake.processors.daylight.sky_visibility import compute_sky_visibility
+from usdbake.stages.extract import extract_scene
+
+NAME = "daylight_bounces"
+DESCRIPTION = __doc__.split("\n\n", 1)[1].strip()
+RGB_LUMINANCE = np.array([0.265, 0.670, 0.065])
+"""Radiance's luminance weights (the reference's own)."""
+OCCUPIED = (8.0, 18.0)
+
+
+def _bake(stage, processors: list[str], params: dict):
+    import usdbake
+
+    started = time.perf_counter()
+    usdbake.bake(stage, processors=processors, params=params)
+    return time.perf_counter() - started
+
+
+def _relative(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray:
+    return (ours - theirs) / np.maximum(np.abs(theirs), 1e-9)
+
+
+def office_figures(with_radiance: bool) -> dict:
+    """The office's LM-83 metrics from the stage, everything included, against Radiance."""
+    scene = lm83_office()
+    weather = str(tmy3())
+    seconds = _bake(scene.stage, ["annual_daylight"], {"annual_daylight": {"weather": weather,
+                                                                           "sensor_prims": "Floor"}})
+    at = {name: sample_baked(scene.stage, f"bake:{name}", scene.sensor_points, scene.sensor_normals)[:, 0]
+          for name in ("meanIlluminance", "daylightAutonomy", "daylightFactor", "annualSunHours")}
+    figures = {"office_sensors": len(scene.sensor_points), "office_usdbake_seconds": round(seconds, 2),
+               "office_sda_usdbake": round(float((at["daylightAutonomy"] >= 0.5).mean()), 4),
+               "office_ase_usdbake": round(float((at["annualSunHours"] >= 250).mean()), 4),
+               "office_mean_illuminance_usdbake_lux": round(float(np.nanmean(at["meanIlluminance"])), 1)}
+    if not with_radiance:
+        return figures
+    from . import radiance_reference as radiance
+
+    reference = office_reference(scene)
+    hours = reference["times"]
+    hour = (hours - hours.astype("datetime64[D]")).astype(np.float64) / 60.0
+    occupied = (hour >= OCCUPIED[0]) & (hour < OCCUPIED[1])
+    hourly = reference["illuminance"][occupied]
+    theirs_mean, theirs_da = hourly.mean(axis=0), (hourly >= 300).mean(axis=0)
+    _, sun_only = radiance.annual_sky_matrix(weather, mf=4, output="visible", ground_reflectance=0.0,
+                                             sun_only=True)
+    sun_hours = (radiance.illuminance_from(reference["dc_direct"], sun_only)[occupied] >= 1000).sum(axis=0)
+    overcast, horizontal = radiance.cie_overcast_sky(4, ground_reflectance=0.2)
+    theirs_df = 100.0 * (reference["dc"] @ overcast) @ RGB_LUMINANCE / horizontal
+    error = np.abs(_relative(at["meanIlluminance"], theirs_mean))
+    df_error = np.abs(_relative(at["daylightFactor"], theirs_df))
+    radiance_seconds = float(reference["rcontrib_seconds"]) + float(reference["gendaymtx_seconds"])
+    figures.update({
+        "office_mean_illuminance_radiance_lux": round(float(theirs_mean.mean()), 1),
+        "office_mean_illuminance_median_abs_error": round(float(np.nanmedian(error)), 4),
+        "office_mean_illuminance_bias": round(float(np.nanmedian(_relative(at["meanIlluminance"], theirs_mean))), 4),
+        "office_df_usdbake_percent": round(float(np.nanmean(at["daylightFactor"])), 3),
+        "office_df_radiance_percent": round(float(theirs_df.mean()), 3),
+        "office_df_median_abs_error": round(float(np.nanmedian(df_error)), 4),
+        "office_sda_radiance": round(float((theirs_da >= 0.5).mean()), 4),
+        "office_ase_radiance": round(float((sun_hours >= 250).mean()), 4),
+        "office_radiance_seconds": round(radiance_seconds, 1),
+        "office_radiance_processes": int(reference["processes"]),
+        "office_speedup": round(radiance_seconds / seconds, 1),
+        "office_radiance_command": str(reference["command"]),
+    })
+    figures["office_sda_points"] = round(100 * abs(figures["office_sda_usdbake"] - figures["office_sda_radiance"]), 2)
+    figures["office_ase_points"] = round(100 * abs(figures["office_ase_usdbake"] - figures["office_ase_radiance"]), 2)
+    return figures
+
+
+def furnished_figures() -> dict:
+    """Total irradiance under one uniform sky at the furnished room's random surface points."""
+    scene = furnished_daylight_room()
+    reference = furnished_reference(scene)
+    radiance_value = float(reference["sky_radiance"])
+    seconds = _bake(scene.stage, ["daylight"], {"daylight": {"sky": "uniform", "uniform_radiance": radiance_value,
+                                                             "sun": False}})
+    ours = sample_baked(scene.stage, "bake:daylightIrradiance", reference["points"], reference["normals"]) \
+        @ RGB_LUMINANCE
+    theirs = reference["irradiance"] @ RGB_LUMINANCE
+    direct = reference["irradiance_direct"] @ RGB_LUMINANCE
+    error = _relative(ours, theirs)
+    return {"room_points": int(np.isfinite(ours).sum()), "room_usdbake_seconds": round(seconds, 2),
+            "room_median_abs_error": round(float(np.nanmedian(np.abs(error))), 4),
+            "room_bias": round(float(np.nanmedian(error)), 4),
+            "room_mean_ratio": round(float(np.nansum(ours) / np.sum(theirs[np.isfinite(ours)])), 4),
+            "room_interreflected_share_radiance": round(float(np.median(1 - direct / np.maximum(theirs, 1e-9))), 3),
+            "room_radiance_seconds": round(float(reference["rtrace_seconds"]), 1)}
+
+
+def large_room_figures(faces: int) -> dict:
+    """100k faces x 8760 hours with bounces, and one relit time with bounces."""
+    weather = read_weather(tmy3())
+    scene = extract_scene(room_stage(faces))
+    tracer = Tracer.from_scene(scene)
+    product, _ = compute_sky_visibility(tracer, scene, patches=tregenza_patches(), samples=4, adaptive=False)
+    started = time.perf_counter()
+    inter, stats = compute_interreflection(tracer, scene, product)
+    interreflection_seconds = time.perf_counter() - started
+    with harness.measure() as m:
+        compute_annual_daylight(tracer, scene, product, weather, interreflection=inter)
+    latitude = weather.latitude
+    table = sun_table(tracer, product, latitude=latitude)
+    relighter = DaylightRelighter(product, table, latitude=latitude, longitude=weather.longitude,
+                                  timezone=weather.timezone, albedo=scene.tri_albedo[product.face_source],
+                                  interreflection=inter)
+    seconds = []
+    for hour in np.flatnonzero(weather.diffuse_horizontal > 0)[::180][:48]:
+        started = time.perf_counter()
+        relighter.at(weather.times[hour], sky="perez", direct_normal=float(weather.direct_normal[hour]),
+                     diffuse_horizontal=float(weather.diffuse_horizontal[hour]))
+        seconds.append(time.perf_counter() - started)
+    return {"faces": int(product.num_faces), "annual_with_bounces_seconds": round(m.seconds, 2),
+            "annual_with_bounces_peak_mb": round(m.peak_mb, 1),
+            "interreflection_seconds": round(interreflection_seconds, 2),
+            "interreflection_gather_seconds": round(stats["gather_s"], 2), "patches": int(stats["patches"]),
+            "relight_with_bounces_ms_median": round(1000 * float(np.median(seconds)), 2),
+            "relight_with_bounces_ms_max": round(1000 * float(np.max(seconds)), 2)}
+
+
+def run(quick: bool = False) -> dict:
+    from . import radiance_reference as radiance
+
+    with_radiance = not quick and radiance.radiance_available()
+    figures = office_figures(with_radiance)
+    if with_radiance:
+        figures.update(furnished_figures())
+    figures.update(large_room_figures(10_000 if quick else 100_000))
+    columns = [c for c in ("office_usdbake_seconds", "office_radiance_seconds", "office_speedup",
+                           "office_mean_illuminance_median_abs_error", "office_mean_illuminance_bias",
+                           "office_df_median_abs_error", "office_sda_usdbake", "office_sda_radiance",
+                           "office_ase_usdbake", "office_ase_radiance") if c in figures]
+    table = harness.markdown_table([figures], columns)
+    if "room_median_abs_error" in figures:
+        table += "\n\n" + harness.markdown_table([figures], [
+            "room_points", "room_median_abs_error", "room_bias", "room_mean_ratio",
+            "room_interreflected_share_radiance", "room_usdbake_seconds", "room_radiance_seconds"])
+    table += "\n\n" + harness.markdown_table([figures], [
+        "faces", "annual_with_bounces_seconds", "annual_with_bounces_peak_mb", "interreflection_seconds",
+        "patches", "relight_with_bounces_ms_median", "relight_with_bounces_ms_max"])
+    error = figures.get("office_mean_illuminance_median_abs_error", 0.0)
+    return harness.result(NAME, description=DESCRIPTION, settings={"quick": quick},
+                          points=[{"label": "defaults", "seconds": figures["office_usdbake_seconds"], "error": error,
+                                   "default": True}],
+                          figures=figures, table=table, knob="defaults",
+                          error_label="office mean illuminance, median |relative error| vs Radiance")
