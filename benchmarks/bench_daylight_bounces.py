@@ -78,7 +78,7 @@ def office_figures(with_radiance: bool) -> dict:
                                              sun_only=True)
     sun_hours = (radiance.illuminance_from(reference["dc_direct"], sun_only)[occupied] >= 1000).sum(axis=0)
     overcast, horizontal = radiance.cie_overcast_sky(4, ground_reflectance=0.2)
-    theirs_df = 100.0 * (reference["dc"] @ overcast) @ RGB_LUMINANCE / horizontal
+    theirs_df = 100.0 * np.einsum("spc,p->sc", reference["dc"], overcast) @ RGB_LUMINANCE / horizontal
     error = np.abs(_relative(at["meanIlluminance"], theirs_mean))
     df_error = np.abs(_relative(at["daylightFactor"], theirs_df))
     radiance_seconds = float(reference["rcontrib_seconds"]) + float(reference["gendaymtx_seconds"])

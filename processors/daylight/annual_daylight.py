@@ -64,7 +64,7 @@ from .glazing import Glazing
 from .interreflection import SUN_PATCHES, horizontal_cosines
 from .sky_matrix import perez_sky_matrix
 from ...kernels.solar import day_of_year, sun_position
-from .sun_visibility import sun_bin_hits, sun_bins
+from .sun_visibility import sun_bin_hits, sun_bins, sun_levels
 
 REPORT_PRIM = "/usdbake/AnnualDaylight"
 REPORT_FILE = "annual_daylight.json"
@@ -214,7 +214,7 @@ def compute_annual_daylight(tracer, scene: Scene, product: SkyVisibilityProduct,
         cos_sun = np.maximum(normals[faces] @ sun_world[hours].T, 0.0)
         lit_bins = bins[hours]
         if len(bin_directions):
-            seen = hits[:, faces][np.maximum(lit_bins, 0)].T.astype(np.float32) / np.float32(sun_samples)
+            seen = hits[:, faces][np.maximum(lit_bins, 0)].T.astype(np.float32) / np.float32(sun_levels(sun_samples))
             sun_share = np.where(lit_bins >= 0, seen, 0.0)
             sunlight = cos_sun * sun_share * direct[hours][None, :]
             illuminance += sunlight

@@ -58,7 +58,7 @@ from ...kernels.sky import LUMINOUS_EFFICACY, enu_to_world, patch_radiance, sun_
 from ...kernels.solar import SunPosition, day_of_year, horizontal_position, parse_times, sun_position
 from .glazing import Glazing
 from .interreflection import ground_radiance, sun_patch_weights
-from .sun_visibility import SunFaces, sun_bin_hits
+from .sun_visibility import SunFaces, sun_bin_hits, sun_levels
 
 wp.set_module_options({"enable_backward": False})
 
@@ -230,7 +230,8 @@ class SunTable:
     node_row: np.ndarray
     """(K, M) int64 row of ``hits`` per node, -1 where the sun is below the horizon."""
     hits: np.ndarray
-    """(R, F) uint8 shadow rays of ``samples`` that reach the sun, per node above the horizon and face."""
+    """(R, F) uint8 share of the sun each face sees per node above the horizon, in steps of
+    1 / ``sun_levels(samples)`` (``sun_bin_hits``)."""
     samples: int
 
     def visibility(self, declination: float, hour_angle: float) -> np.ndarray:
@@ -246,7 +247,7 @@ class SunTable:
             for dm, wm in ((0, 1.0 - (m - int(m))), (1, m - int(m))):
                 row = self.node_row[min(k0 + dk, len(self.declinations) - 1), (m0 + dm) % len(self.hour_angles)]
                 if row >= 0 and wk * wm > 0:
-                    out += np.float32(wk * wm / self.samples) * self.hits[row]
+                    out += np.float32(wk * wm / sun_levels(self.samples)) * self.hits[row]
         return out
 
 

@@ -128,17 +128,24 @@ def sun_bins(suns: np.ndarray, up: np.ndarray, subdivision: int) -> tuple[np.nda
     return bins, directions / np.linalg.norm(directions, axis=1, keepdims=True)
 
 
+def sun_levels(samples: int) -> int:
+    """Steps of a byte that ``sun_bin_hits`` stores the visible share in: the largest multiple of ``samples``
+    up to 255, so ray counts without glazing are stored exactly and shares through glass to 1/levels."""
+    return int(samples) * (255 // int(samples))
+
+
 def sun_bin_hits(tracer, corners: np.ndarray, normals: np.ndarray, directions: np.ndarray, *, samples: int,
                  seed: int = 0, glazing=None, progress=lambda f: None) -> np.ndarray:
-    """(B, F) uint8 shadow rays of ``samples`` (at most 255) that reach the sun from each face, per sun
-    direction (world, (B, 3)): S_i of every bin, as counts in a byte each (through glazing, the rays'
-    transmittances summed and rounded to a count)."""
+    """(B, F) uint8 share of the solar disk each face sees, per sun direction (world, (B, 3)), in steps of
+    1 / ``sun_levels(samples)`` (``samples`` shadow rays, at most 255): S_i of every bin in a byte each. Exact
+    ray counts without glazing; through glass the rays' transmittances summed, to 1/levels."""
     if not 1 <= samples <= 255:
-        raise ValueError(f"sun samples {samples}: a count per face is kept in a byte (1..255)")
+        raise ValueError(f"sun samples {samples}: a share per face is kept in a byte (1..255 rays)")
+    levels = sun_levels(samples)
     faces = SunFaces(tracer, corners, normals, glazing)  # uploaded once for every bin
     hits = np.zeros((len(directions), len(faces.normals)), np.uint8)
     for b, direction in enumerate(directions):
         share = faces.visibility(direction, samples=samples, seed=seed + b)
-        hits[b] = np.rint(share * samples).astype(np.uint8)
+        hits[b] = np.rint(share * levels).astype(np.uint8)
         progress((b + 1) / max(1, len(directions)))
     return hits

@@ -115,7 +115,7 @@ def test_a_face_under_glass_reads_the_panes_transmittance():
     """Under a wide horizontal pane of VLT t: the overhead sun (normal incidence) reads t x the open value within
     1%; the uniform sky reads the pane's hemispherical transmittance, 2 int t(theta) cos sin dtheta, of it."""
     from usdbake.processors.daylight.glazing import Glazing, radiance_glass_transmittance
-    from usdbake.processors.daylight.sun_visibility import compute_sun_visibility
+    from usdbake.processors.daylight.sun_visibility import compute_sun_visibility, sun_bin_hits, sun_levels
 
     vlt = 0.6
     plane = grid_quads((0, 0, 0), (1, 0, 0), (0, 1, 0), 2, 2)
@@ -128,6 +128,9 @@ def test_a_face_under_glass_reads_the_panes_transmittance():
     seen = compute_sun_visibility(tracer, corners, product.face_normals[under], np.array([0.0, 0.0, 1.0]),
                                   samples=64, glazing=glazing)
     np.testing.assert_allclose(seen, vlt, rtol=0.01)
+    stored = sun_bin_hits(tracer, corners, product.face_normals[under], np.array([[0.0, 0.0, 1.0]]), samples=2,
+                          glazing=glazing)  # the annual sun's bytes keep the share, not a count of 2 rays
+    np.testing.assert_allclose(stored / sun_levels(2), vlt, atol=1.0 / sun_levels(2))
     theta = np.linspace(0.0, np.pi / 2, 20001)
     hemispherical = 2 * np.trapezoid(radiance_glass_transmittance(np.cos(theta), vlt) * np.cos(theta)
                                      * np.sin(theta), theta)

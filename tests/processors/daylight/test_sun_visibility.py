@@ -8,7 +8,7 @@ import pytest
 from tolerances import FLOAT64_ROUNDING, MC_SIGMAS
 from usdbake.kernels.sky import reinhart_patches
 from usdbake.kernels.tracer import Tracer
-from usdbake.processors.daylight.sun_visibility import compute_sun_visibility, sun_bin_hits, sun_bins
+from usdbake.processors.daylight.sun_visibility import compute_sun_visibility, sun_bin_hits, sun_bins, sun_levels
 
 BLOCKER_HEIGHT = 1.0
 """A square roof over x, y in [-5, 0] at z = 1: the faces below it see no sun from overhead."""
@@ -79,10 +79,11 @@ def test_sun_bins_group_positions_by_their_nearest_patch():
 
 
 def test_sun_bin_hits_count_the_rays_that_reach_each_bin_sun(tracer):
+    """Stored in steps of 1 / sun_levels(samples): 9 rays, 252 levels, 28 per ray."""
     corners, normals = faces(SHADED, LIT)
     directions = np.array([[0.0, 0.0, 1.0], [-0.8, 0.0, -0.6]])  # overhead; below every face's horizon
     hits = sun_bin_hits(tracer, corners, normals, directions, samples=9)
-    assert hits.dtype == np.uint8
-    assert hits.tolist() == [[0, 9], [0, 0]]
+    assert hits.dtype == np.uint8 and sun_levels(9) == 252
+    assert hits.tolist() == [[0, 252], [0, 0]]
     with pytest.raises(ValueError, match="1..255"):
         sun_bin_hits(tracer, corners, normals, directions, samples=256)
