@@ -64,6 +64,9 @@ def add_parser(commands) -> None:
     sky.add_argument("--dhi", type=_number(0, 1000), help="Perez: diffuse horizontal irradiance, W/m^2 (default "
                      "150, or the weather file's)")
     sky.add_argument("--ground-albedo", type=_number(0, 1), default=0.2, help="the grey ground below the horizon")
+    sky.add_argument("--efficacy", choices=("perez", "179"), default="perez",
+                     help="Perez: solar W/m^2 to light by the Perez et al. 1990 luminous efficacy (perez, as "
+                     "gendaymtx -O0; default) or by Radiance's 179 lm/W (179, as gendaymtx -O1)")
 
 
 def cmd_sky(args, console: Console) -> int:
@@ -96,8 +99,9 @@ def cmd_sky(args, console: Console) -> int:
         raise UsageError(f"--timezone {site['timezone']}: not a time zone (-12..14 hours)")
     source, _ = open_source(args.input)
     written, sky = make_sky(source, args.output, model, args.time, **site, north=args.north,
-                            turbidity=args.turbidity, **irradiance, ground_albedo=args.ground_albedo)
+                            turbidity=args.turbidity, **irradiance, ground_albedo=args.ground_albedo,
+                            efficacy=args.efficacy)
     sun = float(sky.sun_irradiance[1]) if sky.sun_world is not None else 0.0
     print(f"wrote {written[0]} and {written[1]}: {hour}diffuse horizontal {sky.diffuse_horizontal:.1f} W/m^2, "
-          f"sun {sun:.1f} W/m^2 normal")
+          f"sun {sun:.1f} W/m^2 normal (visible-equivalent: x 179 = lux)")
     return EXIT_OK

@@ -207,17 +207,26 @@ class DomeTexture:
 
 def sky_lights(model: str, time: str, *, latitude: float, longitude: float, timezone: float, up_axis: str,
                north: float = 0.0, turbidity: float = 3.0, direct_normal: float = 600.0,
-               diffuse_horizontal: float = 150.0, ground_albedo: float = 0.2, width: int = 256) -> SkyLights:
+               diffuse_horizontal: float = 150.0, ground_albedo: float = 0.2, width: int = 256,
+               efficacy: str = "perez") -> SkyLights:
     """The dome texture and sun of ``model`` at local standard ``time`` (ISO 8601) and the place.
+
+    Radiance is in visible-equivalent W/(m^2 sr) (x 179 = cd/m^2), as ``daylight`` writes it: the Perez
+    model's solar watts (its DNI and DHI) are turned into light by the Perez et al. 1990 luminous efficacy
+    (``efficacy = perez``, gendaymtx -O0) or taken as visible (``179``, gendaymtx -O1); Preetham and CIE
+    overcast are luminance models already.
 
     The sky models are the kernels' (numpy), imported here when a sky is made: the one place stages/
     reads kernels/ (tests/test_import_rules.py lists it)."""
-    from ..kernels.sky import enu_to_world, overcast_radiance, perez_radiance, preetham_radiance, \
-        sun_normal_irradiance
+    from ..kernels.luminous_efficacy import perez_efficacy
+    from ..kernels.sky import LUMINOUS_EFFICACY, enu_to_world, overcast_radiance, perez_radiance, \
+        preetham_radiance, sun_normal_irradiance
     from ..kernels.solar import day_of_year, parse_times, sun_position
 
     if model not in MODELS:
         raise UsageError(f"sky model {model!r} is not one of {', '.join(MODELS)}")
+    if efficacy not in ("perez", "179"):
+        raise UsageError(f"efficacy {efficacy!r} is not perez or 179")
     times = parse_times(time)
     if len(times) != 1:
         raise UsageError(f"--time {time!r}: a sky dome is for one time, not {len(times)}")
@@ -236,6 +245,12 @@ def sky_lights(model: str, time: str, *, latitude: float, longitude: float, time
         radiance[above] = preetham_radiance(enu[above], sun_enu, turbidity)
     elif model == "perez":
         radiance[above] = perez_radiance(enu[above], sun_enu, direct_normal, diffuse_horizontal, day)
+        beam, sky_light = LUMINOUS_EFFICACY, LUMINOUS_EFFICACY
+        if efficacy == "perez":
+            zenith = math.degrees(math.acos(min(1.0, max(-1.0, float(sun_enu[2])))))
+            beam, sky_light = (float(k) for k in perez_efficacy(direct_normal, diffuse_horizontal, zenith, day))
+        radiance *= sky_light / LUMINOUS_EFFICACY
+        direct_normal = float(direct_normal) * beam / LUMINOUS_EFFICACY
     else:
         radiance[above] = overcast_radiance(enu[above], sun_enu)
     diffuse = (radiance * (np.maximum(enu[:, 2], 0.0) * solid.ravel())[:, None]).sum(axis=0)

@@ -58,7 +58,7 @@ from .products import AnnualDaylightProduct, InterreflectionProduct, SkyVisibili
 from ...core.scene import Scene
 from ...formats.weather import Weather, check_site, read_weather
 from ...kernels.lights import LUMINANCE
-from .luminous_efficacy import perez_efficacy
+from ...kernels.luminous_efficacy import perez_efficacy
 from ...kernels.sky import LUMINOUS_EFFICACY, enu_to_world, overcast_radiance, patch_samples
 from .glazing import Glazing
 from .interreflection import SUN_PATCHES, horizontal_cosines

@@ -53,7 +53,7 @@ from ...core import Context, ParamError, Params, Primvar, Processor, Result, par
 from .products import DaylightProduct, InterreflectionProduct, SkyVisibilityProduct
 from ...core.scene import Scene
 from ...kernels.lights import LUMINANCE
-from .luminous_efficacy import perez_efficacy
+from ...kernels.luminous_efficacy import perez_efficacy
 from ...kernels.sky import LUMINOUS_EFFICACY, enu_to_world, patch_radiance, sun_normal_irradiance
 from ...kernels.solar import SunPosition, day_of_year, horizontal_position, parse_times, sun_position
 from .glazing import Glazing

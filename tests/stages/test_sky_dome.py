@@ -45,7 +45,8 @@ def test_open_horizontal_face_gets_diffuse_plus_direct(tmp_path, capsys, up, mod
     source = write_input(tmp_path, up)
     before = source.read_bytes()
     out = tmp_path / "sky.usda"
-    code = main(["sky", str(source), "-o", str(out), "--model", model, "--dni", "700", "--dhi", "120", *PLACE])
+    code = main(["sky", str(source), "-o", str(out), "--model", model, "--dni", "700", "--dhi", "120", *PLACE,
+                 "--efficacy", "179"])  # Radiance's solar units: the Perez sky's DNI and DHI as given
     assert code == 0, capsys.readouterr().err
     assert source.read_bytes() == before
     scene = extract_scene(Usd.Stage.Open(str(out)))
@@ -79,7 +80,8 @@ def test_a_sky_from_a_weather_file_hour_is_its_perez_sky_at_its_site(tmp_path, c
     row = weather.hour_at(parse_times("2026-06-21T12:00")[0])
     source = write_input(tmp_path, "Z")
     out = tmp_path / "sky.usda"
-    code = main(["sky", str(source), "-o", str(out), "--weather", tmy3, "--time", "2026-06-21T12:00"])
+    code = main(["sky", str(source), "-o", str(out), "--weather", tmy3, "--time", "2026-06-21T12:00",
+                 "--efficacy", "179"])
     assert code == 0, capsys.readouterr().err
     report = capsys.readouterr().out
     assert f"{tmy3} line {weather.lines[row]} (DNI {weather.direct_normal[row]:g}" in report
@@ -246,3 +248,31 @@ def test_non_finite_texels_are_named_when_the_texture_is_read(tmp_path):
     with pytest.raises(StageError) as error:
         scene.lights.dome_texture
     assert str(error.value) == f"/World/Sky.inputs:texture:file: {path}: holds non-finite texels (row 3, column 7: nan)"
+
+
+def test_the_perez_sky_is_in_light_by_its_luminous_efficacy(tmp_path, capsys):
+    """By default the Perez dome and sun hold visible-equivalent watts (x 179 = lux, as daylight writes): the
+    given DHI and DNI times the Perez et al. 1990 efficacies over 179 lm/W; the weather file's own illuminance
+    columns agree within the two models' scatter."""
+    from usdbake.formats.weather import read_weather
+    from usdbake.kernels.luminous_efficacy import perez_efficacy
+    from usdbake.kernels.solar import day_of_year
+
+    pvlib = pytest.importorskip("pvlib")
+    tmy3 = str(Path(pvlib.__file__).parent / "data" / "723170TYA.CSV")
+    weather = read_weather(tmy3)
+    when = parse_times("2026-06-21T12:00")
+    row = weather.hour_at(when[0])
+    source = write_input(tmp_path, "Z")
+    assert main(["sky", str(source), "-o", str(tmp_path / "sky.usda"), "--weather", tmy3, "--time",
+                 "2026-06-21T12:00"]) == 0
+    report = capsys.readouterr().out
+    sun = float(report.split("sun ")[1].split(" W/m^2")[0])
+    diffuse = float(report.split("diffuse horizontal ")[1].split(" W/m^2")[0])
+    zenith = float(sun_position(when, 36.1, -79.95, -5.0).zenith[0])
+    beam, sky = perez_efficacy(weather.direct_normal[row], weather.diffuse_horizontal[row], zenith,
+                               day_of_year(when)[0])
+    assert sun == pytest.approx(weather.direct_normal[row] * float(beam) / 179.0, abs=0.1)
+    assert diffuse == pytest.approx(weather.diffuse_horizontal[row] * float(sky) / 179.0, rel=TEXEL_INTEGRATION)
+    assert 179.0 * diffuse == pytest.approx(weather.diffuse_horizontal_illuminance[row], rel=0.15)
+    assert 179.0 * sun == pytest.approx(weather.direct_normal_illuminance[row], rel=0.15)

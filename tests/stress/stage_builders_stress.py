@@ -131,10 +131,13 @@ FAST_FIELDS = {"positional_samples": 16, "direction_map_size": 4, "force": "Crat
 TMY3 = str(Path(importlib.util.find_spec("pvlib").origin).parent / "data" / "723170TYA.CSV")
 """The typical year pvlib ships (Greensboro NC, NREL TMY3, public domain): the weather of annual_daylight."""
 
+FAST_BOUNCES = {"gather_rays": 8, "patches": 64, "bounces": 2}
+"""interreflection: few gather rays and patches (every bounce path still runs)."""
 FAST_PARAMS: dict[str, dict[str, dict]] = {
     "ambient_occlusion": {"ambient_occlusion": {"samples": 16, "per_face": True}},
     "sky_visibility": {"sky_visibility": FAST_SKY},
-    "daylight": {"sky_visibility": FAST_SKY, "daylight": {"sun_samples": 2}},
+    "interreflection": {"sky_visibility": FAST_SKY, "interreflection": FAST_BOUNCES},
+    "daylight": {"sky_visibility": FAST_SKY, "interreflection": FAST_BOUNCES, "daylight": {"sun_samples": 2}},
     "displacement_fields": {"displacement_fields": FAST_FIELDS},
     "instance_ao": {"displacement_fields": FAST_FIELDS, "instance_ao": {"samples": 16, "instances": True}},
     "form_factors": {"form_factors": FAST_FORM_FACTORS},
@@ -143,7 +146,7 @@ FAST_PARAMS: dict[str, dict[str, dict]] = {
     "light_probes": {"light_probes": {"probes": 64, "iterations": 1, "rays": 16, "placement_rays": 8}},
     "irradiance_grid": {"irradiance_grid": {"vertices": 64, "rays": 16}},
     "progressive_mesh": {},
-    "annual_daylight": {"sky_visibility": FAST_SKY,
+    "annual_daylight": {"sky_visibility": FAST_SKY, "interreflection": FAST_BOUNCES,
                         "annual_daylight": {"weather": TMY3, "sun_bins": 1, "sun_samples": 1}},
 }
 """Per processor: the params argument of usdbake.bake / Pipeline.build (dependencies' params included)."""

@@ -17,7 +17,7 @@ import pytest
 from tolerances import (EFFICACY_FILE_CONVENTION, EFFICACY_MEDIAN_MATCH, EFFICACY_NOMINAL,
                         EFFICACY_PRECIPITABLE_WATER, FLOAT64_ROUNDING, QUOTED_4_DECIMALS)
 from usdbake.formats.weather import read_weather
-from usdbake.processors.daylight.luminous_efficacy import illuminance, perez_efficacy
+from usdbake.kernels.luminous_efficacy import illuminance, perez_efficacy
 from usdbake.kernels.solar import day_of_year, sun_position
 
 pvlib = pytest.importorskip("pvlib")
