@@ -77,10 +77,17 @@ def library_modules(module_name: str) -> list[tuple[str, Path]]:
         if not source or not source.endswith(".py"):
             continue
         found[name] = Path(source)
-        package = module.__package__ or ""
-        for node in ast.walk(ast.parse(Path(source).read_text())):
-            pending.extend(_imported_modules(node, package, roots))
+        pending.extend(_file_imports(source, os.stat(source).st_mtime_ns, module.__package__ or "",
+                                     tuple(sorted(roots))))
     return sorted(found.items())
+
+
+@functools.lru_cache(maxsize=4096)
+def _file_imports(source: str, mtime_ns: int, package: str, roots: tuple[str, ...]) -> tuple[str, ...]:
+    """The library modules a source file imports, parsed once per file and modification time (every step's
+    cache key follows the same modules)."""
+    tree = ast.parse(Path(source).read_text())
+    return tuple(name for node in ast.walk(tree) for name in _imported_modules(node, package, set(roots)))
 
 
 def _imported_modules(node: ast.AST, package: str, roots: set[str]) -> list[str]:

@@ -65,25 +65,29 @@ class MaterialReader:
         """(F, 3) albedo, (F, 3) emission and the prim-level surface shader path ('' if none)."""
         albedo = np.broadcast_to(self._display_color(prim, face_count), (face_count, 3)).astype(np.float32)
         emission = np.zeros((face_count, 3), np.float32)
-        binding = UsdShade.MaterialBindingAPI(prim)
         surface = ""
+        for material, faces in self._bindings(prim, face_count):
+            diffuse, emissive, path = self._shading(material)
+            if diffuse is not None:
+                albedo[faces] = diffuse
+            emission[faces] = emissive
+            if isinstance(faces, slice):
+                surface = path
+        return np.clip(albedo, 0.0, 1.0), np.maximum(emission, 0.0), surface
+
+    def _bindings(self, prim: Usd.Prim, face_count: int):
+        """(material, faces) of the prim's own binding (faces: a slice of all) then of each GeomSubset bound to
+        a material (faces: its valid indices), in the order a later one overrides an earlier one."""
+        binding = UsdShade.MaterialBindingAPI(prim)
         material, _ = binding.ComputeBoundMaterial()
         if material:
-            diffuse, emissive, surface = self._shading(material)
-            if diffuse is not None:
-                albedo[:] = diffuse
-            emission[:] = emissive
+            yield material, slice(None)
         for subset in UsdShade.MaterialBindingAPI.GetMaterialBindSubsets(binding):
             subset_material, _ = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()
             if not subset_material:
                 continue
             faces = np.asarray(subset.GetIndicesAttr().Get(self.timecode) or [], np.int64)
-            faces = faces[(faces >= 0) & (faces < face_count)]
-            diffuse, emissive, _ = self._shading(subset_material)
-            if diffuse is not None:
-                albedo[faces] = diffuse
-            emission[faces] = emissive
-        return np.clip(albedo, 0.0, 1.0), np.maximum(emission, 0.0), surface
+            yield subset_material, faces[(faces >= 0) & (faces < face_count)]
 
     def face_transmittance(self, prim: Usd.Prim, face_count: int) -> np.ndarray:
         """(F,) float32 visible transmittance at normal incidence per face, in [0, 1], 0 for opaque faces
@@ -92,17 +96,8 @@ class MaterialReader:
         if own is not None:
             return np.full(face_count, own, np.float32)
         transmittance = np.zeros(face_count, np.float32)
-        binding = UsdShade.MaterialBindingAPI(prim)
-        material, _ = binding.ComputeBoundMaterial()
-        if material:
-            transmittance[:] = self._material_transmittance(material)
-        for subset in UsdShade.MaterialBindingAPI.GetMaterialBindSubsets(binding):
-            subset_material, _ = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()
-            if not subset_material:
-                continue
-            faces = np.asarray(subset.GetIndicesAttr().Get(self.timecode) or [], np.int64)
-            faces = faces[(faces >= 0) & (faces < face_count)]
-            transmittance[faces] = self._material_transmittance(subset_material)
+        for material, faces in self._bindings(prim, face_count):
+            transmittance[faces] = self._material_transmittance(material)
         return transmittance
 
     def _material_transmittance(self, material: UsdShade.Material) -> float:
