@@ -4,8 +4,12 @@ Figures:
 - the LM-83-style side-lit office (``daylight_scenes.lm83_office``: floor 0.2, walls 0.5, ceiling 0.7, window
   VLT 0.6, no ground in the stage): the whole `annual_daylight` bake from the stage (sky visibility,
   interreflection, the year; Greensboro TMY3) against Radiance (rcontrib -ab 6 daylight coefficients with
-  glass x gendaymtx -O0 visible, ground 0.2) at the 170 floor sensors: mean occupied-hour illuminance, daylight
-  factor, sDA and ASE, and the wall times of both;
+  glass x gendaymtx -O0 visible, ground 0.2, -ad 65536: Radiance's own noise 0.45% median) at the 170 floor
+  sensors: mean occupied-hour illuminance, daylight factor, sDA, and ASE against Radiance's direct sun as
+  discrete 0.533-degree sources (``office_sun_reference``: the 5-phase direct-sun method; the smeared two-phase
+  sun counts 6 more sensors); run time against Radiance at equal error: rcontrib at -ad 1024..8192 on the same
+  sensors, its error against the reference, its time interpolated (log-log) to usdbake's error, gendaymtx
+  included;
 - the furnished room (``daylight_scenes.furnished_daylight_room``: ~129k triangles, glazing VLT 0.7, on its own
   ground) under one uniform sky: `daylight`'s total irradiance at 150 random surface points against Radiance
   rtrace -ab 6;
@@ -24,6 +28,7 @@ import numpy as np
 from . import harness
 from .bench_annual_daylight import room_stage, tmy3
 from .daylight_scenes import furnished_daylight_room, furnished_reference, lm83_office, office_reference, sample_baked
+from .office_sun_reference import ase, office_sun_reference
 from usdbake.formats.weather import read_weather
 from usdbake.kernels.sky import tregenza_patches
 from usdbake.kernels.tracer import Tracer
@@ -38,6 +43,8 @@ DESCRIPTION = __doc__.split("\n\n", 1)[1].strip()
 RGB_LUMINANCE = np.array([0.265, 0.670, 0.065])
 """Radiance's luminance weights (the reference's own)."""
 OCCUPIED = (8.0, 18.0)
+SWEEP_DIVISIONS = (1024, 2048, 4096, 8192)
+"""rcontrib -ad of the equal-error sweep (Radiance's error falls as 1 / sqrt(-ad))."""
 
 
 def _bake(stage, processors: list[str], params: dict):
@@ -74,9 +81,8 @@ def office_figures(with_radiance: bool) -> dict:
     occupied = (hour >= OCCUPIED[0]) & (hour < OCCUPIED[1])
     hourly = reference["illuminance"][occupied]
     theirs_mean, theirs_da = hourly.mean(axis=0), (hourly >= 300).mean(axis=0)
-    _, sun_only = radiance.annual_sky_matrix(weather, mf=4, output="visible", ground_reflectance=0.0,
-                                             sun_only=True)
-    sun_hours = (radiance.illuminance_from(reference["dc_direct"], sun_only)[occupied] >= 1000).sum(axis=0)
+    sun = office_sun_reference(scene)
+    _, ase_radiance = ase(sun["illuminance"], sun["times"])
     overcast, horizontal = radiance.cie_overcast_sky(4, ground_reflectance=0.2)
     theirs_df = 100.0 * np.einsum("spc,p->sc", reference["dc"], overcast) @ RGB_LUMINANCE / horizontal
     error = np.abs(_relative(at["meanIlluminance"], theirs_mean))
@@ -90,15 +96,44 @@ def office_figures(with_radiance: bool) -> dict:
         "office_df_radiance_percent": round(float(theirs_df.mean()), 3),
         "office_df_median_abs_error": round(float(np.nanmedian(df_error)), 4),
         "office_sda_radiance": round(float((theirs_da >= 0.5).mean()), 4),
-        "office_ase_radiance": round(float((sun_hours >= 250).mean()), 4),
+        "office_ase_radiance": round(ase_radiance, 4),
         "office_radiance_seconds": round(radiance_seconds, 1),
         "office_radiance_processes": int(reference["processes"]),
         "office_speedup": round(radiance_seconds / seconds, 1),
         "office_radiance_command": str(reference["command"]),
     })
+    figures.update(equal_error_time(scene, reference, occupied, seconds, float(np.nanmedian(error))))
     figures["office_sda_points"] = round(100 * abs(figures["office_sda_usdbake"] - figures["office_sda_radiance"]), 2)
     figures["office_ase_points"] = round(100 * abs(figures["office_ase_usdbake"] - figures["office_ase_radiance"]), 2)
     return figures
+
+
+def equal_error_time(scene, reference, occupied: np.ndarray, seconds: float, error: float) -> dict:
+    """Radiance's time at usdbake's error on the office: rcontrib at ``SWEEP_DIVISIONS`` (another seed than the
+    reference's) plus gendaymtx, its median |relative error| of the mean occupied illuminance against the
+    reference, the time interpolated log-log to ``error``."""
+    from . import radiance_reference as radiance
+
+    started = time.perf_counter()
+    _, sky = radiance.annual_sky_matrix(str(tmy3()), mf=4, output="visible", ground_reflectance=0.2)
+    sky_seconds = time.perf_counter() - started
+    truth = reference["illuminance"][occupied].mean(axis=0)
+    errors, times = [], []
+    for divisions in SWEEP_DIVISIONS:
+        timings = {}
+        dc = radiance.daylight_coefficients(scene.triangles, scene.albedo, scene.sensor_points, scene.sensor_normals,
+                                            transmittance=scene.transmittance, mf=4, ambient_bounces=5,
+                                            ambient_divisions=divisions, seed=7, timings=timings)
+        mean = radiance.illuminance_from(dc, sky)[occupied].mean(axis=0)
+        errors.append(float(np.median(np.abs(_relative(mean, truth)))))
+        times.append(timings["radiance_seconds"] + sky_seconds)
+    order = np.argsort(errors)
+    at_error = float(np.exp(np.interp(np.log(error), np.log(np.asarray(errors)[order]),
+                                      np.log(np.asarray(times)[order]))))
+    return {"office_radiance_sweep": [{"ad": d, "error": round(e, 4), "seconds": round(t, 2)}
+                                      for d, e, t in zip(SWEEP_DIVISIONS, errors, times)],
+            "office_radiance_seconds_at_equal_error": round(at_error, 2),
+            "office_speedup_at_equal_error": round(at_error / seconds, 2)}
 
 
 def furnished_figures() -> dict:
@@ -160,6 +195,7 @@ def run(quick: bool = False) -> dict:
         figures.update(furnished_figures())
     figures.update(large_room_figures(10_000 if quick else 100_000))
     columns = [c for c in ("office_usdbake_seconds", "office_radiance_seconds", "office_speedup",
+                           "office_radiance_seconds_at_equal_error", "office_speedup_at_equal_error",
                            "office_mean_illuminance_median_abs_error", "office_mean_illuminance_bias",
                            "office_df_median_abs_error", "office_sda_usdbake", "office_sda_radiance",
                            "office_ase_usdbake", "office_ase_radiance") if c in figures]

@@ -135,3 +135,20 @@ def test_a_face_under_glass_reads_the_panes_transmittance():
     hemispherical = 2 * np.trapezoid(radiance_glass_transmittance(np.cos(theta), vlt) * np.cos(theta)
                                      * np.sin(theta), theta)
     np.testing.assert_allclose(product.exposure[under], hemispherical, rtol=SKY_PATCH_INTEGRATION)
+
+
+def test_a_stage_with_its_own_ground_hides_the_ground_outside_the_model():
+    """A wall standing on a wide ground of the stage: its rays below the horizon meet that ground (all but the
+    few grazing ones that pass its edge, 500 m away), so the gendaymtx ground gives it next to nothing (a lone
+    wall: half its view); the stage's ground reflects the sky to it instead (rho_g pi L / 2 seen from a vertical
+    face over an infinite lit ground, less what the wall shades)."""
+    wall = grid_quads((0, 0, 0), (0, 0, 1), (1, 0, 0), 4, 4)  # facing +y
+    ground = grid_quads((-500, -500, 0), (1000, 0, 0), (0, 1000, 0), 1, 1)
+    scene = quad_scene([(wall, 0.5, 0.0), (ground, 0.2, 0.0)])
+    tracer, product = visibility(scene)
+    inter, _ = compute_interreflection(tracer, scene, product, bounces=1, gather_rays=256)
+    on_wall = product.face_prim == 0
+    assert inter.ground_direct[on_wall].mean() / np.pi < 0.01
+    bounced = (inter.sky_indirect[0][on_wall] @ uniform_weights(product)).mean()
+    rays = 256 * on_wall.sum()  # the ground fills half the wall's view: its share's noise is 0.5 / sqrt(rays)
+    assert bounced == pytest.approx(0.5 * 0.2 * np.pi * RADIANCE, rel=MC_SIGMAS / np.sqrt(rays) + 0.01)
