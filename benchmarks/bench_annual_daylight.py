@@ -84,9 +84,10 @@ def tmy3() -> Path:
 def radiance_comparison(weather) -> dict:
     """Mean occupied-hour illuminance, DA, sDA and DF at floor faces against Radiance (rcontrib daylight
     coefficients x gendaymtx, ``radiance_reference``), black interior (both count the sky seen directly)."""
+    from . import radiance_binaries, radiance_scene
     from . import radiance_reference as radiance
 
-    if not radiance.radiance_available():
+    if not radiance_binaries.radiance_available():
         return {"radiance": "not installed (pip install pyradiance: the bench extra)"}
     scene = extract_scene(room_stage(10_000, SMALL_WINDOWS))
     tracer = Tracer.from_scene(scene)
@@ -110,10 +111,10 @@ def radiance_comparison(weather) -> dict:
     ours_mean, theirs_mean = metrics.mean_illuminance[picks], occupied.mean(axis=0)
     ours_da, theirs_da = metrics.autonomy[picks], (occupied >= 300).mean(axis=0)
     # Daylight factor: the same daylight coefficients under the CIE overcast sky, over an open horizontal sensor.
-    dc = radiance.daylight_coefficients(triangles, np.zeros(len(triangles)), points, product.face_normals[picks],
-                                        up="Z", mf=1, offset=1e-3)[:, :, 1]
-    open_dc = radiance.daylight_coefficients(None, None, np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]),
-                                             up="Z", mf=1)[:, :, 1]
+    dc = radiance_scene.daylight_coefficients(triangles, np.zeros(len(triangles)), points, product.face_normals[picks],
+                                              up="Z", mf=1, offset=1e-3)[:, :, 1]
+    open_dc = radiance_scene.daylight_coefficients(None, None, np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]),
+                                                   up="Z", mf=1)[:, :, 1]
     overcast = np.r_[0.0, overcast_radiance(tregenza_patches().patch_directions, np.array([0, 0, 1.0]))[:, 0]]
     theirs_df = 100.0 * (dc @ overcast) / float((open_dc @ overcast)[0])
     ours_df = metrics.daylight_factor[picks]

@@ -10,7 +10,7 @@ Figures:
   sun counts 6 more sensors); run time against Radiance at equal error: rcontrib at -ad 1024..8192 on the same
   sensors, its error against the reference, its time interpolated (log-log) to usdbake's error, gendaymtx
   included;
-- the furnished room (``daylight_scenes.furnished_daylight_room``: ~129k triangles, glazing VLT 0.7, on its own
+- the furnished room (``furnished_daylight_room.furnished_daylight_room``: ~129k triangles, glazing VLT 0.7, on its own
   ground) under one uniform sky: `daylight`'s total irradiance at 150 random surface points against Radiance
   rtrace -ab 6;
 - 100k faces x 8760 hours with bounces (``bench_annual_daylight.room_stage``): the annual run after visibility
@@ -27,8 +27,11 @@ import numpy as np
 
 from . import harness
 from .bench_annual_daylight import room_stage, tmy3
-from .daylight_scenes import furnished_daylight_room, furnished_reference, lm83_office, office_reference, sample_baked
+from .daylight_references import furnished_reference, office_reference
+from .daylight_scenes import lm83_office
+from .furnished_daylight_room import furnished_daylight_room
 from .office_sun_reference import ase, office_sun_reference
+from .stage_readback import sample_baked
 from usdbake.formats.weather import read_weather
 from usdbake.kernels.sky import tregenza_patches
 from usdbake.kernels.tracer import Tracer
@@ -73,7 +76,7 @@ def office_figures(with_radiance: bool) -> dict:
                "office_mean_illuminance_usdbake_lux": round(float(np.nanmean(at["meanIlluminance"])), 1)}
     if not with_radiance:
         return figures
-    from . import radiance_reference as radiance
+    from . import radiance_sky
 
     reference = office_reference(scene)
     hours = reference["times"]
@@ -83,7 +86,7 @@ def office_figures(with_radiance: bool) -> dict:
     theirs_mean, theirs_da = hourly.mean(axis=0), (hourly >= 300).mean(axis=0)
     sun = office_sun_reference(scene)
     _, ase_radiance = ase(sun["illuminance"], sun["times"])
-    overcast, horizontal = radiance.cie_overcast_sky(4, ground_reflectance=0.2)
+    overcast, horizontal = radiance_sky.cie_overcast_sky(4, ground_reflectance=0.2)
     theirs_df = 100.0 * np.einsum("spc,p->sc", reference["dc"], overcast) @ RGB_LUMINANCE / horizontal
     error = np.abs(_relative(at["meanIlluminance"], theirs_mean))
     df_error = np.abs(_relative(at["daylightFactor"], theirs_df))
@@ -113,17 +116,19 @@ def equal_error_time(scene, reference, occupied: np.ndarray, seconds: float, err
     reference's) plus gendaymtx, its median |relative error| of the mean occupied illuminance against the
     reference, the time interpolated log-log to ``error``."""
     from . import radiance_reference as radiance
+    from . import radiance_scene, radiance_sky
 
     started = time.perf_counter()
-    _, sky = radiance.annual_sky_matrix(str(tmy3()), mf=4, output="visible", ground_reflectance=0.2)
+    _, sky = radiance_sky.annual_sky_matrix(str(tmy3()), mf=4, output="visible", ground_reflectance=0.2)
     sky_seconds = time.perf_counter() - started
     truth = reference["illuminance"][occupied].mean(axis=0)
     errors, times = [], []
     for divisions in SWEEP_DIVISIONS:
         timings = {}
-        dc = radiance.daylight_coefficients(scene.triangles, scene.albedo, scene.sensor_points, scene.sensor_normals,
-                                            transmittance=scene.transmittance, mf=4, ambient_bounces=5,
-                                            ambient_divisions=divisions, seed=7, timings=timings)
+        dc = radiance_scene.daylight_coefficients(scene.triangles, scene.albedo, scene.sensor_points,
+                                                  scene.sensor_normals, transmittance=scene.transmittance, mf=4,
+                                                  ambient_bounces=5, ambient_divisions=divisions, seed=7,
+                                                  timings=timings)
         mean = radiance.illuminance_from(dc, sky)[occupied].mean(axis=0)
         errors.append(float(np.median(np.abs(_relative(mean, truth)))))
         times.append(timings["radiance_seconds"] + sky_seconds)
@@ -187,9 +192,9 @@ def large_room_figures(faces: int) -> dict:
 
 
 def run(quick: bool = False) -> dict:
-    from . import radiance_reference as radiance
+    from . import radiance_binaries
 
-    with_radiance = not quick and radiance.radiance_available()
+    with_radiance = not quick and radiance_binaries.radiance_available()
     figures = office_figures(with_radiance)
     if with_radiance:
         figures.update(furnished_figures())

@@ -1,5 +1,5 @@
 """The LM-83 office's direct sunlight with a sharp sun (``radiance_sun``), its ASE, and the two-phase smeared sun
-of ``daylight_scenes.office_reference`` for comparison (issue 29).
+of ``daylight_references.office_reference`` for comparison (issue 29).
 
 IES LM-83's ASE_{1000,250}: the share of sensors that receive direct sunlight (no sky, no interreflections) of
 at least 1000 lux for at least 250 occupied hours of the year, occupied = local standard time 8:00-18:00
@@ -58,12 +58,13 @@ def office_sun_reference(scene=None, *, mf: int = 6, weather_path: str | None = 
     ``gendaymtx_seconds``, ``seconds`` (wall, when first computed), ``processes``; ``command``,
     ``gendaymtx_command`` (0-d str).
     """
-    from . import radiance_reference as rr
+    from . import radiance_sky as rsky
     from . import radiance_sun as rs
-    from .daylight_scenes import SCENES_VERSION, lm83_office, scene_fingerprint
+    from .daylight_references import scene_fingerprint
+    from .daylight_scenes import SCENES_VERSION, lm83_office
 
     scene = scene if scene is not None else lm83_office()
-    weather_path = str(weather_path or rr._tmy3_example())
+    weather_path = str(weather_path or rsky._tmy3_example())
     settings = {"scene": "lm83_office", "version": SCENES_VERSION, "fingerprint": scene_fingerprint(scene),
                 "method": "sharp sun: rcontrib -ab 0 suns at MF patch centres x gendaymtx -5 0.533 -d -O0",
                 "sun_version": SUN_REFERENCE_VERSION, "mf": mf, "offset": offset,
@@ -91,13 +92,15 @@ def office_smeared_sun(scene=None, *, weather_path: str | None = None) -> tuple[
     direct-only daylight coefficients (``dc_direct``, MF:4, cached; computed if not, minutes) times gendaymtx's
     sun-only matrix (``-d``, sun over the 4 nearest MF:4 patches, ``-O0``)."""
     from . import radiance_reference as rr
-    from .daylight_scenes import lm83_office, office_reference
+    from . import radiance_sky as rsky
+    from .daylight_references import office_reference
+    from .daylight_scenes import lm83_office
 
     scene = scene if scene is not None else lm83_office()
-    weather_path = str(weather_path or rr._tmy3_example())
+    weather_path = str(weather_path or rsky._tmy3_example())
     reference = office_reference(scene, weather_path=weather_path)
-    times, sun_only = rr.annual_sky_matrix(weather_path, mf=4, output="visible", ground_reflectance=0.0,
-                                           sun_only=True)
+    times, sun_only = rsky.annual_sky_matrix(weather_path, mf=4, output="visible", ground_reflectance=0.0,
+                                             sun_only=True)
     return times, rr.illuminance_from(reference["dc_direct"], sun_only)
 
 

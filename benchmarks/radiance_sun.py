@@ -11,14 +11,14 @@ directions: ``radiance_reference``, itself independent of usdbake's code).
 Pipeline
 --------
 1. Sun coefficients (``sun_coefficients``): one Radiance ``light`` + ``source`` of 0.533 degrees at the centre
-   of every Reinhart MF:``mf`` sky patch (5185 for MF:6; directions ``radiance_reference.reinhart_patches``,
+   of every Reinhart MF:``mf`` sky patch (5185 for MF:6; directions ``radiance_sky.reinhart_patches``,
    Radiance's row order, row 0 the ground left out), each with its own modifier ``solar<row>``, radiance
    ``1 / omega`` with omega = 2 pi (1 - cos(0.2665 deg)) the disc's solid angle as Radiance's ``source``
    takes it: a sensor facing the source unobstructed receives exactly 1 W/m^2 (per unit direct normal
    irradiance). ``rcontrib -h -faf -I+ -V+ -ab 0 -dc 1 -dt 0 -dj 0 -ds 0 -dr 0 -M suns.mod scene.oct < sensors``
    (``-V+``: contributions, the radiance included, not coefficients per unit radiance; no ambient: only
    shadow rays to the suns; ``-dt 0 -dc 1``: every source's visibility tested; ``-dj 0``:
-   the shadow ray goes to the disc's centre, a sharp sun) with the geometry as ``radiance_reference.
+   the shadow ray goes to the disc's centre, a sharp sun) with the geometry as ``radiance_scene.
    write_scene`` writes it (opaque ``plastic``; ``glass`` of the pane's VLT, through which Radiance's shadow
    rays pass with glass's angular transmittance): DC_sun (S, P, 3), irradiance per unit DNI = cos(incidence)
    x the glazing's transmittance, 0 in shadow.
@@ -48,7 +48,10 @@ from pathlib import Path
 
 import numpy as np
 
+from . import radiance_binaries as rbin
 from . import radiance_reference as rr
+from . import radiance_scene as rscene
+from . import radiance_sky as rsky
 
 SUN_DIAMETER = 0.533
 """Degrees: the solar disc's angular diameter (gendaymtx ``-5``, the suns' ``source`` angle)."""
@@ -68,7 +71,7 @@ def suns_rad(mf: int = 6) -> tuple[str, list[str]]:
     """(Radiance text, modifier names) of one 0.533-degree sun of radiance ``1 / SOURCE_SOLID_ANGLE`` at the
     centre of every Reinhart MF:``mf`` patch, in Radiance's row order (``solar1`` .. ``solarP``; row 0, the
     ground, has none)."""
-    dirs, _ = rr.reinhart_patches(mf)
+    dirs, _ = rsky.reinhart_patches(mf)
     radiance = 1.0 / SOURCE_SOLID_ANGLE
     text, names = [], []
     for row in range(1, len(dirs)):
@@ -95,24 +98,24 @@ def sun_coefficients(triangles: np.ndarray | None, albedo: np.ndarray | None, se
     """(S, P, 3) float64 direct-sun coefficients: irradiance (W/m^2) at each sensor per unit direct normal
     irradiance of a sharp sun at the centre of each Reinhart MF:``mf`` patch p (column p = Radiance row p + 1).
 
-    Geometry as ``radiance_reference.write_scene`` (``albedo`` is irrelevant without ambient bounces: the
+    Geometry as ``radiance_scene.write_scene`` (``albedo`` is irrelevant without ambient bounces: the
     plastic only shades; ``transmittance`` > 0 -> Radiance ``glass``); ``sensors`` / ``normals`` (S, 3) in stage
     coordinates with the ``up`` axis, moved ``offset`` metres along their normal. ``timings`` receives
     ``rcontrib_seconds`` (oconv + rcontrib wall time), ``rcontrib_cpu_seconds``, ``processes``, ``command``.
     """
-    rr._pyradiance()
+    rbin._pyradiance()
     count = len(np.asarray(sensors).reshape(-1, 3))
     if processes is None:
         processes = max(1, min(os.cpu_count() or 1, count))
-    _, rays = rr._sensor_rays(sensors, normals, up, offset)
+    _, rays = rscene._sensor_rays(sensors, normals, up, offset)
     text, names = suns_rad(mf)
     command = sun_rcontrib_command("scene.oct", "suns.mod", processes)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         Path(tmp, "suns.mod").write_text("\n".join(names) + "\n")
-        started, cpu = time.perf_counter(), rr._children_cpu()
-        octree = rr._octree(tmp, text, triangles, albedo, transmittance, up)
-        out = rr._run(command[:-1] + [octree], input=rays.encode(), cwd=tmp)
-        seconds, cpu = time.perf_counter() - started, rr._children_cpu() - cpu
+        started, cpu = time.perf_counter(), rbin._children_cpu()
+        octree = rscene._octree(tmp, text, triangles, albedo, transmittance, up)
+        out = rbin._run(command[:-1] + [octree], input=rays.encode(), cwd=tmp)
+        seconds, cpu = time.perf_counter() - started, rbin._children_cpu() - cpu
     if timings is not None:
         timings.update(rcontrib_seconds=seconds, rcontrib_cpu_seconds=cpu, processes=processes,
                        command=" ".join(command) + " < sensors")
@@ -130,7 +133,7 @@ class SunMatrix:
     """gendaymtx ``-5 0.533 -d`` kept sparse: one entry per (patch, hour) with sun."""
 
     times: np.ndarray
-    """(H,) datetime64[m]: local standard time at mid-hour (``radiance_reference.WeatherRows.times``)."""
+    """(H,) datetime64[m]: local standard time at mid-hour (``radiance_sky.WeatherRows.times``)."""
     hours: np.ndarray
     """(N,) int64: the hour (column) of each entry."""
     patches: np.ndarray
@@ -156,17 +159,17 @@ def gendaymtx_sun_command(wea: str, mf: int = 6) -> list[str]:
 def sun_matrix(weather_path: str | os.PathLike, *, mf: int = 6, block_rows: int = 256,
                workdir: str | os.PathLike | None = None) -> SunMatrix:
     """The sun alone, one patch per hour, of the weather file's year: ``gendaymtx -5 0.533 -d -m mf -O0``."""
-    rr._pyradiance()
+    rbin._pyradiance()
     rows = 144 * mf * mf + 2
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         wea = os.path.join(tmp, "sky.wea")
-        weather = rr.write_wea(weather_path, wea)
+        weather = rsky.write_wea(weather_path, wea)
         hours = len(weather.month)
         out = os.path.join(tmp, "sun.bin")
         command = gendaymtx_sun_command(wea, mf)
         started = time.perf_counter()
         with open(out, "wb") as f:
-            done = subprocess.run([rr._binary(command[0])] + command[1:], stdout=f, stderr=subprocess.PIPE)
+            done = subprocess.run([rbin._binary(command[0])] + command[1:], stdout=f, stderr=subprocess.PIPE)
         seconds = time.perf_counter() - started
         if done.returncode != 0:
             raise RuntimeError(f"{' '.join(command)} failed ({done.returncode}): "

@@ -1,7 +1,8 @@
-"""The daylight scenes of issue 29 (benchmarks/daylight_scenes.py) and the Radiance reference's glass, uniform
-sky and patch geometry (benchmarks/radiance_reference.py): the scenes hold what their docstring says, the
-geometry read back from the stage is the authored one, ``sample_baked`` finds the face under a sensor, and
-Radiance's glass and sky agree with their closed forms."""
+"""The daylight scenes of issue 29 (benchmarks/daylight_scenes.py, furnished_daylight_room.py, stage_readback.py)
+and the Radiance reference's glass, uniform sky and patch geometry (benchmarks/radiance_scene.py,
+radiance_sky.py): the scenes hold what their docstring says, the geometry read back from the stage is the
+authored one, ``sample_baked`` finds the face under a sensor, and Radiance's glass and sky agree with their
+closed forms."""
 
 from __future__ import annotations
 
@@ -10,7 +11,10 @@ import pytest
 from pxr import Sdf, UsdGeom, UsdShade, Vt
 
 from usdbake.benchmarks import daylight_scenes as ds
-from usdbake.benchmarks import radiance_reference as rr
+from usdbake.benchmarks import furnished_daylight_room as fr
+from usdbake.benchmarks import radiance_scene as rscene
+from usdbake.benchmarks import radiance_sky as rsky
+from usdbake.benchmarks import stage_readback as sr
 
 AUTHORED = 1e-6
 """Values authored as float32 and read back: equal to float32 precision."""
@@ -27,7 +31,7 @@ def office():
 
 @pytest.fixture(scope="module")
 def room():
-    return ds.furnished_daylight_room()
+    return fr.furnished_daylight_room()
 
 
 def _preview_input(stage, prim_path: str, name: str):
@@ -96,7 +100,7 @@ def test_office_sensors_are_lm83_grid_on_floor_faces(office):
 def test_room_has_100k_triangles_glass_rgb_and_ground(room):
     assert len(room.triangles) >= 100_000
     glazed = room.transmittance > 0
-    assert glazed.sum() == 2 * len(ds.ROOM_WINDOWS)
+    assert glazed.sum() == 2 * len(fr.ROOM_WINDOWS)
     np.testing.assert_allclose(room.transmittance[glazed], 0.7, atol=AUTHORED)
     coloured = np.ptp(room.albedo, axis=1) > 0.1
     assert coloured.sum() > 10_000  # fabrics, books, leaves
@@ -106,7 +110,7 @@ def test_room_has_100k_triangles_glass_rgb_and_ground(room):
     assert g[:, 0].min() == pytest.approx(-100) and g[:, 0].max() == pytest.approx(100)
     # The footprint is left out: no ground triangle's centre lies under the building.
     centres = room.triangles[ground].mean(axis=1)
-    lo, hi = ds.ROOM_LO - ds.WALL, ds.ROOM_HI + ds.WALL
+    lo, hi = fr.ROOM_LO - fr.WALL, fr.ROOM_HI + fr.WALL
     under = np.all((centres[:, :2] > lo[:2]) & (centres[:, :2] < hi[:2]), axis=1)
     assert not under.any()
 
@@ -124,9 +128,9 @@ def test_room_solids_are_closed_and_outward(room):
 def test_room_random_points_are_inside_on_surfaces_and_repeatable(room):
     points, normals = room.sensor_points, room.sensor_normals
     assert len(points) == 150
-    assert ds.inside_room(points).all()
+    assert fr.inside_room(points).all()
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-9)
-    again, _, prims = ds.random_surface_points(room, 150, seed=29)
+    again, _, prims = fr.random_surface_points(room, 150, seed=29)
     np.testing.assert_array_equal(again, points)
     assert prims == room.sensor_prims
     assert any("/Furniture/" in p for p in prims) and "/World/Room/Floor" in prims
@@ -154,13 +158,13 @@ def test_sample_baked_reads_the_face_under_each_sensor(office, tmp_path):
     path = tmp_path / "baked.usda"
     stage.GetRootLayer().Export(str(path))
     sensors = office.sensor_points
-    got = ds.sample_baked(str(path), "bake:test", sensors, office.sensor_normals)[:, 0]
+    got = sr.sample_baked(str(path), "bake:test", sensors, office.sensor_normals)[:, 0]
     np.testing.assert_allclose(got, sensors[:, 0], atol=1e-5)  # the sensor is the centre of its cell
-    got = ds.sample_baked(path, "primvars:bake:x", sensors, office.sensor_normals,
+    got = sr.sample_baked(path, "primvars:bake:x", sensors, office.sensor_normals,
                           prims=office.sensor_prims)[:, 0]
     np.testing.assert_allclose(got, sensors[:, 0], atol=1e-5)
     # A point facing down (the ceiling's way) finds no floor face.
-    assert np.isnan(ds.sample_baked(path, "bake:test", sensors[:1], -office.sensor_normals[:1])).all()
+    assert np.isnan(sr.sample_baked(path, "bake:test", sensors[:1], -office.sensor_normals[:1])).all()
 
 
 # --------------------------------------------------------------------------- Radiance's glass and sky
@@ -168,37 +172,37 @@ def test_sample_baked_reads_the_face_under_each_sensor(office, tmp_path):
 
 def test_radiance_glass_conversion_matches_the_manual():
     # Radiance reference manual, glass: "a typical clear glass with 88% transmittance has tn = 0.96".
-    assert rr.glass_transmissivity(0.88) == pytest.approx(0.96, abs=0.005)
+    assert rscene.glass_transmissivity(0.88) == pytest.approx(0.96, abs=0.005)
     vlt = np.linspace(0.05, 0.9, 18)
     # The manual's formula inverts glass's own normal-incidence model (n = 1.52) to its 10-digit constants.
-    np.testing.assert_allclose(rr.glass_normal_transmittance(rr.glass_transmissivity(vlt)), vlt, rtol=GLASS_FIT)
-    np.testing.assert_allclose(rr.glass_transmittance(rr.glass_transmissivity(vlt), np.ones_like(vlt)), vlt,
+    np.testing.assert_allclose(rscene.glass_normal_transmittance(rscene.glass_transmissivity(vlt)), vlt, rtol=GLASS_FIT)
+    np.testing.assert_allclose(rscene.glass_transmittance(rscene.glass_transmissivity(vlt), np.ones_like(vlt)), vlt,
                                rtol=GLASS_FIT)
     for bad in (0.0, -0.1, 1.2, np.nan):
         with pytest.raises(ValueError):
-            rr.glass_transmissivity(bad)
+            rscene.glass_transmissivity(bad)
 
 
 def test_write_scene_writes_glass_and_rgb_plastic(tmp_path):
     tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]] * 3, float) + np.arange(3)[:, None, None]
     albedo = np.array([[0.6, 0.1, 0.1], [0.2, 0.2, 0.2], [0.0, 0.0, 0.0]])
     path = tmp_path / "scene.rad"
-    assert rr.write_scene(path, tri, albedo, transmittance=np.array([0.0, 0.0, 0.6])) == 3
+    assert rscene.write_scene(path, tri, albedo, transmittance=np.array([0.0, 0.0, 0.6])) == 3
     text = path.read_text()
-    tn = rr.glass_transmissivity(0.6)
+    tn = rscene.glass_transmissivity(0.6)
     assert f"void glass mat2\n0\n0\n3 {tn:.6g} {tn:.6g} {tn:.6g}\n" in text and "mat2 polygon t2" in text
     assert "5 0.6 0.1 0.1 0 0" in text and "5 0.2 0.2 0.2 0 0" in text
-    rr.write_scene(path, tri, 0.5)  # a scalar grey, as before
+    rscene.write_scene(path, tri, 0.5)  # a scalar grey, as before
     assert path.read_text().count("plastic") == 1
 
 
 def test_reinhart_patches_cover_the_sky():
     for mf in (1, 2, 4):
-        dirs, omegas = rr.reinhart_patches(mf)
+        dirs, omegas = rsky.reinhart_patches(mf)
         assert len(dirs) == 144 * mf * mf + 2
         assert omegas[1:].sum() == pytest.approx(2 * np.pi)
         np.testing.assert_allclose(np.linalg.norm(dirs, axis=1), 1.0)
-        _, e_h = rr.cie_overcast_sky(mf)
+        _, e_h = rsky.cie_overcast_sky(mf)
         assert e_h == pytest.approx(7.0 / 9.0 * np.pi, rel=0.005)  # CIE overcast: E_h = 7 pi L_z / 9
 
 
@@ -206,12 +210,12 @@ def test_radiance_uniform_sky_open_points():
     pytest.importorskip("pyradiance")
     up = np.tile([0.0, 0.0, 1.0], (4, 1))
     for ground in (False, True):
-        e = rr.uniform_sky_irradiance(None, None, np.zeros((4, 3)), up, radiance=2.0, ground=ground,
-                                      ambient_divisions=1024)
+        e = rscene.uniform_sky_irradiance(None, None, np.zeros((4, 3)), up, radiance=2.0, ground=ground,
+                                          ambient_divisions=1024)
         np.testing.assert_allclose(e, 2.0 * np.pi, rtol=RADIANCE_MC)
     timings = {}
-    side = rr.uniform_sky_irradiance(None, None, np.zeros((4, 3)), np.tile([0.0, 1.0, 0.0], (4, 1)),
-                                     ground_reflectance=0.2, ambient_divisions=4096, timings=timings)
+    side = rscene.uniform_sky_irradiance(None, None, np.zeros((4, 3)), np.tile([0.0, 1.0, 0.0], (4, 1)),
+                                         ground_reflectance=0.2, ambient_divisions=4096, timings=timings)
     np.testing.assert_allclose(side, np.pi * (1 + 0.2) / 2, rtol=RADIANCE_MC)  # half sky, half ground
     assert timings["radiance_seconds"] > 0 and "-ab 6" in timings["command"]
 
@@ -225,12 +229,12 @@ def test_radiance_glass_roof_transmits_its_diffuse_transmittance():
     roof = np.array([[[-s, -s, 1], [s, -s, 1], [s, s, 1]], [[-s, -s, 1], [s, s, 1], [-s, s, 1]]])
     points, up = np.zeros((4, 3)), np.tile([0.0, 0.0, 1.0], (4, 1))
     tau = np.full(2, 0.6)
-    expected = rr.glass_diffuse_transmittance(rr.glass_transmissivity(0.6))
+    expected = rscene.glass_diffuse_transmittance(rscene.glass_transmissivity(0.6))
     assert 0.4 < expected < 0.6
-    e = rr.uniform_sky_irradiance(roof, np.zeros(2), points, up, transmittance=tau, ground=False,
-                                  ambient_divisions=4096)
+    e = rscene.uniform_sky_irradiance(roof, np.zeros(2), points, up, transmittance=tau, ground=False,
+                                      ambient_divisions=4096)
     np.testing.assert_allclose(e / np.pi, expected, rtol=RADIANCE_MC)
-    dc = rr.daylight_coefficients(roof, np.zeros(2), points, up, transmittance=tau, ambient_divisions=4096)
+    dc = rscene.daylight_coefficients(roof, np.zeros(2), points, up, transmittance=tau, ambient_divisions=4096)
     np.testing.assert_allclose(dc[:, 1:, :].sum(axis=1) / np.pi, expected, rtol=RADIANCE_MC)
 
 
@@ -239,7 +243,7 @@ def test_radiance_seeds_give_independent_draws():
     s = 100.0
     roof = np.array([[[-s, -s, 1], [s, -s, 1], [s, s, 1]], [[-s, -s, 1], [s, s, 1], [-s, s, 1]]])
     points, up = np.zeros((2, 3)), np.tile([0.0, 0.0, 1.0], (2, 1))
-    runs = [rr.uniform_sky_irradiance(roof, np.zeros(2), points, up, transmittance=np.full(2, 0.6), ground=False,
-                                      ambient_divisions=256, seed=seed, processes=1) for seed in (None, None, 1, 2)]
+    runs = [rscene.uniform_sky_irradiance(roof, np.zeros(2), points, up, transmittance=np.full(2, 0.6), ground=False,
+                                          ambient_divisions=256, seed=seed, processes=1) for seed in (None, None, 1, 2)]
     np.testing.assert_array_equal(runs[0], runs[1])  # no seed: Radiance's own, repeatable stream
     assert not np.array_equal(runs[2], runs[3]) and not np.array_equal(runs[0], runs[2])

@@ -13,7 +13,9 @@ import pytest
 pytest.importorskip("pyradiance")
 pytest.importorskip("pvlib")
 
-from usdbake.benchmarks import radiance_reference as rr  # noqa: E402
+from usdbake.benchmarks import radiance_binaries as rbin  # noqa: E402
+from usdbake.benchmarks import radiance_scene as rscene  # noqa: E402
+from usdbake.benchmarks import radiance_sky as rsky  # noqa: E402
 from usdbake.benchmarks import radiance_sun as rs  # noqa: E402
 from usdbake.benchmarks.office_sun_reference import ase, occupied_hours  # noqa: E402
 
@@ -40,14 +42,14 @@ def _square(x0, x1, y0, y1, z):
 
 @pytest.fixture(scope="module")
 def weather():
-    return rr._tmy3_example()
+    return rsky._tmy3_example()
 
 
 @pytest.fixture(scope="module")
 def run(weather):
     """One run: sensor 0 open and up, 1 under an opaque roof, 2 under a horizontal pane of VLT 0.6 (far from the
     roof), 3 open facing south."""
-    if not rr.radiance_available():
+    if not rbin.radiance_available():
         pytest.skip("Radiance binaries of pyradiance do not run here")
     triangles = np.concatenate([_square(-ROOF, ROOF, -ROOF, ROOF, 1.0),
                                 _square(5000 - ROOF, 5000 + ROOF, -ROOF, ROOF, 1.0)])
@@ -66,7 +68,7 @@ def pvlib_sun(weather):
     import pandas as pd
     from pvlib import solarposition
 
-    rows = rr.read_weather_rows(weather)
+    rows = rsky.read_weather_rows(weather)
     local = pd.DatetimeIndex(rows.times.astype("datetime64[ns]"))
     when = (local - pd.Timedelta(hours=rows.timezone)).tz_localize("UTC")
     sun = solarposition.get_solarposition(when, rows.latitude, rows.longitude, altitude=rows.elevation)
@@ -80,7 +82,7 @@ def test_open_sensor_gets_direct_normal_times_cos_zenith(run, pvlib_sun):
     np.add.at(normal, sun.hours, sun.normal_illuminance())
     # Exactly: each hour's E_dn times the cosine at its patch centre (the suns' radiance and solid angle, the
     # modifier order).
-    dirs, _ = rr.reinhart_patches(MF)
+    dirs, _ = rsky.reinhart_patches(MF)
     exact = np.zeros_like(normal)
     np.add.at(exact, sun.hours, sun.normal_illuminance() * dirs[sun.patches + 1, 2])
     assert np.allclose(lux[:, 0], exact, rtol=FLOAT32, atol=1e-6)
@@ -100,13 +102,13 @@ def test_open_sensor_gets_direct_normal_times_cos_zenith(run, pvlib_sun):
 
 
 def test_coefficients_are_cosines_and_glass(run):
-    dirs, _ = rr.reinhart_patches(MF)
+    dirs, _ = rsky.reinhart_patches(MF)
     up = dirs[1:, 2]
     dc = run["dc"]
     assert dc.shape == (4, 144 * MF * MF + 1, 3)
     assert np.allclose(dc[0], up[:, None], atol=FLOAT32)
     assert np.allclose(dc[3], np.maximum(-dirs[1:, 1], 0.0)[:, None], atol=FLOAT32)
-    glass = rr.glass_transmittance(rr.glass_transmissivity(0.6), up) * up
+    glass = rscene.glass_transmittance(rscene.glass_transmissivity(0.6), up) * up
     assert np.allclose(dc[2], glass[:, None], rtol=FLOAT32, atol=1e-7)
 
 
@@ -120,7 +122,7 @@ def test_sun_matrix_one_patch_per_hour_nearest_the_sun(run, pvlib_sun):
     sun = run["sun"]
     assert len(np.unique(sun.hours)) == len(sun.hours) > 4000  # one patch per sunny hour
     assert sun.patches.min() >= 0 and sun.patches.max() < 144 * MF * MF + 1
-    dirs, _ = rr.reinhart_patches(MF)
+    dirs, _ = rsky.reinhart_patches(MF)
     up = pvlib_sun[sun.hours, 2] > 0.0
     cos = np.sum(dirs[sun.patches + 1] * pvlib_sun[sun.hours], axis=1)
     assert np.degrees(np.arccos(np.clip(cos[up], -1.0, 1.0))).max() < PATCH_ANGLE
@@ -128,12 +130,12 @@ def test_sun_matrix_one_patch_per_hour_nearest_the_sun(run, pvlib_sun):
 
 
 def test_suns_in_reinhart_cal_bin_order():
-    rr._pyradiance()
-    dirs, _ = rr.reinhart_patches(MF)
+    rbin._pyradiance()
+    dirs, _ = rsky.reinhart_patches(MF)
     text, names = rs.suns_rad(MF)
     assert names == [f"solar{row}" for row in range(1, len(dirs))]
     lines = "".join(f"{d[0]:.9f} {d[1]:.9f} {d[2]:.9f}\n" for d in dirs[1:])
-    done = subprocess.run([rr._binary("rcalc"), "-e", f"MF:{MF}", "-f", "reinhart.cal", "-e",
+    done = subprocess.run([rbin._binary("rcalc"), "-e", f"MF:{MF}", "-f", "reinhart.cal", "-e",
                            "Dx=$1;Dy=$2;Dz=$3", "-e", "$1=rbin"], input=lines, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert np.array_equal(np.array(done.stdout.split(), float), np.arange(1, len(dirs)))
