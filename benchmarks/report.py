@@ -79,6 +79,8 @@ TARGETS = [
      2.0),
     ("daylight (bounces): Radiance time at equal error / usdbake time, office, everything from the stage",
      "daylight_bounces", "office_speedup_at_equal_error", ">=", 10.0),
+    ("daylight (bounces): the same with 4x the visibility and gather rays (16 and 512)", "daylight_bounces",
+     "office_speedup_at_equal_error_fine", ">=", 10.0),
     ("daylight (bounces): LM-83 office from the stage, everything included (s)", "daylight_bounces",
      "office_usdbake_seconds", "<=", 30.0),
     ("daylight (bounces): furnished room, one uniform sky, median |rel. error| vs Radiance", "daylight_bounces",
