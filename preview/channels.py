@@ -150,14 +150,18 @@ def _read_single(stage, scene: Scene, name: str, time: float | None) -> Channel:
         corners[tri_mask, :, :c] = tri_values[tri_mask][:, None, :]
         has |= tri_mask
         attributes.append(attribute)
-        lows.append(tri_values[tri_mask].min())
-        highs.append(tri_values[tri_mask].max())
+        finite = tri_values[tri_mask][np.isfinite(tri_values[tri_mask]).all(axis=1)]
+        if len(finite):
+            lows.append(finite.min())
+            highs.append(finite.max())
 
     if not has.any():
         tried = " or ".join(candidates)
         raise UsageError(f"no prim in {scene.source or 'the stage'} has {tried}"
                          + (f" at time {time:g}" if time is not None else "")
                          + "; bake it first (usdbake bake ...) or check `usdbake inspect`")
+    if not lows:
+        raise UsageError(f"{', '.join(attributes)}: no finite value (every value is NaN or infinite)")
     return Channel(name=name, corner_values=corners, tri_has_value=has, components=components or 1,
                    lo=float(min(lows)), hi=float(max(highs)),
                    irradiance=base_name.split(":")[-1].startswith(IRRADIANCE_PREFIXES),

@@ -53,9 +53,13 @@ VIRIDIS = _viridis_table()
 """(256, 3) float32 sRGB viridis table."""
 
 
+ACES_SATURATED = np.float32(1e4)
+"""The fit is 1 (to float32 precision) from x ~ 7.24 on; inputs are clamped here so x * x cannot overflow."""
+
+
 def aces_fitted(x: np.ndarray) -> np.ndarray:
     """Narkowicz's ACES filmic fit, clamped to [0, 1]."""
-    x = np.maximum(np.asarray(x, np.float32), 0.0)
+    x = np.clip(np.asarray(x, np.float32), 0.0, ACES_SATURATED)  # x * x stays finite in float32
     return np.clip(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0)
 
 

@@ -88,10 +88,16 @@ def probe_spheres(stage, scene: Scene, time) -> Spheres | None:
     if not clouds:
         return None
     points = np.concatenate([_to_local(c.probe_positions, scene) for c in clouds])
-    sh = [c.probe_sh if c.probe_sh is not None else np.zeros((len(c.probe_positions), SH_COUNT, 3), np.float32)
-          for c in clouds]
-    return Spheres(points, np.full((len(points), 3), SPHERE_ALBEDO, np.float32), np.concatenate(sh),
-                   any(c.condon_shortley for c in clouds), ", ".join(c.path for c in clouds))
+    sh = [np.zeros((len(c.probe_positions), SH_COUNT, 3), np.float32) if c.probe_sh is None
+          else real_orthonormal(c.probe_sh, c.condon_shortley) for c in clouds]  # each cloud in its own basis
+    return Spheres(points, np.full((len(points), 3), SPHERE_ALBEDO, np.float32), np.concatenate(sh), False,
+                   ", ".join(c.path for c in clouds))
+
+
+def real_orthonormal(sh: np.ndarray, condon_shortley: bool) -> np.ndarray:
+    """(N, 9, 3) float32 coefficients in the real orthonormal basis (without the Condon-Shortley phase)."""
+    sh = np.asarray(sh, np.float32)
+    return sh * CONDON_SHORTLEY_SIGN[:, None].astype(np.float32) if condon_shortley else sh
 
 
 def grid_spheres(stage, scene: Scene, time) -> Spheres | None:
@@ -113,10 +119,7 @@ def grid_spheres(stage, scene: Scene, time) -> Spheres | None:
 
 def sh_irradiance(sh: np.ndarray, normals: np.ndarray, condon_shortley: bool = False) -> np.ndarray:
     """(N, 3) float32 value of L2 SH ``sh`` ((N, 9, 3)) at unit ``normals`` ((N, 3)), real orthonormal basis."""
-    sh = np.asarray(sh, np.float32)
-    if condon_shortley:
-        sh = sh * CONDON_SHORTLEY_SIGN[:, None].astype(np.float32)
-    return evaluate_np(sh, np.asarray(normals, np.float32)).astype(np.float32)
+    return evaluate_np(real_orthonormal(sh, condon_shortley), np.asarray(normals, np.float32)).astype(np.float32)
 
 
 def _extra_spheres(stage, scene: Scene, time, probes: bool, grid: bool, messages: list) -> Spheres | None:

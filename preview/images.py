@@ -42,7 +42,10 @@ def write_image(path: str, image: Image, value_name: str = "value") -> str:
     import OpenImageIO as oiio
 
     suffix = Path(path).suffix.lower()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise UsageError(f"{path}: a parent of the output is a file, not a folder") from None
     if suffix == ".exr":
         view = image.linear
         channels = [view[..., 0], view[..., 1], view[..., 2], image.coverage]

@@ -130,11 +130,18 @@ def _as_components(values, type_name: Sdf.ValueTypeName, attribute: str) -> tupl
     """(N, C) float64 values, C = 1 or 3."""
     scalar = type_name.scalarType
     dims = tuple(scalar.dimensions) if hasattr(scalar, "dimensions") else ()
-    array = np.asarray(values, np.float64)
+    refused = UsageError(f"{attribute}: type {type_name} cannot be previewed (need a float or a 3-vector/colour, "
+                         f"got shape {dims})")
+    try:
+        array = np.asarray(values, np.float64)
+    except (TypeError, ValueError):  # text (string, token, asset) primvars
+        raise refused from None
+    if not type_name.isArray:  # one value (a constant primvar authored as a scalar): one row
+        array = array.reshape(1, -1)
     if array.ndim == 1:
         return array[:, None], 1
-    if array.ndim == 2 and array.shape[1] == 3:
-        return array, 3
+    if array.ndim == 2 and array.shape[1] in (1, 3):
+        return array, int(array.shape[1])
     raise UsageError(f"{attribute}: type {type_name} cannot be previewed (need a float or a 3-vector/colour, "
                      f"got shape {array.shape[1:] or dims})")
 

@@ -31,7 +31,11 @@ class RgbRows:
     def __init__(self, path: str, *, srgb: bool, dtype=np.float64):
         import OpenImageIO as oiio
 
-        self._image = oiio.ImageInput.open(path)
+        # The colour as stored: OpenImageIO would otherwise multiply it by alpha on read (its default for
+        # PNG), darkening a cut-out texture's albedo; alpha itself is not read.
+        config = oiio.ImageSpec()
+        config.attribute("oiio:UnassociatedAlpha", 1)
+        self._image = oiio.ImageInput.open(path, config)
         if self._image is None:
             raise ValueError(" ".join(oiio.geterror().split()) or "OpenImageIO cannot read it")
         spec = self._image.spec()

@@ -512,3 +512,10 @@ INTEGRATING_SPHERE = 0.05
 """Area-averaged irradiance inside a unit box with a 0.2 x 0.2 skylight after 10 bounces against the
 integrating-sphere value E_dir / (1 - rho (1 - f)) (issue 29's 5%; a box mixes light less evenly than a
 sphere): measured 0.999 of it at rho 0.5 (64 gather rays per face)."""
+
+# -- test references: quadratures of patch integrals ----------------------------------------------
+
+PATCH_MIDPOINT_RULE = 1e-5
+"""A 200 x 200 midpoint rule in (z, azimuth) of a sky patch's mean cosine against its closed form
+(test_patch_visibility): the rule's error is O(h^2) except in the zenith cap, where r = sqrt(1 - z^2)
+has an infinite slope and it converges as h^1.5; measured 4.1e-7 on Tregenza's and 64 uniform patches."""

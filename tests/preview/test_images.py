@@ -113,9 +113,6 @@ def test_a_path_oiio_cannot_write_is_a_usage_error(tmp_path):
         write_image(str(tmp_path / "folder.png"), make_image())
 
 
-@pytest.mark.xfail(strict=True, raises=FileExistsError,
-                   reason="bug: Path.mkdir's FileExistsError escapes when a parent of the output is a file, so "
-                          "`usdbake preview -o file/out.png` ends in a traceback instead of a usage error")
 def test_a_file_in_place_of_the_folder_is_a_usage_error(tmp_path):
     (tmp_path / "file").write_text("not a folder")
     with pytest.raises(UsageError):

@@ -92,9 +92,6 @@ def test_grey_is_repeated_into_rgb(tmp_path):
     np.testing.assert_array_equal(rows, np.repeat(srgb_table()[codes], 3, axis=2))  # the same table entries
 
 
-@pytest.mark.xfail(strict=True, reason="bug: OpenImageIO associates a PNG's alpha on read (its default), so RgbRows "
-                                       "returns colour x alpha, premultiplied in 8-bit sRGB codes before the table; "
-                                       "a cut-out texture's mean albedo comes out darkened")
 @pytest.mark.parametrize("channels", [2, 4], ids=["grey-alpha", "rgba"])
 def test_alpha_is_dropped_and_leaves_the_colour_as_stored(tmp_path, channels):
     codes = random_codes(5, 6, channels)
