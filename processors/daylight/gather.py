@@ -137,7 +137,7 @@ def trace_gather(tracer, corners: np.ndarray, normals: np.ndarray, *, rays: int,
         below = face == ESCAPED_GROUND
         np.add.at(ground, row[below], weight[below])
         progress(hi / max(1, count))
-    tracer.rays_cast += count * rays
+    tracer.rays_cast += int((np.linalg.norm(normals, axis=1) >= 0.5).sum()) * rays  # degenerate faces cast none
     matrix = sp.csr_matrix((np.concatenate(weights).astype(np.float32) / np.float32(rays),
                             (np.concatenate(rows), np.concatenate(cols))), shape=(count, count), dtype=np.float32)
     matrix.sum_duplicates()

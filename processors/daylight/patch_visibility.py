@@ -181,7 +181,9 @@ def traced_rays(normals: np.ndarray, patches: SkyPatches, to_world: np.ndarray, 
     patch included)."""
     centers = patches.patch_directions @ np.asarray(to_world, np.float64).T
     horizon = -np.sin(np.minimum(patches.patch_radius, np.pi / 2))
-    above = int((np.asarray(normals, np.float64) @ centers.T >= horizon[None, :]).sum())
+    normals = np.asarray(normals, np.float64)
+    normals = normals[np.linalg.norm(normals, axis=1) >= 0.5]  # a degenerate face casts nothing
+    above = int((normals @ centers.T >= horizon[None, :]).sum())
     return above * strata_for(samples) ** 2
 
 

@@ -151,6 +151,11 @@ def test_chunked_launches_progress_and_ray_count(monkeypatch):
     np.testing.assert_array_equal(chunked.ground_view, whole.ground_view)
     assert len(steps) == -(-len(corners) // 5) and np.all(np.diff(steps) > 0) and steps[-1] == 1.0
     assert tracer.rays_cast == len(corners) * rays
+    degenerate = np.concatenate([normals, np.zeros((1, 3), np.float32)])
+    counted = tracer_of(corners)
+    trace_gather(counted, np.concatenate([corners, corners[:1]]), degenerate, rays=rays, up=UP,
+                 landing=np.arange(len(corners)))
+    assert counted.rays_cast == len(corners) * rays  # the zero-normal face casts none
 
 
 def test_the_seed_changes_the_rays_and_repeats_them():

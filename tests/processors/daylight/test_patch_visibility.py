@@ -238,6 +238,7 @@ def test_traced_rays_counts_the_pairs_above_the_horizon():
     assert traced_rays(up, patches, to_world, 7) == len(patches) * 9
     assert traced_rays(up, patches, to_world, 5) == len(patches) * 4
     assert traced_rays(np.concatenate([up, down]), patches, to_world, 1) == len(patches) + lowest_ring
+    assert traced_rays(np.zeros((1, 3)), patches, to_world, 16) == 0  # a degenerate face casts nothing
 
 
 def test_compute_patch_visibility_adds_its_rays_to_the_tracer():
