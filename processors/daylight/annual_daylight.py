@@ -60,7 +60,7 @@ from ...formats.weather import Weather, check_site, read_weather
 from ...kernels.lights import LUMINANCE
 from ...kernels.luminous_efficacy import perez_efficacy
 from ...kernels.sky import LUMINOUS_EFFICACY, enu_to_world, overcast_radiance, patch_samples
-from .glazing import Glazing
+from .glazing import scene_glazing
 from .interreflection import SUN_PATCHES, horizontal_cosines
 from .sky_matrix import perez_sky_matrix
 from ...kernels.solar import day_of_year, sun_position
@@ -179,7 +179,7 @@ def compute_annual_daylight(tracer, scene: Scene, product: SkyVisibilityProduct,
     corners = product.face_points[product.face_vertices].astype(np.float32)
     normals = product.face_normals
     rays_before = tracer.rays_cast
-    glazing = Glazing.of_scene(scene, device=str(tracer.device), threads=tracer.threads)
+    glazing = scene_glazing(scene, tracer)
     hits = sun_bin_hits(tracer, corners, normals, bin_directions @ product.to_world.T, samples=sun_samples,
                         glazing=glazing,
                         seed=seed, progress=lambda f: progress(0.1 + 0.6 * f))

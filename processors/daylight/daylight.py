@@ -56,7 +56,7 @@ from ...kernels.lights import LUMINANCE
 from ...kernels.luminous_efficacy import perez_efficacy
 from ...kernels.sky import LUMINOUS_EFFICACY, enu_to_world, patch_radiance, sun_normal_irradiance
 from ...kernels.solar import SunPosition, day_of_year, horizontal_position, parse_times, sun_position
-from .glazing import Glazing
+from .glazing import scene_glazing
 from .interreflection import ground_radiance, sun_patch_weights
 from .sun_visibility import SunFaces, sun_bin_hits, sun_levels
 
@@ -178,7 +178,7 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
     position = sun_position(times, latitude, longitude, timezone)
     turn = enu_to_world("Z", north)  # rotation about up: site ENU -> layout ENU
     faces = SunFaces(tracer, product.face_points[product.face_vertices], product.face_normals,
-                     Glazing.of_scene(scene, device=str(tracer.device), threads=tracer.threads)) if sun else None
+                     scene_glazing(scene, tracer)) if sun else None
     albedo = scene.tri_albedo[product.face_source]
     visibility = product.visibility_patch_major()
     out = np.zeros((len(times), product.num_faces, 3), np.float32)

@@ -267,3 +267,10 @@ class GlassPanes:
 
 
 _BUILT: dict = {}
+
+
+def scene_glazing(scene, tracer) -> "Glazing | None":
+    """The scene's ``Glazing`` on ``tracer``'s device, built once per process (``GlassPanes.glazing``), so
+    sky visibility, the bounces, the sun and the year share one pair of ray cores; None without glass."""
+    panes = GlassPanes.of_scene(scene)
+    return panes.glazing(tracer) if panes is not None else None

@@ -38,7 +38,7 @@ from ...core.scene import Scene
 from ...kernels.sky import SkyPatches, patch_samples
 from ...kernels.tracer import Tracer
 from .gather import trace_gather
-from .glazing import Glazing
+from .glazing import scene_glazing
 from .patch_visibility import compute_patch_visibility
 from .products import InterreflectionProduct, SkyVisibilityProduct
 
@@ -167,7 +167,7 @@ def compute_interreflection(tracer, scene: Scene, product: SkyVisibilityProduct,
     """Indirect daylight coefficients of every refined face (see the module docstring)."""
     started = time.perf_counter()
     faces = transport_faces(scene, product)
-    glazing = Glazing.of_scene(scene, device=str(tracer.device), threads=tracer.threads)
+    glazing = scene_glazing(scene, tracer)
     extra_v = np.zeros((len(faces.extra_triangles), len(product.patches)), np.float32)
     if len(faces.extra_triangles):
         extra_v, _ = compute_patch_visibility(glazing.opaque_tracer if glazing else tracer,

@@ -69,7 +69,7 @@ import numpy as np
 
 from ...core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
 from ...core.chunks import SceneChunks
-from .glazing import GlassPanes
+from .glazing import GlassPanes, scene_glazing
 from ...core.products import RefinedScene
 from .products import SkyVisibilityProduct
 from ...core.scene import Scene
@@ -238,8 +238,8 @@ def sees_sky(tracer, scene: Scene, directions: np.ndarray) -> bool:
     """Whether any receiver face sees the sky along any patch centre direction (a ray from its
     centroid that escapes the scene's opaque triangles: glazing lets the sky in). Scenes open to the sky
     answer in the first batch."""
-    glass = GlassPanes.of_scene(scene)
-    tracer = glass.glazing(tracer).opaque_tracer if glass is not None else tracer
+    glazing = scene_glazing(scene, tracer)
+    tracer = glazing.opaque_tracer if glazing is not None else tracer
     faces = np.flatnonzero(np.isin(scene.tri_prim, receiver_prims(scene)) & (scene.tri_areas > 0))
     corners = scene.points[scene.tri_vertices[faces]].astype(np.float64)
     centroids, normals = corners.mean(axis=1), scene.tri_normals[faces].astype(np.float64)

@@ -16,12 +16,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from glass_reference import slab_transmittance
 from patch_scenes import quad
 from tolerances import CATALOG_FORM_FACTOR, FLOAT32_STORAGE, FLOAT64_ROUNDING, GRAZING_RAY_FLIPS, MC_SIGMAS
 from usdbake.kernels.tracer import Tracer
 from usdbake.processors.daylight import gather
 from usdbake.processors.daylight.gather import trace_gather
-from usdbake.processors.daylight.glazing import Glazing, radiance_glass_transmittance
+from usdbake.processors.daylight.glazing import Glazing
 
 UP = np.array([0.0, 0.0, 1.0])
 RAYS = 1024
@@ -187,7 +188,7 @@ def glazed_form_factor(distance: float, vlt: float, nodes: int = 48) -> float:
     ux, uy = np.meshgrid(x, x, indexing="ij")
     r2 = ux ** 2 + uy ** 2 + distance ** 2
     cos = distance / np.sqrt(r2)
-    integrand = (1 - ux) * (1 - uy) * radiance_glass_transmittance(cos, vlt) * distance ** 2 / (np.pi * r2 ** 2)
+    integrand = (1 - ux) * (1 - uy) * slab_transmittance(cos, vlt) * distance ** 2 / (np.pi * r2 ** 2)
     return float(4.0 * w @ integrand @ w)
 
 
@@ -223,6 +224,6 @@ def test_a_pane_between_the_squares_weighs_each_landing_by_its_transmittance():
     open_g = trace_gather(tracer_of(corners), corners, normals, rays=RAYS, up=UP,
                           landing=np.arange(faces)).matrix.toarray().astype(np.float64)
     np.testing.assert_array_equal(g > 0, open_g > 0)
-    steepest = float(radiance_glass_transmittance(distance / np.sqrt(2 + distance ** 2), vlt))
+    steepest = float(slab_transmittance(distance / np.sqrt(2 + distance ** 2), vlt))
     assert (g <= vlt * open_g * (1 + FLOAT32_STORAGE)).all()
     assert (g >= steepest * open_g * (1 - FLOAT32_STORAGE)).all()

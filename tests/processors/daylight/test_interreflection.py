@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from glass_reference import slab_transmittance
 from daylight_boxes import box_with_skylight, grid_quads, quad_scene
 from tolerances import FLOAT32_ACCUMULATED, INTEGRATING_SPHERE, MC_SIGMAS, SKY_PATCH_INTEGRATION
 from usdbake.kernels.sky import tregenza_patches
@@ -114,7 +115,7 @@ def test_relighter_with_bounces_equals_compute_daylight():
 def test_a_face_under_glass_reads_the_panes_transmittance():
     """Under a wide horizontal pane of VLT t: the overhead sun (normal incidence) reads t x the open value within
     1%; the uniform sky reads the pane's hemispherical transmittance, 2 int t(theta) cos sin dtheta, of it."""
-    from usdbake.processors.daylight.glazing import Glazing, radiance_glass_transmittance
+    from usdbake.processors.daylight.glazing import Glazing
     from usdbake.processors.daylight.sun_visibility import compute_sun_visibility, sun_bin_hits, sun_levels
 
     vlt = 0.6
@@ -132,7 +133,7 @@ def test_a_face_under_glass_reads_the_panes_transmittance():
                           glazing=glazing)  # the annual sun's bytes keep the share, not a count of 2 rays
     np.testing.assert_allclose(stored / sun_levels(2), vlt, atol=1.0 / sun_levels(2))
     theta = np.linspace(0.0, np.pi / 2, 20001)
-    hemispherical = 2 * np.trapezoid(radiance_glass_transmittance(np.cos(theta), vlt) * np.cos(theta)
+    hemispherical = 2 * np.trapezoid(slab_transmittance(np.cos(theta), vlt) * np.cos(theta)
                                      * np.sin(theta), theta)
     np.testing.assert_allclose(product.exposure[under], hemispherical, rtol=SKY_PATCH_INTEGRATION)
 
