@@ -200,6 +200,21 @@ def _octree(tmp: str, sky_text: str, triangles, albedo, transmittance, up: str) 
     return octree
 
 
+def _timed_run(command: list[str], sky_text: str, triangles, albedo, transmittance, up: str, rays: str, *,
+               processes: int, workdir, timings: dict | None, stdin: str) -> bytes:
+    """Build the octree of the sky and the scene in a temporary folder, run ``command`` (its last argument, the
+    octree, replaced) on ``rays``, and record wall and CPU seconds, processes and the command in ``timings``."""
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        started, cpu = time.perf_counter(), _children_cpu()
+        octree = _octree(tmp, sky_text, triangles, albedo, transmittance, up)
+        out = _run(command[:-1] + [octree], input=rays.encode(), cwd=tmp)
+        seconds, cpu = time.perf_counter() - started, _children_cpu() - cpu
+    if timings is not None:
+        timings.update(radiance_seconds=seconds, radiance_cpu_seconds=cpu, processes=processes,
+                       command=" ".join(command) + f" < {stdin}")
+    return out
+
+
 def daylight_coefficients(triangles: np.ndarray | None, albedo: np.ndarray | None, sensors: np.ndarray,
                           normals: np.ndarray, *, up: str = "Z", mf: int = 1, ambient_bounces: int = 0,
                           ambient_divisions: int = 16384, limit_weight: float | None = None,
@@ -224,14 +239,8 @@ def daylight_coefficients(triangles: np.ndarray | None, albedo: np.ndarray | Non
     sensors, rays = _sensor_rays(sensors, normals, up, offset, dummies)
     command = rcontrib_command("scene.oct", mf=mf, ambient_bounces=ambient_bounces,
                                ambient_divisions=ambient_divisions, limit_weight=limit_weight, processes=processes)
-    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
-        started, cpu = time.perf_counter(), _children_cpu()
-        octree = _octree(tmp, SKY_RAD, triangles, albedo, transmittance, up)
-        out = _run(command[:-1] + [octree], input=rays.encode(), cwd=tmp)
-        seconds, cpu = time.perf_counter() - started, _children_cpu() - cpu
-    if timings is not None:
-        timings.update(radiance_seconds=seconds, radiance_cpu_seconds=cpu, processes=processes,
-                       command=" ".join(command) + " < sensors")
+    out = _timed_run(command, SKY_RAD, triangles, albedo, transmittance, up, rays, processes=processes,
+                     workdir=workdir, timings=timings, stdin="sensors")
     values = np.frombuffer(out, dtype=np.float32)
     nrows = _reinhart_rows(mf)
     if values.size != (dummies + len(sensors)) * nrows * 3:
@@ -295,14 +304,8 @@ def uniform_sky_irradiance(triangles: np.ndarray | None, albedo: np.ndarray | No
                                         ambient_divisions=ambient_divisions, limit_weight=limit_weight,
                                         processes=processes)
     sky_text = uniform_sky_rad(radiance, ground_reflectance * radiance if ground else None)
-    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
-        started, cpu = time.perf_counter(), _children_cpu()
-        octree = _octree(tmp, sky_text, triangles, albedo, transmittance, up)
-        out = _run(command[:-1] + [octree], input=rays.encode(), cwd=tmp)
-        seconds, cpu = time.perf_counter() - started, _children_cpu() - cpu
-    if timings is not None:
-        timings.update(radiance_seconds=seconds, radiance_cpu_seconds=cpu, processes=processes,
-                       command=" ".join(command) + " < points")
+    out = _timed_run(command, sky_text, triangles, albedo, transmittance, up, rays, processes=processes,
+                     workdir=workdir, timings=timings, stdin="points")
     values = np.frombuffer(out, dtype=np.float32)
     if values.size != (dummies + len(points)) * 3:
         raise RuntimeError(f"rtrace wrote {values.size} floats, expected {dummies + len(points)} x 3")

@@ -67,6 +67,20 @@ def add_xform(stage: Usd.Stage, path: str, translate=None, rotate_xyz=None, scal
     return xform
 
 
+def instanced_stage(path) -> str:
+    """A floor and two native instances of /Classes/Chair (a quad) above it, written to ``path``."""
+    stage = new_stage()
+    add_quads(stage, "/World/Floor", count=3)
+    stage.CreateClassPrim("/Classes/Chair")
+    add_quads(stage, "/Classes/Chair/Seat")
+    for name, x in (("A", 0.0), ("B", 2.0)):
+        prim = add_xform(stage, f"/World/{name}", translate=(x, 0.0, 0.5)).GetPrim()
+        prim.GetReferences().AddInternalReference("/Classes/Chair")
+        prim.SetInstanceable(True)
+    stage.GetRootLayer().Export(str(path))
+    return str(path)
+
+
 def add_preview_material(stage: Usd.Stage, path: str, diffuse=None, emissive=None, texture: str | None = None,
                          color_space: str | None = None) -> UsdShade.Material:
     """A Material with a UsdPreviewSurface; ``texture`` connects diffuseColor to a UsdUVTexture file."""

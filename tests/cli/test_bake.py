@@ -11,7 +11,7 @@ import pytest
 from pxr import Sdf
 
 import fake_processors as fakes
-from stage_builders import add_quads, add_xform, new_stage
+from stage_builders import instanced_stage
 from usdbake.cli.main import main
 
 FAST = ["--set", "ambient_occlusion.samples=16"]
@@ -35,20 +35,6 @@ def usage_line(code: int, out: str, err: str) -> str:
 @pytest.fixture
 def no_scheduler(monkeypatch):
     monkeypatch.delenv("DASK_SCHEDULER_ADDRESS", raising=False)
-
-
-def instanced_stage(path: Path) -> str:
-    """A floor and two native instances of /Classes/Chair (a quad) above it."""
-    stage = new_stage()
-    add_quads(stage, "/World/Floor", count=3)
-    stage.CreateClassPrim("/Classes/Chair")
-    add_quads(stage, "/Classes/Chair/Seat")
-    for name, x in (("A", 0.0), ("B", 2.0)):
-        prim = add_xform(stage, f"/World/{name}", translate=(x, 0.0, 0.5)).GetPrim()
-        prim.GetReferences().AddInternalReference("/Classes/Chair")
-        prim.SetInstanceable(True)
-    stage.GetRootLayer().Export(str(path))
-    return str(path)
 
 
 # --- option combinations, refused before any work ---------------------------------------------

@@ -10,7 +10,7 @@ import pytest
 from pxr import Sdf, Usd
 
 import fake_processors as fakes
-from stage_builders import add_quads, add_xform, new_stage
+from stage_builders import add_quads, instanced_stage, new_stage
 from usdbake.core.errors import StageError, UsageError
 from usdbake.core.pipeline import Pipeline
 from usdbake.core.records import Primvar
@@ -40,20 +40,6 @@ def phases(heard: list) -> list:
         else:
             runs.append((name, [fraction]))
     return [(name, [fractions[0], fractions[-1]]) for name, fractions in runs]
-
-
-def instanced_stage(path: Path) -> str:
-    """A floor and two native instances of /Classes/Chair (a quad) above it, written to ``path``."""
-    stage = new_stage()
-    add_quads(stage, "/World/Floor", count=3)
-    stage.CreateClassPrim("/Classes/Chair")
-    add_quads(stage, "/Classes/Chair/Seat")
-    for name, x in (("A", 0.0), ("B", 2.0)):
-        prim = add_xform(stage, f"/World/{name}", translate=(x, 0.0, 0.5)).GetPrim()
-        prim.GetReferences().AddInternalReference("/Classes/Chair")
-        prim.SetInstanceable(True)
-    stage.GetRootLayer().Export(str(path))
-    return str(path)
 
 
 # --- default_output and BakeReport ------------------------------------------------------------
