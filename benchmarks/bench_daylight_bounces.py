@@ -10,6 +10,8 @@ Figures:
   sun counts 6 more sensors); run time against Radiance at equal error: rcontrib at -ad 1024..8192 on the same
   sensors, its error against the reference, its time interpolated (log-log) to usdbake's error, gendaymtx
   included;
+- glazing: an open face under a wide pane of VLT 0.6: the overhead sun through it over the VLT (1 at normal
+  incidence by definition), and the uniform sky through it against Radiance's rtrace with a ``glass`` pane;
 - the furnished room (``furnished_daylight_room.furnished_daylight_room``: ~129k triangles, glazing VLT 0.7, on its own
   ground) under one uniform sky: `daylight`'s total irradiance at 150 random surface points against Radiance
   rtrace -ab 6;
@@ -31,7 +33,7 @@ from .daylight_references import furnished_reference, office_reference
 from .daylight_scenes import lm83_office
 from .furnished_daylight_room import furnished_daylight_room
 from .office_sun_reference import ase, office_sun_reference
-from .stage_readback import sample_baked
+from .stage_readback import sample_baked, stage_triangles
 from usdbake.formats.weather import read_weather
 from usdbake.kernels.sky import tregenza_patches
 from usdbake.kernels.tracer import Tracer
@@ -167,9 +169,53 @@ def furnished_figures() -> dict:
     return {"room_points": int(np.isfinite(ours).sum()), "room_usdbake_seconds": round(seconds, 2),
             "room_median_abs_error": round(float(np.nanmedian(np.abs(error))), 4),
             "room_bias": round(float(np.nanmedian(error)), 4),
+            "room_abs_bias": round(abs(float(np.nanmedian(error))), 4),
             "room_mean_ratio": round(float(np.nansum(ours) / np.sum(theirs[np.isfinite(ours)])), 4),
             "room_interreflected_share_radiance": round(float(np.median(1 - direct / np.maximum(theirs, 1e-9))), 3),
             "room_radiance_seconds": round(float(reference["rtrace_seconds"]), 1)}
+
+
+def glazing_figures(with_radiance: bool) -> dict:
+    """An open upward 1 m square under a 400 m pane of VLT 0.6, 0.5 m above it: the overhead sun (normal
+    incidence) through the pane over the open value, against the VLT; and the uniform sky seen through it
+    (``sky_visibility``'s exposure) against Radiance's rtrace with a ``glass`` pane (sky seen directly)."""
+    from pxr import Sdf, Usd, UsdGeom
+
+    from usdbake.processors.daylight.glazing import scene_glazing
+    from usdbake.processors.daylight.sun_visibility import compute_sun_visibility
+
+    vlt = 0.6
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    for path, corners in (("/World/Floor", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]),
+                          ("/World/Pane", [(-200, -200, 0.5), (200, -200, 0.5), (200, 200, 0.5), (-200, 200, 0.5)])):
+        mesh = UsdGeom.Mesh.Define(stage, path)
+        mesh.CreatePointsAttr(corners)
+        mesh.CreateFaceVertexCountsAttr([4])
+        mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    stage.GetPrimAtPath("/World/Pane").CreateAttribute("bake:transmittance", Sdf.ValueTypeNames.Float).Set(vlt)
+    scene = extract_scene(stage)
+    tracer = Tracer.from_scene(scene)
+    floor = np.flatnonzero(scene.tri_prim == scene.prim_paths.index("/World/Floor"))
+    corners = scene.points[scene.tri_vertices[floor]]
+    seen = compute_sun_visibility(tracer, corners, scene.tri_normals[floor], np.array([0.0, 0.0, 1.0]), samples=64,
+                                  glazing=scene_glazing(scene, tracer))
+    figures = {"glazing_sun_vs_vlt_error": round(float(np.abs(seen / vlt - 1).max()), 5)}
+    if not with_radiance:
+        return figures
+    from . import radiance_scene
+
+    product, _ = compute_sky_visibility(tracer, scene, patches=tregenza_patches(), samples=64, adaptive=False)
+    ours = float(product.exposure[product.face_prim == scene.prim_paths.index("/World/Floor")].mean())
+    read = stage_triangles(stage)
+    theirs = radiance_scene.uniform_sky_irradiance(read.triangles, np.zeros(len(read.triangles)),
+                                                   np.array([[0.5, 0.5, 0.0]]), np.array([[0.0, 0.0, 1.0]]),
+                                                   transmittance=read.transmittance, radiance=1.0, ambient_bounces=0,
+                                                   ambient_divisions=65536, ground=False, offset=1e-3)
+    theirs = float(theirs[0] @ RGB_LUMINANCE) / np.pi
+    figures.update({"glazing_sky_usdbake": round(ours, 4), "glazing_sky_radiance": round(theirs, 4),
+                    "glazing_sky_error": round(abs(ours / theirs - 1), 4)})
+    return figures
 
 
 def large_room_figures(faces: int) -> dict:
@@ -207,6 +253,7 @@ def run(quick: bool = False) -> dict:
 
     with_radiance = not quick and radiance_binaries.radiance_available()
     figures = office_figures(with_radiance)
+    figures.update(glazing_figures(with_radiance))
     if with_radiance:
         figures.update(furnished_figures())
     figures.update(large_room_figures(10_000 if quick else 100_000))
@@ -224,6 +271,8 @@ def run(quick: bool = False) -> dict:
     table += "\n\n" + harness.markdown_table([figures], [
         "faces", "annual_with_bounces_seconds", "annual_with_bounces_peak_mb", "interreflection_seconds",
         "patches", "relight_with_bounces_ms_median", "relight_with_bounces_ms_max"])
+    table += "\n\n" + harness.markdown_table([figures], [c for c in (
+        "glazing_sun_vs_vlt_error", "glazing_sky_usdbake", "glazing_sky_radiance", "glazing_sky_error") if c in figures])
     error = figures.get("office_mean_illuminance_median_abs_error", 0.0)
     return harness.result(NAME, description=DESCRIPTION, settings={"quick": quick},
                           points=[{"label": "defaults", "seconds": figures["office_usdbake_seconds"], "error": error,
