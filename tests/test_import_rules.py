@@ -2,7 +2,8 @@
 imports itself back through others.
 
     usdbake (the package root), cli, benchmarks   the top: the root's bake() and bake_many() call stages and
-                                                  farm; nothing imports the root, cli or benchmarks
+                                                  farm, its irradiance_at() stages and the techniques' own
+                                                  lookups; nothing imports the root, cli or benchmarks
                                                   (benchmarks import anything, ``usdbake bench`` runs them)
     farm, preview          -> stages, kernels, core (preview also geometry and formats)
     stages (+ schemas)     -> kernels, formats, core     USD lives here and in schemas/ only
@@ -40,7 +41,7 @@ MAY_IMPORT = {
     "preview": ("core", "kernels", "geometry", "formats", "stages"),
     "farm": ("core", "kernels", "stages"),
     "cli": ("core", "kernels", "stages", "preview", "farm"),
-    PACKAGE: ("core", "kernels", "schemas", "stages", "farm"),
+    PACKAGE: ("core", "kernels", "schemas", "stages", "farm", "processors"),
     "benchmarks": (*FOLDERS, PACKAGE),
 }
 """Layer (a folder, or ``usdbake``: the package root's ``__init__.py``) -> the other layers it may import."""
