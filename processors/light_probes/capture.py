@@ -15,16 +15,22 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ...core.scene import Scene
+from ...core.scene import LIGHT_DOME, Scene
 from ...kernels.light_bundles import SceneLighting, scene_lighting
 from ...kernels.lights import (Lights, Surfaces, hit_radiance_bounces, light_sample_count, sky_radiance,
                                visible_light_sample)
 from ...kernels.sampling import strata_for, stratified_pair
-from ...kernels.sh import COSINE_LOBE, project_kernel, sh_basis, uniform_sphere
+from ...kernels.sh import COSINE_LOBE, fibonacci_sphere_np, project_kernel, sh_basis, uniform_sphere
 from ...kernels.tracer import FAR
-from ...kernels.traversal import TraceScene, trace_closest
+from ...kernels.traversal import TraceScene, trace_any, trace_closest
 
 wp.set_module_options({"enable_backward": False})
+
+SKY_RAYS_PER_RAY = 4
+"""Sky visibility rays per capture ray while placing (``compute_probe_sh``'s ``sky_rays``): an any-hit ray
+costs a small share of a capture ray (a closest hit plus a shadow ray per light and bounce at the hit), and
+the sky seen through a window is what a few capture rays miss (the light_probes param ``sky_rays`` sets
+the final capture's)."""
 
 LIGHT_SAMPLES = 16
 """Stratified samples per small (non-dome) light and probe: a sphere, rect or disk light is too small
@@ -40,6 +46,14 @@ def _directions_26() -> np.ndarray:
 PROBE_DIRECTIONS = _directions_26()
 """(26, 3) the inside-test rays and Sukys' 26 sampling directions of an SH (axes + pair sums)."""
 
+REVOTE_MARGIN = 2
+"""A 26-ray vote within this many votes of a tie is cast again with REVOTE_DIRECTIONS rays: beside a wall, a
+point inside a slab whose outer edge is the wall (the atrium's gallery floors) sees the wall's front through
+a third of the 26 rays and ties, though most directions meet the backs of the slab's faces."""
+
+REVOTE_DIRECTIONS = fibonacci_sphere_np(256).astype(np.float32)
+"""(256, 3) the rays of a second vote (Fibonacci sphere, nearly uniform)."""
+
 
 
 @wp.kernel
@@ -53,13 +67,15 @@ def capture_kernel(
     seed: int,
     first: int,
     bounces: int,
+    see_sky: int,
     epsilon: float,
     directions: wp.array(dtype=wp.vec3),
     radiance: wp.array(dtype=wp.vec3),
 ):
     """Ray i = probe * strata^2 + k: incident radiance L(w) at the probe from stratified direction k
-    (escaped rays see the dome; hits return emission + ``bounces`` bounces of light, ``hit_radiance_bounces``);
-    the Monte Carlo input of the SH projection, Sukys section 2.3 / Ramamoorthi & Hanrahan eq. 7.
+    (escaped rays see the dome, or nothing when ``see_sky`` is 0 and ``sky_kernel`` estimates the dome;
+    hits return emission + ``bounces`` bounces of light, ``hit_radiance_bounces``); the Monte Carlo input
+    of the SH projection, Sukys section 2.3 / Ramamoorthi & Hanrahan eq. 7.
     ``first``: global index of probe 0 (a chunk's start), which with i seeds the ray."""
     i = start + wp.tid()
     samples = strata * strata
@@ -71,10 +87,43 @@ def capture_kernel(
     directions[i] = d
     origin = probe_positions[probe]
     q = trace_closest(scene, origin, d, FAR)
-    value = sky_radiance(lights, d)
+    value = wp.vec3(0.0, 0.0, 0.0)
+    if see_sky != 0:
+        value = sky_radiance(lights, d)
     if q.result:
         value = hit_radiance_bounces(scene, surfaces, lights, origin, d, q.face, q.t, 1, bounces, epsilon,
                                      wp.rand_init(wp.int32(state), samples))
+    radiance[i] = value
+
+
+@wp.kernel
+def sky_kernel(
+    start: int,
+    scene: TraceScene,
+    lights: Lights,
+    probe_positions: wp.array(dtype=wp.vec3),
+    strata: int,
+    seed: int,
+    first: int,
+    directions: wp.array(dtype=wp.vec3),
+    radiance: wp.array(dtype=wp.vec3),
+):
+    """Ray i = probe * strata^2 + k: the dome's part of L(w), sky_radiance(w) V(w), from stratified uniform
+    direction k (an any-hit visibility ray; the capture rays then count only what they hit). The two
+    integrals of L = L_sky V + L_hit (1 - V) are estimated apart, each unbiased, so the sky seen through a
+    window gets many cheap rays while the hits keep their bounces (Sukys 2.3; the split is the direct /
+    indirect separation of PBRT 4e, 13.4)."""
+    i = start + wp.tid()
+    samples = strata * strata
+    probe = i // samples
+    k = i - probe * samples
+    state = wp.rand_init(seed, first * samples + i)
+    u = stratified_pair(k, strata, state)
+    d = uniform_sphere(u[0], u[1])
+    directions[i] = d
+    value = wp.vec3(0.0, 0.0, 0.0)
+    if not trace_any(scene, probe_positions[probe], d, FAR):
+        value = sky_radiance(lights, d)
     radiance[i] = value
 
 
@@ -138,13 +187,16 @@ def inside_kernel(
 
 def compute_probe_sh(tracer, scene: Scene, positions: np.ndarray, *, rays: int, seed: int = 0,
                      lighting: SceneLighting | None = None, first: int = 0, bounces: int = 1,
-                     direct_lights: bool = True) -> np.ndarray:
+                     direct_lights: bool = True, sky_rays: int | None = None) -> np.ndarray:
     """Irradiance SH (P, 9, 3) float32 (W/m^2) at probe positions (P, 3) in the scene frame.
 
     Radiance by ray casting with ``bounces`` bounces of light at the hits (module docstring),
     projected on L2 SH, plus (``direct_lights``) the non-geometric lights as visible point sources,
     convolved with the clamped cosine. Without ``direct_lights`` the probe holds what an engine's
     real-time lights leave out: the dome and light that bounced (Sukys 3.1.2, light decoupling).
+    ``sky_rays``: visibility rays per probe (rounded to a square) that estimate the dome's part apart
+    (``sky_kernel``), so a probe that sees the sky through a window is not decided by the few capture
+    rays that leave through it; None: the capture rays see the dome themselves.
     ``first``: the global index of positions[0], which seeds its rays (a chunk of a larger set, core.chunks).
     """
     positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
@@ -157,42 +209,76 @@ def compute_probe_sh(tracer, scene: Scene, positions: np.ndarray, *, rays: int, 
     probes_wp = tracer.array(positions, wp.vec3)
     directions = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
     radiance = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
+    separate_sky = sky_rays is not None and has_dome(scene)
     tracer.launch(capture_kernel, count * samples, [
         tracer.scene, lighting.surfaces, lighting.lights, probes_wp, strata, int(seed), int(first), int(bounces),
-        tracer.epsilon, directions, radiance,
+        0 if separate_sky else 1, tracer.epsilon, directions, radiance,
     ])
     coefficients = wp.zeros((count, 27), dtype=float, device=tracer.device)
     tracer.launch(project_kernel, count, [directions, radiance, samples, coefficients])
     tracer.rays_cast += count * samples * bounces * (1 + lighting.shadow_rays)
+    sky = np.zeros((count, 27))
+    if separate_sky:
+        sky = sky_radiance_sh(tracer, lighting, probes_wp, count, rays=int(sky_rays), seed=int(seed) + 2,
+                              first=int(first))
     if direct_lights:
         light_strata = strata_for(LIGHT_SAMPLES)
         tracer.launch(probe_lights_kernel, count, [tracer.scene, lighting.lights, probes_wp, light_strata,
                                                    int(seed) + 1, int(first), coefficients])
         tracer.rays_cast += count * len(scene.lights) * LIGHT_SAMPLES
-    radiance_sh = np.nan_to_num(coefficients.numpy().reshape(count, 9, 3).astype(np.float64),
+    radiance_sh = np.nan_to_num((coefficients.numpy().astype(np.float64) + sky).reshape(count, 9, 3),
                                 nan=0.0, posinf=0.0, neginf=0.0)
     return (radiance_sh * COSINE_LOBE[None, :, None]).astype(np.float32)
 
 
-def classify_points(tracer, lighting: SceneLighting, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(inside (N,) bool, nearest hit distance (N,) float32) by the 26-ray back-face vote."""
-    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+def has_dome(scene: Scene) -> bool:
+    """The scene has a dome light (escaped rays see something)."""
+    return bool(len(scene.lights) and (np.asarray(scene.lights.light_kind) == LIGHT_DOME).any())
+
+
+def sky_radiance_sh(tracer, lighting: SceneLighting, probes_wp: wp.array, count: int, *, rays: int, seed: int,
+                    first: int) -> np.ndarray:
+    """(count, 27) float64 radiance SH of the dome seen from the probes (``sky_kernel``: ``rays`` stratified
+    visibility rays per probe, rounded to a square), in ``project_kernel``'s layout."""
+    strata = strata_for(rays)
+    samples = strata * strata
+    directions = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
+    radiance = wp.zeros(count * samples, dtype=wp.vec3, device=tracer.device)
+    tracer.launch(sky_kernel, count * samples, [tracer.scene, lighting.lights, probes_wp, strata, seed, first,
+                                                directions, radiance])
+    coefficients = wp.zeros((count, 27), dtype=float, device=tracer.device)
+    tracer.launch(project_kernel, count, [directions, radiance, samples, coefficients])
+    tracer.rays_cast += count * samples
+    return coefficients.numpy().astype(np.float64)
+
+
+def _vote(tracer, lighting: SceneLighting, positions: np.ndarray, directions: np.ndarray):
     n = len(positions)
     votes = wp.zeros(n, dtype=int, device=tracer.device)
     nearest = wp.zeros(n, dtype=float, device=tracer.device)
     if n:
         tracer.launch(inside_kernel, n, [tracer.scene, tracer.array(positions, wp.vec3),
-                                         tracer.array(PROBE_DIRECTIONS, wp.vec3), lighting.surfaces, votes,
-                                         nearest])
-        tracer.rays_cast += n * len(PROBE_DIRECTIONS)
-    return votes.numpy() > 0, nearest.numpy()
+                                         tracer.array(directions, wp.vec3), lighting.surfaces, votes, nearest])
+        tracer.rays_cast += n * len(directions)
+    return votes.numpy(), nearest.numpy()
+
+
+def classify_points(tracer, lighting: SceneLighting, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(inside (N,) bool, nearest hit distance (N,) float32) by the 26-ray back-face vote; votes within
+    REVOTE_MARGIN of a tie are cast again with the REVOTE_DIRECTIONS (the nearest hit stays the 26 rays')."""
+    positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
+    votes, nearest = _vote(tracer, lighting, positions, PROBE_DIRECTIONS)
+    close = np.flatnonzero(np.abs(votes) <= REVOTE_MARGIN)
+    if len(close):
+        votes[close] = _vote(tracer, lighting, positions[close], REVOTE_DIRECTIONS)[0]
+    return votes > 0, nearest
 
 
 def probe_sh_chunk(tracer, first: int, positions: np.ndarray, *, scene: Scene, rays: int, seed: int,
-                   bounces: int = 1, direct_lights: bool = True) -> np.ndarray:
+                   bounces: int = 1, direct_lights: bool = True, sky_rays: int | None = None) -> np.ndarray:
     """``compute_probe_sh`` of probes first .. first + len(positions) - 1: one chunk (core.chunks)."""
     return compute_probe_sh(tracer, scene, positions, rays=rays, seed=seed, first=first, bounces=bounces,
-                            direct_lights=direct_lights)
+                            direct_lights=direct_lights, sky_rays=sky_rays)
 
 
 @wp.kernel

@@ -17,7 +17,9 @@ of the empty space instead (``processors/light_probes/conforming.py``: one probe
 every surface).
 
 **Capture** (``processors/light_probes/capture.py``). ``rays`` stratified sphere
-directions per probe; escaped rays see the dome, hits return
+directions per probe and ``sky_rays`` stratified visibility rays that see the dome (its
+part of the radiance estimated apart, so a probe lit through a window is not decided by a
+few rays); hits return
 ``L_e + rho (E0 + E_ind) / pi`` with ``bounces`` bounces; the lights that are not
 geometry are projected as visible sources only with ``direct_lights=probes``,
 otherwise ``irradiance_at`` adds them at the lookup by shadow rays. The
@@ -87,7 +89,7 @@ def cloud_records(cloud: ProbeCloud, origin: np.ndarray) -> list:
 
 class LightProbes(Processor):
     name = "light_probes"
-    version = "3"
+    version = "4"
     summary = "Light probe cloud: placement by gradient ascent + spawn/merge, L2 SH irradiance, tetrahedra."
     facets = ("geometry", "materials", "lights")
     provides = (ProbeCloud,)
@@ -102,6 +104,9 @@ class LightProbes(Processor):
         contrast: float = param(0.25, "edge contrast above which a probe is spawned at the midpoint",
                                 low=0.0, high=1.0)
         rays: int = param(256, "capture rays per probe (rounded to a square)", low=1, high=1_000_000)
+        sky_rays: int = param(1024, "visibility rays per probe that look for the dome (rounded to a square; "
+                              "cheap any-hit rays, so the sky seen through a window is not left to the few capture "
+                              "rays that leave through it)", low=1, high=1_000_000)
         placement_rays: int = param(64, "capture rays per probe while placing", low=1, high=1_000_000)
         leak_fix: bool = param(True, "delaunay: wall probes, ray-cast tetrahedron edges, stop interpolation "
                                      "across blockers")
@@ -169,7 +174,7 @@ class LightProbes(Processor):
         started = time.perf_counter()
         direct_in_probes = p.direct_lights == "probes"
         sh = ctx.chunks.map(probe_sh_chunk, (capture_at,), scene=scene, rays=p.rays, seed=p.seed + 1_000_003,
-                            bounces=p.bounces, direct_lights=direct_in_probes)
+                            bounces=p.bounces, direct_lights=direct_in_probes, sky_rays=p.sky_rays)
         stats["capture_seconds"] = time.perf_counter() - started
         deringed = 0
         if p.dering:

@@ -32,7 +32,7 @@ from ...kernels.lights import LUMINANCE
 from ...kernels.sh import sh_basis_np
 from . import tetrahedra
 from .ascent import variation_gradient
-from .capture import PROBE_DIRECTIONS, classify_points, compute_probe_sh
+from .capture import PROBE_DIRECTIONS, SKY_RAYS_PER_RAY, classify_points, compute_probe_sh
 from .conforming import ConformingMesh, conforming_mesh
 from .interpolation import build_cloud, interpolate_sh, segment_blocked
 
@@ -207,7 +207,7 @@ def place_probes(tracer, scene: Scene, *, probes: int, min_spacing: float = 0.0,
     def capture(points: np.ndarray, capture_seed: int) -> np.ndarray:
         # Light decoupling (Sukys 3.1.2): placement sees the dome and light that bounced, not the real-time lights.
         return compute_probe_sh(tracer, scene, points, rays=placement_rays, seed=capture_seed, lighting=lighting,
-                                bounces=bounces, direct_lights=False)
+                                bounces=bounces, direct_lights=False, sky_rays=SKY_RAYS_PER_RAY * placement_rays)
 
     sh = capture(positions, seed + 1)
     capture_seed = seed + 2
@@ -354,7 +354,7 @@ def refine_placement(tracer, scene: Scene, *, probes: int, placement_rays: int =
     if len(candidates) <= 4:
         return empty
     sh = compute_probe_sh(tracer, scene, candidates, rays=placement_rays, seed=seed + 1, lighting=lighting,
-                          bounces=bounces, direct_lights=False)
+                          bounces=bounces, direct_lights=False, sky_rays=SKY_RAYS_PER_RAY * placement_rays)
     truth = sample_irradiance(sh)
     start = candidate_grid(lo, hi, grid_spacing(lo, hi, max(8, int(REFINE_START_SHARE * probes))), 0.0, rng)
     in_cloud = np.zeros(len(candidates), bool)
