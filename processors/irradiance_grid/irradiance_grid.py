@@ -5,9 +5,11 @@ of 3D Scenes with Complex Geometry and Complex Lighting", Web3D 2008
 (doi:10.1145/1394209.1394214), sections 3 and 4.1.
 
 **Grid.** A regular grid of cubic cells over the union of the stage's probe
-volumes (prims with the ProbeVolumeAPI schema: a room on a 200 m ground plane
-gets its grid in the room, not on the lawn), or over the scene bounds when
-there are none: ``cell_size``
+volumes (prims with the ProbeVolumeAPI schema), or, with none, over the
+receivers that are not backdrops (``geometry.mesh.backdrop_prims``: a room on
+a 200 m ground plane gets its grid around the room, not on the lawn, and the
+result names the backdrops left out) grown by ``vector_grid.RECEIVER_MARGIN``
+of their diagonal (the scene bounds when nothing is a backdrop): ``cell_size``
 stage units, or (``cell_size = 0``) the size that gives at most ``vertices``
 vertices. Each axis has ``n = max(2, ceil(extent / h + 0.5) + 1)`` vertices
 centred on the bounds, so the outer vertices lie between h/4 and 3h/4
@@ -35,11 +37,24 @@ UsdLux lights (distant, sphere, rect, disk) are added directly
 (``sample_light``): ``rays`` stratified shadow-ray samples each (one for a
 zero-angle distant light), each adding ``L weight w`` (weight = the solid
 angle the sample stands for) to every hemisphere containing w.
-``bounces = k`` > 1 carries more light: k - 1 indirect-only passes come first,
-and in each later pass a hit y also reflects ``rho(y) / pi E_ind(y)``, with
-E_ind(y) read from the previous pass's grid at y moved half a cell along its
-normal (``kernels/grid_irradiance.grid_irradiance``, the paper's
-reconstruction as a ``wp.func``): light that has bounced k times.
+``bounces = k`` > 1 carries more light: k - 1 indirect-only passes come first
+(no dome, no emission, no small lights: pass j holds the light reflected 1 .. j
+times), and in each later pass a hit y also reflects ``rho(y) / pi E_ind(y)``
+with E_ind(y) read from the previous pass's indirect grid
+(``grid_irradiance.visible_grid_irradiance``)::
+
+    E_ind(y) = max(0, sum_c w_c V_c sum_a n_a^2 (I_{c,a} . n)) / sum_c w_c V_c
+
+over the trilinear corners c of p = y + min(BOUNCE_OFFSET cells, t_n / 2) n,
+V_c = 0 for a corner behind y's plane or hidden from p (a shadow ray), so a
+hit never reads vertices beyond its wall (a sky-lit lawn outside a room's
+single-sided wall made each pass add light that is not there; black
+vertices outside a closed box dropped a third of each bounce); a hit more
+than half a cell off the grid reads 0. The paper's weights make the read a
+lower bound of the corners' light (``I_a . n <= E(n)``, ``sum n_a^2 = 1``), so
+the passes converge from below; what remains is first order in the cell size
+(the first vertex layer lies up to a cell off the wall: +5% of a bounce with
+14 cells across a closed box, tests/processors/irradiance_grid/test_grid_bounces.py).
 ``include_direct = false`` keeps only the light the scene reflects (no dome,
 no emission, no direct lights): the paper's indirect-only grid, for a
 renderer that adds direct light itself.
@@ -123,11 +138,11 @@ from ...core.chunks import SceneChunks
 from .products import IrradianceGridProduct
 from ...core.scene import Scene
 from ...formats import streaming
-from ...geometry.mesh import receiver_prims, vertex_normals
+from ...geometry.mesh import backdrop_prims, receiver_prims, vertex_normals
 from ...kernels.light_bundles import NO_LIGHTS, SceneLighting, emissive_lights, has_light, scene_lighting
 from ...kernels.lights import Lights, Surfaces, hit_radiance, light_sample_count, sky_radiance, visible_light_sample
 from ...kernels.direction24 import AXES, decode_directions, dequantize_vectors, encode_directions
-from .grid_irradiance import GridVectors, grid_irradiance, grid_vectors
+from .grid_irradiance import GridVectors, grid_vectors, visible_grid_irradiance
 from ...kernels.rgb9e5 import encode_rgb9e5
 from ...kernels.sampling import strata_for, stratified_pair
 from ...kernels.sh import uniform_sphere
@@ -219,7 +234,7 @@ def irradiance_vectors_kernel(
             if use_bounce != 0 and (wp.dot(hn, d) < 0.0 or surfaces.tri_double_sided[q.face] != 0):
                 if wp.dot(hn, d) > 0.0:
                     hn = -hn  # the side the ray sees
-                e_ind = grid_irradiance(bounce, p + d * q.t + hn * bounce_offset, hn)
+                e_ind = visible_grid_irradiance(scene, bounce, p + d * q.t, hn, bounce_offset, epsilon)
                 value += wp.cw_mul(surfaces.tri_albedo[q.face], e_ind) * (1.0 / wp.pi)
         if wp.length_sq(value) > 0.0:
             add_to_hemispheres(vectors, base, d, wp.outer(value * weight, d))
@@ -384,7 +399,7 @@ def stream_bytes(grid: IrradianceGridProduct, origin: np.ndarray) -> bytes:
 
 class IrradianceGrid(Processor):
     name = "irradiance_grid"
-    version = "2"
+    version = "3"
     summary = "Irradiance vector grid: 6 vectors per vertex, 8-bit direction + RGB9E5, progressive stream."
     facets = ("geometry", "materials", "lights")
     follows_refinement = True
@@ -448,6 +463,14 @@ class IrradianceGrid(Processor):
         if len(scene.probe_volumes):
             messages.append(f"grid over {len(scene.probe_volumes)} probe volume(s) (ProbeVolumeAPI): "
                             f"{' x '.join(f'{x:.3g}' for x in hi - lo)} stage units, cell {layout.cell_size[0]:.3g}")
+        backdrops, _ = backdrop_prims(scene)
+        if not len(scene.probe_volumes) and len(backdrops):
+            stats["backdrops_left_out"] = float(len(backdrops))
+            messages.append(f"grid placed around the receivers, leaving out the backdrop(s) "
+                            f"{', '.join(scene.prim_paths[int(b)] for b in backdrops[:3])}"
+                            f"{' ...' if len(backdrops) > 3 else ''} (a ProbeVolumeAPI prim says where the grid "
+                            f"goes): {' x '.join(f'{x:.3g}' for x in hi - lo)} stage units, cell "
+                            f"{layout.cell_size[0]:.3g}")
         invalid = v - int(grid.vertex_valid.sum())
         if invalid:
             messages.append(f"{invalid} of {v} grid vertices are inside geometry (filled by push-pull)")

@@ -14,6 +14,7 @@ import numpy as np
 
 from ...core.scene import Scene
 from ...formats import streaming
+from ...geometry.mesh import receiver_detail_box
 
 MAX_GRID_VERTICES = 50_000_000
 """Refuse grids larger than this (a tiny cell_size on a large scene): about 10 GB of float vectors."""
@@ -40,12 +41,25 @@ def _axis_counts(extent: np.ndarray, h: float) -> np.ndarray:
     return np.maximum(2, np.ceil(extent / h + 0.5).astype(np.int64) + 1)
 
 
+RECEIVER_MARGIN = 0.1
+"""Without probe volumes, the grid spans the non-backdrop receivers' bounds grown by this share of their
+diagonal on every side (the rule light_probes places its probes by), clipped to the scene's bounds."""
+
+
 def grid_bounds(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """Where the grid goes: the union of the stage's probe volumes (prims with ProbeVolumeAPI), or, with none,
-    the scene's bounds."""
+    """Where the grid goes: the union of the stage's probe volumes (prims with ProbeVolumeAPI); with none, the
+    bounds of the receivers that are not backdrops (``geometry.mesh.backdrop_prims``: a 200 m ground under a
+    6 m room) grown by RECEIVER_MARGIN of their diagonal and clipped to the scene's bounds; the scene's bounds
+    when no receiver is a backdrop."""
     if len(scene.probe_volumes):
         return scene.probe_volumes[:, 0].min(axis=0), scene.probe_volumes[:, 1].max(axis=0)
-    return scene.bounds
+    lo, hi = (np.asarray(b, np.float64) for b in scene.bounds)
+    detail = receiver_detail_box(scene)
+    if detail is None:
+        return lo, hi
+    inner_lo, inner_hi = detail
+    margin = RECEIVER_MARGIN * float(np.linalg.norm(inner_hi - inner_lo))
+    return np.maximum(inner_lo - margin, lo), np.minimum(inner_hi + margin, hi)
 
 
 def grid_layout(lo: np.ndarray, hi: np.ndarray, *, cell_size: float = 0.0, vertices: int = 20000) -> GridLayout:

@@ -416,6 +416,37 @@ def test_more_bounces_carry_the_light_a_path_tracer_sees(lit_room):
     assert all(abs(share / shares[0] - 1.0) <= GRID_BOUNCE_SHARE for share in shares[1:]), shares
 
 
+def test_without_a_probe_volume_the_grid_leaves_the_backdrop_out():
+    """The same room on its 200 m ground without a probe volume: the grid spans the room grown by
+    RECEIVER_MARGIN of its diagonal (not the lawn, whose 2.5 m cells would light the room from outside), and
+    the result names the backdrop it left out."""
+    from stage_builders import add_mesh, new_stage
+    from pxr import UsdLux
+    from usdbake.processors.irradiance_grid.vector_grid import RECEIVER_MARGIN
+    from usdbake.stages.extract import extract_scene
+
+    stage = new_stage(up_axis="Z")
+    add_mesh(stage, "/World/Ground", [(-100, -100, 0), (100, -100, 0), (100, 100, 0), (-100, 100, 0)], [4],
+             [0, 1, 2, 3])
+    box = [(x, y, z) for z in (0, 3) for y in (-2, 2) for x in (-2, 2)]
+    add_mesh(stage, "/World/Room", box, [4] * 6, [0, 2, 3, 1, 4, 5, 7, 6, 0, 1, 5, 4, 2, 6, 7, 3, 0, 4, 6, 2,
+                                                 1, 3, 7, 5])
+    UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(1.0)
+    scene = extract_scene(stage)
+    margin = RECEIVER_MARGIN * np.linalg.norm([4.0, 4.0, 3.0])
+    lo, hi = grid_bounds(scene)
+    expected_lo = np.maximum(np.array([-2.0, -2.0, 0.0]) - margin, scene.bounds[0] + scene.origin)
+    np.testing.assert_allclose(lo + scene.origin, expected_lo, atol=FLOAT32_ROUNDING * 100)
+    np.testing.assert_allclose(hi + scene.origin, np.minimum(np.array([2.0, 2.0, 3.0]) + margin,
+                                                          scene.bounds[1] + scene.origin), atol=FLOAT32_ROUNDING * 100)
+    result, _ = run(scene, vertices=1000, rays=16)
+    assert result.stats["backdrops_left_out"] == 1.0
+    assert any(m.startswith("grid placed around the receivers, leaving out the backdrop(s) /World/Ground")
+               for m in result.messages), result.messages
+    np.testing.assert_allclose(result.products[IrradianceGridProduct].layout.cell_size,
+                               grid_layout(lo, hi, vertices=1000).cell_size)
+
+
 def test_the_grid_goes_where_the_probe_volume_is():
     """A 4 x 4 x 3 m room on a 200 m ground plane: with a ProbeVolumeAPI cube around the room the grid lies
     over the room (its cells 0.3 m, not 8 m); an extentless volume is refused naming the prim."""
@@ -432,7 +463,7 @@ def test_the_grid_goes_where_the_probe_volume_is():
     add_mesh(stage, "/World/Room", box, [4] * 6, [0, 2, 3, 1, 4, 5, 7, 6, 0, 1, 5, 4, 2, 6, 7, 3, 0, 4, 6, 2,
                                                  1, 3, 7, 5])
     UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(1.0)
-    whole = grid_layout(*grid_bounds(extract_scene(stage)), vertices=1000)
+    whole = grid_layout(*extract_scene(stage).bounds, vertices=1000)  # the whole stage, lawn included
     cube = UsdGeom.Cube.Define(stage, "/World/RoomVolume")
     UsdGeom.Xformable(cube).AddTranslateOp().Set(Gf.Vec3d(0, 0, 1.5))
     UsdGeom.Xformable(cube).AddScaleOp().Set(Gf.Vec3f(2, 2, 1.5))

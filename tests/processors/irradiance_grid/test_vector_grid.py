@@ -22,9 +22,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from patch_scenes import make_scene, quad
-from tolerances import FLOAT32_ACCUMULATED, FLOAT32_STORAGE, FLOAT64_ROUNDING, ON_BOUNDARY
-from usdbake.processors.irradiance_grid.vector_grid import (MAX_GRID_VERTICES, GridLayout, grid_bounds, grid_layout,
-                                                            reconstruct_irradiance, trilinear)
+from tolerances import FLOAT32_ACCUMULATED, FLOAT32_ROUNDING, FLOAT32_STORAGE, FLOAT64_ROUNDING, ON_BOUNDARY
+from usdbake.processors.irradiance_grid.vector_grid import (MAX_GRID_VERTICES, RECEIVER_MARGIN, GridLayout, grid_bounds,
+                                                            grid_layout, reconstruct_irradiance, trilinear)
 
 extent = st.floats(0.0, 50.0, allow_nan=False)
 corner = st.floats(-100.0, 100.0, allow_nan=False)
@@ -76,11 +76,18 @@ def test_positions_run_x_fastest():
                                            atol=FLOAT32_STORAGE)
 
 
-def test_grid_bounds_are_the_probe_volumes_else_the_scene():
-    scene = make_scene([quad([-5, -5, 0], [10, 0, 0], [0, 10, 0]), quad([0, 0, 3], [1, 0, 0], [0, 1, 0])])
+def test_grid_bounds_are_the_probe_volumes_else_the_receivers_without_backdrops():
+    """No backdrop: the scene's bounds. A 10 m quad under a 1 m one is a backdrop: the grid spans the small
+    quad grown by RECEIVER_MARGIN of its diagonal, clipped to the scene. Probe volumes win over both."""
+    scene = make_scene([quad([-5, -5, 0], [10, 0, 0], [0, 10, 0]), quad([-4, -4, 3], [8, 0, 0], [0, 8, 0])])
     lo, hi = grid_bounds(scene)
     np.testing.assert_array_equal(lo, [-5, -5, 0])
     np.testing.assert_array_equal(hi, [5, 5, 3])
+    scene = make_scene([quad([-5, -5, 0], [10, 0, 0], [0, 10, 0]), quad([0, 0, 3], [1, 0, 0], [0, 1, 0])])
+    lo, hi = grid_bounds(scene)
+    margin = RECEIVER_MARGIN * np.sqrt(2.0)
+    np.testing.assert_allclose(lo, [-margin, -margin, 3 - margin], atol=FLOAT32_ROUNDING)
+    np.testing.assert_allclose(hi, [1 + margin, 1 + margin, 3], atol=FLOAT32_ROUNDING)
     volumes = np.array([[[0, 0, 0], [1, 2, 1]], [[-1, 0.5, 0.2], [0.5, 1, 4]]], np.float64)
     lo, hi = grid_bounds(dataclasses.replace(scene, probe_volumes=volumes))
     np.testing.assert_array_equal(lo, [-1, 0, 0])
