@@ -9,7 +9,7 @@ The apply half of Shcherbakov (MSU 2017), section 5: for the current lights,
    ``direct_irradiance`` of the shared light model (kernels/lights.py:
    UsdLux distant, dome, sphere, rect and disk lights, and emissive
    triangles picked by power, ``light_samples`` stratified samples per light).
-   The domes by ``kernels/sky_guide``: ``sky_training`` cosine rays a point
+   The domes by ``sky_guide``: ``sky_training`` cosine rays a point
    learn, per group of nearby points facing one axis, where the sky is seen
    (through a window: a few directions), then ``sky_samples`` rays, a quarter
    cosine-weighted and the rest drawn from that guide, are combined by the
@@ -72,7 +72,7 @@ from ...core.scene import LIGHT_DOME, Scene
 from ...geometry.mesh import missing_receivers, receiver_prims, vertex_normals
 from ...kernels.light_bundles import NO_LIGHTS, has_light, light_bundle, shadow_rays_per_point
 from ...kernels.lights import Lights, direct_irradiance
-from ...kernels.sky_guide import guided_ray_split, guided_sky_irradiance, learn_sky_guides
+from .sky_guide import guided_ray_split, guided_sky_irradiance, learn_sky_guides
 from .operator_relight import OperatorRelighter
 from .patch_kernels import fragment_of_hit
 from ...kernels.sampling import cosine_hemisphere, strata_for, tangent_frame
@@ -123,7 +123,7 @@ def compute_direct_irradiance(tracer, scene: Scene, positions: np.ndarray, norma
     """(N, 3) float32 direct irradiance (W/m^2) at points with unit normals (zero normal -> 0).
 
     positions, normals : (N, 3) float32 in the scene frame. With dome lights, ``sky_training`` cosine rays
-    a point first learn where the sky is seen (``kernels/sky_guide``), then ``sky_samples`` rays estimate it.
+    a point first learn where the sky is seen (``sky_guide``), then ``sky_samples`` rays estimate it.
     """
     positions = np.ascontiguousarray(positions, np.float32).reshape(-1, 3)
     normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
@@ -418,7 +418,7 @@ class Radiosity(Processor):
         light_samples: int = param(16, "shadow-ray samples per light, and for the emissive triangles "
                                    "(picked by power)", low=1, high=65536)
         sky_samples: int = param(256, "rays a point for the dome lights: a quarter cosine-weighted, the rest "
-                                 "from the sky guide learned by the training rays (kernels/sky_guide)",
+                                 "from the sky guide learned by the training rays (sky_guide.py)",
                                  low=1, high=65536)
         sky_training: int = param(16, "cosine rays a point that learn where the sky is seen (pooled over "
                                   "groups of nearby points facing one axis); 0 = cosine rays alone",

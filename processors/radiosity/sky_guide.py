@@ -38,10 +38,10 @@ import numpy as np
 import warp as wp
 from scipy.ndimage import uniform_filter
 
-from .lights import LUMINANCE, Lights, shadow_visible, sky_radiance
-from .sampling import cosine_hemisphere, strata_for, stratified_pair
-from .tracer import FAR, surface_origin
-from .traversal import TraceScene
+from ...kernels.lights import LUMINANCE, Lights, shadow_visible, sky_radiance
+from ...kernels.sampling import cosine_hemisphere, strata_for, stratified_pair
+from ...kernels.tracer import FAR, surface_origin
+from ...kernels.traversal import TraceScene
 
 wp.set_module_options({"enable_backward": False})
 

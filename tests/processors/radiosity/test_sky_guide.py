@@ -1,4 +1,4 @@
-"""kernels/sky_guide: guided sky irradiance against the closed form of a skylight, and its groups.
+"""processors/radiosity/sky_guide: guided sky irradiance against the closed form of a skylight, and its groups.
 
 A closed 4 x 4 x 3 room whose only opening is a 0.6 m square skylight at the centre of its ceiling, under a
 uniform dome of radiance L: a floor point receives ``E = pi L F``, F the view factor from a differential area
@@ -15,7 +15,7 @@ from patch_scenes import make_scene, quad
 from lit_scenes import make_lights
 from tolerances import MC_SIGMAS
 from usdbake.core.scene import LIGHT_DOME
-from usdbake.kernels.sky_guide import GUIDE_POINTS, guide_groups
+from usdbake.processors.radiosity.sky_guide import GUIDE_POINTS, guide_groups
 from usdbake.kernels.tracer import Tracer
 from usdbake.processors.radiosity import radiosity as rad
 
