@@ -51,6 +51,9 @@ class Lights:
     a run whose processors never read the lights (ambient occlusion) never reads the file."""
     dome_to_local: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float64))
     """(3, 3) float64 rotation taking a world direction into the textured dome's frame (row vectors)."""
+    textured_dome: int = -1
+    """Row of the DomeLight whose texture ``dome_texture`` is; the other domes stay uniform. -1: every dome
+    is modulated by it (lights built as arrays, without a stage)."""
 
     @property
     def dome_texture(self) -> np.ndarray:
@@ -246,7 +249,7 @@ FACETS: dict[str, tuple[str, ...]] = {
     "lights": (
         "lights.light_paths", "lights.light_kind", "lights.light_radiance",
         "lights.light_position", "lights.light_direction", "lights.light_size", "lights.dome_texture",
-        "lights.dome_to_local",
+        "lights.dome_to_local", "lights.textured_dome",
     ),
     "instancers": (
         "instances.instancer_paths", "instances.prototype_paths", "instances.instance_instancer",

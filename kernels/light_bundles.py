@@ -61,8 +61,11 @@ def light_bundle(scene: Scene, device, *, emissive: str = "auto") -> Lights:
     bundle.light_position = _array(lights.light_position, wp.vec3, device)
     bundle.light_direction = _array(lights.light_direction, wp.vec3, device)
     bundle.light_size = _array(lights.light_size, wp.vec2, device)
-    bundle.dome_radiance = wp.vec3(*np.asarray(lights.light_radiance, np.float64)[dome].sum(axis=0).tolist()) \
-        if dome.any() else wp.vec3(0.0, 0.0, 0.0)
+    textured = dome if lights.textured_dome < 0 else np.arange(len(dome)) == lights.textured_dome
+    radiance = np.asarray(lights.light_radiance, np.float64).reshape(-1, 3)
+    bundle.light_textured = _array(textured.astype(np.int32), int, device)
+    bundle.dome_radiance = wp.vec3(*radiance[dome].sum(axis=0).tolist())
+    bundle.textured_radiance = wp.vec3(*radiance[textured].sum(axis=0).tolist())
     texture = np.asarray(lights.dome_texture, np.float32)
     if texture.size == 0:
         texture = np.ones((1, 1, 3), np.float32)

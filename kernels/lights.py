@@ -10,7 +10,8 @@ W/(m^2 sr), irradiance in W/m^2):
   on a surface facing the light (a delta light, ``E = L cos V``);
 - dome: radiance L times the dome texture's texel in that direction
   (``sky_texel``: the first DomeLight with a lat-long ``texture:file``, OpenEXR
-  layout in the dome's frame, nearest texel; 1 without a texture), ``E = pi
+  layout in the dome's frame, nearest texel; 1 without a texture, and for
+  the other domes of a stage with a textured one), ``E = pi
   <L T V>`` with cosine-weighted directions; rays that escape the scene see
   ``sky_radiance``, the sum of the dome lights times the texel;
 - sphere: directions uniform in the subtended cone, ``E = L Omega <cos V>``
@@ -68,8 +69,12 @@ class Lights:
     """(L,) unit emission direction (the light's -Z)."""
     light_size: wp.array(dtype=wp.vec2)
     """(L,) radius (sphere, disk), width/height (rect) or apex angle in degrees (distant)."""
+    light_textured: wp.array(dtype=int)
+    """(L,) 1 for the dome whose texture ``sky_map`` is (every dome when the Scene does not say which)."""
     dome_radiance: wp.vec3
-    """Sum of the dome lights' radiance; a ray that escapes the scene sees it times ``sky_texel``."""
+    """Sum of the dome lights' radiance."""
+    textured_radiance: wp.vec3
+    """The part of ``dome_radiance`` that ``sky_texel`` modulates (the textured dome's)."""
     sky_map: wp.array2d(dtype=wp.vec3)
     """(H, W) lat-long texture of the textured dome, or one texel of 1 (no texture)."""
     sky_to_local: wp.mat33
@@ -147,8 +152,9 @@ def sky_texel(lights: Lights, d: wp.vec3) -> wp.vec3:
 
 @wp.func
 def sky_radiance(lights: Lights, d: wp.vec3) -> wp.vec3:
-    """Radiance (W/(m^2 sr)) a ray leaving the scene along unit d sees: the domes' times the texel."""
-    return wp.cw_mul(lights.dome_radiance, sky_texel(lights, d))
+    """Radiance (W/(m^2 sr)) a ray leaving the scene along unit d sees: the textured dome's times the
+    texel, plus the uniform domes'."""
+    return wp.cw_mul(lights.textured_radiance, sky_texel(lights, d)) + lights.dome_radiance - lights.textured_radiance
 
 
 @wp.func
@@ -307,7 +313,10 @@ def direct_irradiance(scene: TraceScene, lights: Lights, p: wp.vec3, n: wp.vec3,
             for k in range(sky):
                 u = stratified_pair(k, sky_strata, state)
                 w = frame * cosine_hemisphere(u[0], u[1])
-                textured += sky_texel(lights, w) * (shadow_visible(scene, origin, w, FAR, epsilon) * (wp.pi / float(sky)))
+                texel = wp.vec3(1.0, 1.0, 1.0)
+                if lights.light_textured[l] != 0:
+                    texel = sky_texel(lights, w)
+                textured += texel * (shadow_visible(scene, origin, w, FAR, epsilon) * (wp.pi / float(sky)))
             e += wp.cw_mul(lights.light_radiance[l], textured)
         elif lights.light_kind[l] == 2 and wp.length(lights.light_position[l] - p) <= lights.light_size[l][0]:
             acc = wp.pi  # inside a sphere light: radiance from every direction of the hemisphere

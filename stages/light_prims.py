@@ -40,8 +40,10 @@ def read_lights(prims: list, xforms, timecode, origin: np.ndarray) -> Lights:
         rows.append((str(prim.GetPath()), kind, radiance, world[3, :3] - origin,
                      direction / norm if norm > 0 else np.array([0.0, 0.0, -1.0]), size))
     texture, to_local = _dome_texture([p for p in prims if p.IsA(UsdLux.DomeLight)], xforms, timecode)
+    paths = [r[0] for r in rows]
     return Lights(
         dome_source=texture, dome_to_local=to_local,
+        textured_dome=paths.index(texture.prim) if texture is not None and texture.prim in paths else -1,
         light_paths=tuple(r[0] for r in rows),
         light_kind=np.array([r[1] for r in rows], np.int32),
         light_radiance=np.array([r[2] for r in rows], np.float32).reshape(-1, 3),

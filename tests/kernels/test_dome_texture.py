@@ -120,3 +120,22 @@ def test_only_lat_long_maps_are_read(tmp_path):
     UsdLux.DomeLight(stage.GetPrimAtPath("/World/Sky")).CreateTextureFormatAttr(UsdLux.Tokens.mirroredBall)
     with pytest.raises(StageError, match="inputs:texture:format: 'mirroredBall': only lat-long dome textures"):
         extract_scene(stage)
+
+
+def test_a_second_untextured_dome_stays_uniform(tmp_path):
+    """A sky layer's textured dome over a stage's own uniform dome (the atrium under ``usdbake sky``): the
+    texture modulates its own dome only, so up = pi (L_sky 3 + L_fill) and down = pi (L_sky 0.5 + L_fill)."""
+    stage = dome_stage(split_texture(tmp_path, along="latitude"))
+    fill = UsdLux.DomeLight.Define(stage, "/World/Fill")
+    fill.CreateIntensityAttr(0.25)
+    scene = extract_scene(stage)
+    assert scene.lights.light_paths[scene.lights.textured_dome] == "/World/Sky"
+    up, down = irradiance(scene, [[0, 1, 0], [0, -1, 0]])
+    assert up == pytest.approx(np.pi * (RADIANCE * 3.0 + 0.25), rel=SKY_SUM)
+    assert down == pytest.approx(np.pi * (RADIANCE * 0.5 + 0.25), rel=SKY_SUM)
+    tracer = Tracer.from_scene(scene)
+    out = wp.zeros(2, dtype=wp.vec3, device=tracer.device)
+    wp.launch(sky_kernel, dim=2, device=tracer.device, inputs=[
+        light_bundle(scene, tracer.device), tracer.array(np.array([[0, 1, 0], [0, -1, 0]], np.float32), wp.vec3),
+        out])
+    np.testing.assert_allclose(out.numpy()[:, 0], [RADIANCE * 3.0 + 0.25, RADIANCE * 0.5 + 0.25], rtol=SKY_SUM)
