@@ -65,6 +65,8 @@ class Step:
     """A mesh refiner this step runs after, on its refined Scene (Processor.follows_refinement)."""
     requested: bool = True
     """Asked for by name (or a default), not only pulled in as another step's dependency."""
+    asked_by: str = ""
+    """The step whose ``refined_by`` added this refiner to the run (its reason says so)."""
     action: str = "run"
     """'run', 'cached' (up to date) or 'skip' (not applicable)."""
     reason: str = ""
@@ -110,6 +112,7 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
     requested = set(names or DEFAULT_PROCESSORS)
     wanted, pending = [], list(requested)
     graph: dict[str, set[str]] = {}
+    asked: dict[str, str] = {}
     while pending:
         name = pending.pop()
         if name in graph:
@@ -123,6 +126,9 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
         graph[name] = deps
         wanted.append(name)
         pending.extend(deps)
+        if not pending and not asked:
+            asked = _refiners_asked_for(wanted, params, registry)
+            pending.extend(asked)
     if not allow_conflicts and write_conflicts(wanted, registry):
         raise GraphError(write_conflicts(wanted, registry)[0])
     after = _after_refinement(wanted, graph, registry)
@@ -137,7 +143,7 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
         cls = registry[name]
         step_params = cls.Params.from_dict(params.get(name, {}))
         steps.append(Step(name, cls(step_params), step_params, after=(after[name],) if name in after else (),
-                          requested=name in requested))
+                          requested=name in requested, asked_by=asked.get(name, "")))
     for name in outside_run(params, steps):
         if name not in ignorable:
             raise ParamsOutsideRun(name, [step.name for step in steps])
@@ -148,6 +154,18 @@ def outside_run(params: dict, steps: list[Step]) -> list[str]:
     """The processors ``params`` names that ``steps`` do not hold (their params would be ignored)."""
     running = {step.name for step in steps}
     return [name for name in params if name not in running]
+
+
+def _refiners_asked_for(wanted: list[str], params: dict, registry: dict) -> dict[str, str]:
+    """{refiner: the step asking for it}: for a run without a mesh refiner, the first ``refined_by`` of a
+    wanted step whose ``refine`` param is true (Processor.refined_by)."""
+    if any(RefinedScene in registry[name].provides for name in wanted):
+        return {}
+    for name in sorted(wanted):
+        cls = registry[name]
+        if cls.refined_by and cls.Params.from_dict(params.get(name, {})).as_dict().get("refine", False):
+            return {cls.refined_by: name}
+    return {}
 
 
 def _after_refinement(wanted: list[str], graph: dict[str, set[str]], registry: dict) -> dict[str, str]:
@@ -251,6 +269,10 @@ class Pipeline:
             keys[step.name] = step.key
             blocked = [name for name in upstream if name in skipped]
             applies, why = step.processor.applies(self.context(step, scene))
+            if applies and step.asked_by:
+                asker = next(other for other in self.steps if other.name == step.asked_by)
+                applies, why = asker.processor.needs_refinement(scene)
+                why = why and f"{step.asked_by} needs no refinement here: {why}"
             if blocked:
                 step.action, step.reason = "skip", f"requires {', '.join(blocked)} (skipped)"
             elif not applies:
@@ -259,6 +281,8 @@ class Pipeline:
                 step.action, step.reason = "cached", "up to date: fingerprint unchanged"
             else:
                 step.action, step.reason = "run", "forced" if self.force else why
+            if step.asked_by and step.action != "skip":
+                step.reason = f"refines the mesh for {step.asked_by} (its refine parameter)"
             if step.action == "skip":
                 skipped.add(step.name)
         self._skip_unneeded_dependencies()

@@ -79,6 +79,10 @@ class Processor:
     """It writes per-vertex or per-face results on receiver meshes: in a run with a processor that
     provides RefinedScene (a mesh refiner), it runs after it on the refined Scene, and so does
     everything it requires, so its results fit the re-authored topology."""
+    refined_by: ClassVar[str] = ""
+    """A mesh refiner (a processor providing RefinedScene) the run adds when this step's ``refine`` param
+    is true and no refiner is in the run: per-vertex light on a floor of two triangles cannot follow a
+    window's light across it. The refiner's own ``applies`` still decides (a closed box is not refined)."""
     Params: ClassVar[type[Params]] = Params
     summary: ClassVar[str] = ""
 
@@ -88,6 +92,11 @@ class Processor:
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
         """(True, why it runs or "") or (False, why it does not apply)."""
+        return True, ""
+
+    def needs_refinement(self, scene) -> tuple[bool, str]:
+        """Whether the ``refined_by`` refiner this step added to the run should refine ``scene``: (True, "")
+        or (False, why not)."""
         return True, ""
 
     def run(self, ctx: Context) -> Result:  # pragma: no cover - abstract

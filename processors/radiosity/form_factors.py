@@ -75,6 +75,8 @@ Parameters: ``usdbake list form_factors`` or docs/radiosity.md, both generated f
 
 from __future__ import annotations
 
+import dataclasses
+
 import hashlib
 import math
 import time
@@ -359,7 +361,7 @@ def precompute(tracer, scene: Scene, p, progress=lambda f: None, chunks=None) ->
 
 class FormFactors(Processor):
     name = "form_factors"
-    version = "7"
+    version = "8"
     summary = "Radiosity precompute: voxel patches, ray-cast form factors, compressed multi-bounce matrix (BC1)."
     facets = ("geometry", "materials")
     provides = (FormFactorProduct,)
@@ -370,7 +372,8 @@ class FormFactors(Processor):
         target_patches: int = param(2000, "patch count aimed at when voxel_size is 0", low=1, high=MAX_PATCHES)
         rays: int = param(1024, "form-factor rays per patch (rounded to a square)", low=1, high=1 << 20)
         bounces: int = param(3, "k: reflections in sum_{h=1..k} (F^C)^h", low=1, high=64)
-        infinite: bool = param(False, "use the closed form (I - F^C)^-1 - I (all bounces) instead of k")
+        infinite: bool = param(True, "all bounces by the closed form (I - F^C)^-1 - I; false, or a scene with an "
+                               "albedo of 1: the k = bounces terms of the series")
         exact_fraction: float = param(0.04, "share of the largest entries kept exact (sparse part)",
                                       low=0.0, high=1.0)
         log_floor: float = param(0.0, "smallest coded value / largest remaining one; 0 = automatic",
@@ -392,8 +395,12 @@ class FormFactors(Processor):
 
     def run(self, ctx: Context) -> Result:
         scene, p = ctx.scene, ctx.params
+        messages = []
         if p.infinite and float(scene.tri_albedo.max(initial=0.0)) >= 1.0:
-            raise ValueError("form_factors: infinite=true needs every albedo < 1 (the bounce series diverges)")
+            brightest = scene.prim_paths[int(scene.tri_prim[int(scene.tri_albedo.max(axis=1).argmax())])]
+            p = dataclasses.replace(p, infinite=False)
+            messages.append(f"{brightest} has an albedo of 1, so all bounces have no closed form: {p.bounces} "
+                            f"bounces instead (the bounces parameter)")
         product, _ = precompute(ctx.tracer, scene, p, ctx.progress, chunks=ctx.chunks)
         patches, op = product.patches, product.operator
         dds_bytes = dds.dds_bc1_bytes(op.blocks, op.padded, op.padded)
@@ -425,7 +432,6 @@ class FormFactors(Processor):
         stats = {"patches": float(patches.count), "rays": float(patches.count * rays_square(p.rays)[0]),
                  **{k: float(v) for k, v in product.checks.items()},
                  **{k: float(v) for k, v in op.stats.items()}}
-        messages = []
         if product.checks["row_sum_max"] > 1.0 + 1e-6:
             messages.append(f"form-factor row sums exceed 1 ({product.checks['row_sum_max']:.4f})")
         return Result(products={FormFactorProduct: product}, outputs=outputs, stats=stats, messages=messages)

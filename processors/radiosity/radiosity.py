@@ -411,6 +411,7 @@ class Radiosity(Processor):
     provides = (RadiosityProduct,)
     facets = ("geometry", "materials", "lights")
     follows_refinement = True
+    refined_by = "sky_visibility"
     writes = ("primvars:bake:irradianceDirect", "primvars:bake:irradianceIndirect")
 
     @dataclass(frozen=True)
@@ -438,6 +439,9 @@ class Radiosity(Processor):
         relight_memory_mb: float = param(0.0, "memory budget (MB) of the relight operator: the dense float32 "
                                          "operator (BLAS) when it fits, else the compressed kernel; 0 = a "
                                          "quarter of the physical memory", low=0.0)
+        refine: bool = param(True, "in a run without a mesh refiner, run sky_visibility's first: faces whose "
+                             "sky is partly hidden are split, so vertex light follows a window's light across a "
+                             "floor of two triangles (a closed scene is not refined)")
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
@@ -446,6 +450,11 @@ class Radiosity(Processor):
             return False, NO_LIGHTS
         reason = missing_receivers(scene)
         return not reason, reason
+
+    def needs_refinement(self, scene: Scene) -> tuple[bool, str]:
+        if not (np.asarray(scene.lights.light_kind) == LIGHT_DOME).any():
+            return False, "no DomeLight (the refinement follows where the sky is partly hidden)"
+        return True, ""
 
     def run(self, ctx: Context) -> Result:
         scene, p = ctx.scene, ctx.params

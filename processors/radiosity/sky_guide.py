@@ -137,22 +137,29 @@ def guided_sky_irradiance(scene: TraceScene, lights: Lights, p: wp.vec3, n: wp.v
 
 @wp.kernel
 def guide_training_kernel(start: int, scene: TraceScene, lights: Lights, positions: wp.array(dtype=wp.vec3),
-                          normals: wp.array(dtype=wp.vec3), guide_of: wp.array(dtype=int), strata: int,
-                          luminance: wp.vec3, epsilon: float, seed: int, histogram: wp.array2d(dtype=float)):
-    """Point i: strata^2 cosine rays; an escaped ray adds the sky's luminance to its cell of i's guide."""
+                          normals: wp.array(dtype=wp.vec3), strata: int, luminance: wp.vec3, epsilon: float,
+                          seed: int, cells: wp.array(dtype=int), weights: wp.array(dtype=float)):
+    """Point i: strata^2 cosine rays; ray k writes the cell it was drawn in and, when it escapes, the sky's
+    luminance along it (0 otherwise), at i * strata^2 + k. Summed per guide on the host, in a fixed order:
+    float atomics would make the guide, and every estimate, depend on the thread schedule."""
     i = start + wp.tid()
     n = normals[i]
+    samples = strata * strata
     if wp.length(n) < 0.5:
+        for k in range(samples):
+            cells[i * samples + k] = 0
+            weights[i * samples + k] = 0.0
         return
-    g = guide_of[i]
     state = wp.rand_init(seed, i)
     origin = surface_origin(scene, positions[i], n, wp.vec3(0.0, 0.0, 0.0), epsilon)
     frame = guide_frame(n)
-    for k in range(strata * strata):
+    for k in range(samples):
         u = stratified_pair(k, strata, state)
         w = frame * cosine_hemisphere(u[0], u[1])
+        cells[i * samples + k] = sample_cell(u)
+        weights[i * samples + k] = 0.0
         if shadow_visible(scene, origin, w, FAR, epsilon) > 0.0:
-            wp.atomic_add(histogram, g, sample_cell(u), wp.dot(sky_radiance(lights, w), luminance))
+            weights[i * samples + k] = wp.dot(sky_radiance(lights, w), luminance)
 
 
 @dataclass(frozen=True)
@@ -196,17 +203,22 @@ def learn_sky_guides(tracer, lights: Lights, positions: np.ndarray, normals: np.
     every point with ``training`` 0)."""
     groups = guide_groups(positions, normals) if training > 0 else np.full(len(positions), -1)
     count = int(groups.max()) + 1 if len(groups) else 0
-    histogram = wp.zeros((max(count, 1), GUIDE_CELLS), dtype=float, device=tracer.device)
     strata = strata_for(training)
+    sums = np.zeros((max(count, 1), GUIDE_CELLS))
     if count:
+        samples = strata * strata
+        cells = wp.zeros(len(positions) * samples, dtype=int, device=tracer.device)
+        weights = wp.zeros(len(positions) * samples, dtype=float, device=tracer.device)
         tracer.launch(guide_training_kernel, len(positions), [
-            tracer.scene, lights, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3),
-            tracer.array(groups.astype(np.int32), int), strata, wp.vec3(*LUMINANCE.astype(np.float32)),
-            tracer.epsilon, seed, histogram])
-        tracer.rays_cast += len(positions) * strata * strata
+            tracer.scene, lights, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3), strata,
+            wp.vec3(*LUMINANCE.astype(np.float32)), tracer.epsilon, seed, cells, weights])
+        tracer.rays_cast += len(positions) * samples
+        bins = np.repeat(np.maximum(groups, 0), samples) * GUIDE_CELLS + cells.numpy()
+        sums = np.bincount(bins, weights=weights.numpy().astype(np.float64),
+                           minlength=count * GUIDE_CELLS).reshape(count, GUIDE_CELLS)
     # A 3 x 3 box over the cells: a histogram of a few rays a cell is noisy, and every sample's weight
     # pi L / (n_c + n_g N P) carries that noise to the estimate (an open sky's flat P most of all).
-    sums = uniform_filter(histogram.numpy().astype(np.float64).reshape(-1, GUIDE_SIDE, GUIDE_SIDE), size=(1, 3, 3),
+    sums = uniform_filter(sums.reshape(-1, GUIDE_SIDE, GUIDE_SIDE), size=(1, 3, 3),
                           mode="nearest").reshape(-1, GUIDE_CELLS)
     totals = sums.sum(axis=1)
     cdf = np.cumsum(sums, axis=1) / np.where(totals > 0, totals, 1.0)[:, None]

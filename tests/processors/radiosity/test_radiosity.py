@@ -101,12 +101,13 @@ def test_transfer_is_smooth_and_respects_normals():
 
 @pytest.fixture(scope="module")
 def lit_box():
-    # A closed 2 m room with a disk light under the ceiling, one grey prim per face.
+    # A closed 2 m room with a disk light under the ceiling, one grey prim per face; k = 3 bounces (not
+    # the default closed form), so the path tracer and the energy bound below can stop at k.
     parts = box_parts(size=2.0, grid=2)
     light = (LIGHT_DISK, [10, 9, 8], [1, 1, 1.9], [0, 0, -1], [0.3, 0.3])
     scene = make_scene(parts, albedo=(0.6, 0.5, 0.4), lights=make_lights(light))
     tracer = Tracer.from_scene(scene)
-    params = ff.FormFactors.Params(target_patches=300, rays=256)
+    params = ff.FormFactors.Params(target_patches=300, rays=256, infinite=False)
     product = ff.FormFactors().run(Context(scene=scene, params=params, tracer=tracer)).products[FormFactorProduct]
     return scene, tracer, product
 
