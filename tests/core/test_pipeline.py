@@ -399,3 +399,30 @@ def test_every_step_reads_the_one_runtime(register):
         ["fake_runtime_reader"] * 2 + ["fake_runtime_reader_too"] * 2  # applies() of each, then run()
     assert {seen[1:3] for seen in FakeRuntimeReader.seen} == {("cpu", 3)}
     assert len({id(tracer) for seen in FakeRuntimeReader.seen for tracer in seen[3:]}) == 1
+
+
+def test_a_step_asks_for_its_refiner_when_the_run_has_none():
+    """radiosity.refined_by = sky_visibility: added (not requested, asked_by radiosity) to a run without a
+    refiner, left out with refine = false, and not doubled when a refiner is already in the run."""
+    steps = {step.name: step for step in build_steps(["radiosity"])}
+    assert steps["sky_visibility"].asked_by == "radiosity" and not steps["sky_visibility"].requested
+    assert steps["radiosity"].after == ("sky_visibility",) and steps["form_factors"].after == ("sky_visibility",)
+    assert "sky_visibility" not in {step.name for step in build_steps(["radiosity"], {"radiosity": {"refine": False}})}
+    asked = [step.asked_by for step in build_steps(["sky_visibility", "radiosity"])]
+    assert asked == [""] * len(asked)
+
+
+def test_an_asked_for_refiner_is_skipped_where_the_asker_needs_none():
+    """The Cornell box has no DomeLight: the sky refinement radiosity asked for is skipped, with the reason."""
+    from usdbake.stages.extract import extract_scene
+    from pxr import Usd
+    from repo_paths import SAMPLES
+
+    from usdbake.kernels.tracer import Tracer
+
+    scene = extract_scene(Usd.Stage.Open(str(SAMPLES / "cornell_box.usda")))
+    pipeline = Pipeline.build(["radiosity"], runtime=Runtime(Tracer.from_scene))
+    steps = {step.name: step for step in pipeline.plan(scene)}
+    assert steps["sky_visibility"].action == "skip"
+    assert "radiosity needs no refinement here: no DomeLight" in steps["sky_visibility"].reason
+    assert steps["radiosity"].action == "run"
