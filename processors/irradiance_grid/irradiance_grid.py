@@ -55,6 +55,13 @@ lower bound of the corners' light (``I_a . n <= E(n)``, ``sum n_a^2 = 1``), so
 the passes converge from below; what remains is first order in the cell size
 (the first vertex layer lies up to a cell off the wall: +5% of a bounce with
 14 cells across a closed box, tests/processors/irradiance_grid/test_grid_bounces.py).
+With ``extrapolate`` (the default, bounces >= 3) the last pass reads, instead
+of G_{k-1}, the indirect grid with all bounces estimated from the passes'
+geometric tail (``bounce_tail``: G_inf = G_j + dG_j r / (1 - r), r the ratio of
+the last two increments): four passes carry about all of the bounces (furnished
+daylight room against Radiance, free space: bounces 1 / 3 / 6 without the tail
+0.455 / 0.157 / 0.081 median error in 3.0 / 11.0 / 19.6 s; 4 with it, the
+default, 0.084 in 12.9 s).
 ``include_direct = false`` keeps only the light the scene reflects (no dome,
 no emission, no direct lights): the paper's indirect-only grid, for a
 renderer that adds direct light itself.
@@ -334,17 +341,41 @@ def fill_invalid(vectors: np.ndarray, resolution, valid: np.ndarray, *, smooth: 
     return filled.reshape(shape).astype(np.float32)
 
 
+TAIL_RATIO_MAX = 0.95
+"""The bounce ratio ``bounce_tail`` extrapolates with is at most this (a tail of 19 more passes' light)."""
+
+
+def bounce_tail(*passes: np.ndarray) -> np.ndarray:
+    """The indirect grid with all bounces from the last passes G_{j-1}, G_j (the first pass's predecessor
+    is 0): the bounces beyond j as the geometric tail of the last increment (Neumann series of the
+    transport operator T: after a few passes the increment dG_j = G_j - G_{j-1} ~ r dG_{j-1}, r the
+    spectral radius of T, as in power iteration), ``G_inf = G_j + dG_j r / (1 - r)``; the "ambient term"
+    of progressive radiosity (Cohen, Chen, Wallace & Greenberg, SIGGRAPH 1988, sec. 4) estimated from the
+    passes. r is the ratio of the increments' *signed* sums of hemisphere irradiance (``I_delta . delta``
+    over vertices, hemispheres and channels): the passes' noise cancels in a sum, where a sum of absolute
+    differences would count it as light. Clipped to [0, TAIL_RATIO_MAX]."""
+    if len(passes) < 3:
+        return passes[-1]
+    older, previous, last = (np.einsum("nhcx,hx->", np.asarray(g, np.float64), AXES) for g in passes[-3:])
+    step, before = last - previous, previous - older
+    ratio = float(np.clip(step / before, 0.0, TAIL_RATIO_MAX)) if before > 0 else 0.0
+    return (passes[-1] + (passes[-1] - passes[-2]) * np.float32(ratio / (1.0 - ratio))).astype(np.float32)
+
+
 def bake_grid(tracer, scene: Scene, layout: GridLayout, *, rays: int, seed: int = 0, include_direct: bool = True,
-              smooth: bool = True, bounces: int = 1, progress=lambda f: None, chunks=None) -> IrradianceGridProduct:
+              smooth: bool = True, bounces: int = 1, extrapolate: bool = False, progress=lambda f: None,
+              chunks=None) -> IrradianceGridProduct:
     """Compute, fill and quantize the grid (module docstring); ``bounces`` - 1 indirect-only passes first,
-    each reflected once more by the next. ``chunks`` (core.chunks; default: in process on ``tracer``)
-    computes each pass's vectors by vertex ranges."""
+    each reflected once more by the next, their geometric tail added with ``extrapolate``
+    (``bounce_tail``). ``chunks`` (core.chunks; default: in process on ``tracer``) computes each pass's
+    vectors by vertex ranges."""
     chunks = chunks if chunks is not None else SceneChunks(tracer)
-    bounce = None
+    bounce, passes = None, [np.zeros((layout.count, VECTORS_PER_VERTEX, 3, 3), np.float32)]
     for step in range(bounces - 1):
         indirect, back = chunks.map(irradiance_vectors_chunk, (layout.positions(),), scene=scene, rays=rays,
                                     seed=seed + 1000 * (step + 1), include_direct=False, bounce=bounce)
-        bounce = (layout, fill_invalid(indirect, layout.resolution, back <= INSIDE_BACK_FRACTION, smooth=smooth))
+        passes.append(fill_invalid(indirect, layout.resolution, back <= INSIDE_BACK_FRACTION, smooth=smooth))
+        bounce = (layout, bounce_tail(*passes[-3:]) if extrapolate and step == bounces - 2 else passes[-1])
         progress(0.8 * (step + 1) / bounces)
     vectors, back = chunks.map(irradiance_vectors_chunk, (layout.positions(),), scene=scene, rays=rays, seed=seed,
                                include_direct=include_direct, bounce=bounce)
@@ -399,7 +430,7 @@ def stream_bytes(grid: IrradianceGridProduct, origin: np.ndarray) -> bytes:
 
 class IrradianceGrid(Processor):
     name = "irradiance_grid"
-    version = "3"
+    version = "4"
     summary = "Irradiance vector grid: 6 vectors per vertex, 8-bit direction + RGB9E5, progressive stream."
     facets = ("geometry", "materials", "lights")
     follows_refinement = True
@@ -420,9 +451,11 @@ class IrradianceGrid(Processor):
                                     choices=RECONSTRUCTIONS)
         behind_cutoff: bool = param(False, "reconstruction ignores grid vertices behind the surface's plane")
         smooth: bool = param(True, "pyramidal smoothing in the push-pull fill of invalid vertices")
-        bounces: int = param(1, "light bounces the grid carries: 1 = surfaces reflect direct light (the paper); "
+        bounces: int = param(4, "light bounces the grid carries: 1 = surfaces reflect direct light (the paper); "
                              "k adds k - 1 capture passes, each hit reflecting the previous pass's indirect light "
                              "read from the grid", low=1, high=8)
+        extrapolate: bool = param(True, "the last pass reads the earlier passes' geometric tail (all bounces; "
+                                  "needs bounces >= 3) instead of the k - 1 bounces they hold")
         seed: int = param(0, "random seed (identical results across thread counts)", low=0, high=2**31 - 1)
 
     def applies(self, ctx: Context) -> tuple[bool, str]:
@@ -439,7 +472,8 @@ class IrradianceGrid(Processor):
         layout = grid_layout(lo, hi, cell_size=p.cell_size, vertices=p.vertices)
         ctx.progress(0.0)
         grid = bake_grid(ctx.tracer, scene, layout, rays=p.rays, seed=p.seed, include_direct=p.include_direct,
-                         bounces=p.bounces, smooth=p.smooth, progress=ctx.progress, chunks=ctx.chunks)
+                         bounces=p.bounces, extrapolate=p.extrapolate, smooth=p.smooth, progress=ctx.progress,
+                         chunks=ctx.chunks)
         data = stream_bytes(grid, scene.origin)
         stream_file = f"usdbake_irradiance_grid_{hashlib.sha256(data).hexdigest()[:10]}.bin"
         outputs = [*grid_records(grid, scene.origin, stream_file, rays=strata_for(p.rays) ** 2, bounces=p.bounces,
