@@ -306,21 +306,25 @@ def _furniture() -> dict[str, tuple[MeshBuilder, str]]:
     return parts
 
 
-def room_stage(*, cell: float = 0.1, vlt: float = ROOM_VLT, dome_light: bool = False) -> Usd.Stage:
+def room_stage(*, cell: float = 0.1, vlt: float = ROOM_VLT, dome_light: bool = False,
+               glazed: bool = True) -> Usd.Stage:
     """The furnished room (module docstring), in memory: inner surfaces in ``cell``-metre squares.
+
+    ``glazed=False`` leaves the panes out (open windows): the variant for processors that do not model
+    glass transmission (radiosity, irradiance_grid, light_probes read a pane as an opaque surface).
 
     ``dome_light``: also author a white UsdLux.DomeLight of ``SKY_RADIANCE`` (for processors that read the sky
     from the stage; the daylight processors take it from their parameters: sky 'uniform',
     uniform_radiance ``SKY_RADIANCE``)."""
     stage, looks = new_stage(UsdGeom.Tokens.z, 1.0, "furnished daylight room (issue 29)", ROOM_MATERIALS,
                              root="/World/Room")
-    glass = _glass_material(stage, "Glass", vlt)
     shell = _shell(cell)
     shell_looks = {"Floor": "Oak", "Rug": "Rug", "Ceiling": "Ceiling", "Walls": "Plaster", "Exterior": "Render",
                    "Reveals": "Plaster"}
     for name, look in shell_looks.items():
         write_mesh(stage, f"/World/Room/{name}", shell[name], looks[look])
-    _write_glass(stage, "/World/Room/Glazing", shell["Glazing"], glass, vlt)
+    if glazed:
+        _write_glass(stage, "/World/Room/Glazing", shell["Glazing"], _glass_material(stage, "Glass", vlt), vlt)
     UsdGeom.Xform.Define(stage, "/World/Room/Furniture")
     for name, (builder, look) in _furniture().items():
         if builder.arrays()[0].size:
