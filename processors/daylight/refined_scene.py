@@ -93,8 +93,17 @@ def refine_scene(scene: Scene, points: np.ndarray, point_source: np.ndarray, tri
         tri_corner=np.concatenate(parts["corner"]).astype(np.int32).reshape(-1, 3),
         point_prim=np.repeat(np.arange(len(scene.prim_paths), dtype=np.int32), np.diff(point_start)),
         prim_point_start=np.array(point_start, np.int64), prim_face_count=np.array(face_count, np.int32),
+        lights=_stored_lights(scene.lights),
     )
     return refined, records
+
+
+def _stored_lights(lights):
+    """The lights with a textured dome's file read into its array: the refined Scene is a product the result
+    cache stores as plain data, which holds arrays, not the file reader (``stages.sky_dome.DomeTexture``)."""
+    if lights.dome_source is None or isinstance(lights.dome_source, np.ndarray):
+        return lights
+    return dataclasses.replace(lights, dome_source=np.array(lights.dome_texture))
 
 
 def _refined_prim(scene: Scene, prim: int, points: np.ndarray, point_source: np.ndarray, triangles: np.ndarray,

@@ -198,3 +198,29 @@ def test_refining_one_prim_leaves_the_others_alone(prim):
         np.testing.assert_array_equal(theirs, mine)
         span = slice(refined.prim_point_start[other], refined.prim_point_start[other + 1])
         np.testing.assert_array_equal(refined.points[span], scene.points[scene.prim_points(other)])
+
+
+def test_a_refined_scene_under_a_textured_dome_is_cached(tmp_path):
+    """radiosity asks for sky_visibility's refinement; the RefinedScene product carries the scene's lights,
+    whose textured dome was a file reader the result cache could not store (a bake under a usdbake sky layer
+    failed). It now stores the texels, and a second bake reads every step back from the cache."""
+    from pxr import UsdLux
+
+    import usdbake
+    from stage_builders import add_mesh, new_stage
+    from usdbake.core.records import Texture
+    from usdbake.stages.hook import last_report
+    from usdbake.stages.sidecars import write_texture
+
+    texture = write_texture(Texture("sky.exr", np.full((8, 16, 3), 2.0, np.float32)), str(tmp_path))
+    stage = new_stage(up_axis="Z")
+    add_mesh(stage, "/World/Floor", [(0, 0, 0), (4, 0, 0), (4, 4, 0), (0, 4, 0)], [4], [0, 1, 2, 3])
+    add_mesh(stage, "/World/Wall", [(2, 0, 0), (2, 4, 0), (2, 4, 2), (2, 0, 2)], [4], [0, 1, 2, 3])
+    UsdLux.DomeLight.Define(stage, "/World/Sky").CreateTextureFileAttr(texture)
+    params = {"form_factors": {"target_patches": 16, "rays": 16},
+              "radiosity": {"sky_samples": 16, "gather_rays": 16, "patch_points": 1}}
+    for run in range(2):
+        layer = usdbake.bake(stage, processors=["radiosity"], params=params, cache_dir=str(tmp_path / "cache"),
+                             texture_dir=str(tmp_path))
+        actions = {step["processor"]: step["action"] for step in last_report(layer)}
+        assert actions["sky_visibility"] == ("run" if run == 0 else "cached"), actions
