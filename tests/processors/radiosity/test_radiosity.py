@@ -240,3 +240,31 @@ def test_instances_sharing_patches_light_the_floor_as_well_as_patches_of_their_o
     assert counts[False] <= 1.2 * 100 and counts[True] >= 16 * 6  # a sphere's own patches: one per normal axis
     assert errors[False] < RADIOSITY_PATH_TRACED, errors
     assert errors[False] <= errors[True] + SHARED_PATCH_MARGIN, errors
+
+
+@pytest.mark.parametrize("infinite, bounces", [(False, 1), (False, 2), (False, 4), (True, 3)])
+def test_a_glowing_closed_box_follows_the_bounce_series(infinite, bounces):
+    """Every inward wall of a closed box emits L_e and reflects rho, nothing else lights it: the direct
+    irradiance is pi L_e everywhere (every direction sees a glowing wall), and each bounce multiplies the
+    whole field by rho, so a patch's indirect irradiance after k operator bounces is pi L_e (rho + ... +
+    rho^k), and pi L_e rho / (1 - rho) with all of them (the closed form); the vertices' final gather adds
+    one reflection (k + 1). Means within 3 % (the form factors' ray-cast row sums, 256 rays a patch). The
+    vertex check takes the faces' interior vertices: at the box's edges the emitters' 1/d^2 is clamped
+    (``light_bundles`` min_d2), which darkens vertices there (a bias of area lights, not of the bounces)."""
+    rho, emission = 0.5, 2.0
+    parts = box_parts(size=2.0, grid=4)
+    scene = make_scene(parts, albedo=(rho,) * 3, emission=np.full((len(parts), 3), emission))
+    tracer = Tracer.from_scene(scene)
+    product = ff.FormFactors().run(Context(scene=scene, tracer=tracer, params=ff.FormFactors.Params(
+        target_patches=96, rays=256, bounces=bounces, infinite=infinite))).products[FormFactorProduct]
+    solved = rad.solve(tracer, scene, product, rad.Radiosity.Params(light_samples=64, gather_rays=256),
+                       np.arange(scene.num_points))
+    def series(k):
+        return math.pi * emission * (rho / (1 - rho) if infinite else sum(rho ** j for j in range(1, k + 1)))
+    areas = product.patches.patch_areas
+    np.testing.assert_allclose(np.average(solved["patch_direct"][:, 0], weights=areas), math.pi * emission,
+                               rtol=0.03)
+    np.testing.assert_allclose(np.average(solved["patch_indirect"][:, 0], weights=areas), series(bounces), rtol=0.03)
+    gathered = math.pi * emission * rho / (1 - rho) if infinite else series(bounces + 1)
+    interior = ((scene.points > 0.01) & (scene.points < 1.99)).sum(axis=1) == 2  # off the box's edges
+    np.testing.assert_allclose(solved["vertex_indirect"][interior, 0].mean(), gathered, rtol=0.03)
