@@ -18,7 +18,8 @@ reconstruction) make the read a lower bound of the light the corner vectors hold
 ``I_a . n = integral_{w . a > 0} L (w . n) dw <= E(n)`` because the integrand is at most
 ``L max(0, w . n)``, and ``sum_a n_a^2 = 1``; dividing by ``sum |n_a|^3`` would overshoot collimated light
 along a diagonal normal by up to sqrt(3). So each pass adds at most the light that is there, and the
-passes converge from below.
+passes converge from below. ``bounce_tail`` is the grid the last pass reads instead when the passes'
+geometric tail is extrapolated (``extrapolate``).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ...kernels.direction24 import AXES
 from ...kernels.traversal import TraceScene, surface_origin, trace_any, trace_closest
 
 wp.set_module_options({"enable_backward": False})
@@ -188,3 +190,24 @@ def compute_visible_irradiance(tracer, layout, vectors: np.ndarray, points: np.n
         float(offset) * float(np.min(layout.cell_size)), tracer.epsilon, out])
     tracer.rays_cast += 9 * len(points)
     return out.numpy().astype(np.float32)
+
+
+TAIL_RATIO_MAX = 0.95
+"""The bounce ratio ``bounce_tail`` extrapolates with is at most this (a tail of 19 more passes' light)."""
+
+
+def bounce_tail(*passes: np.ndarray) -> np.ndarray:
+    """The indirect grid with all bounces from the last passes G_{j-1}, G_j (the first pass's predecessor
+    is 0): the bounces beyond j as the geometric tail of the last increment (Neumann series of the
+    transport operator T: after a few passes the increment dG_j = G_j - G_{j-1} ~ r dG_{j-1}, r the
+    spectral radius of T, as in power iteration), ``G_inf = G_j + dG_j r / (1 - r)``; the "ambient term"
+    of progressive radiosity (Cohen, Chen, Wallace & Greenberg, SIGGRAPH 1988, sec. 4) estimated from the
+    passes. r is the ratio of the increments' *signed* sums of hemisphere irradiance (``I_delta . delta``
+    over vertices, hemispheres and channels): the passes' noise cancels in a sum, where a sum of absolute
+    differences would count it as light. Clipped to [0, TAIL_RATIO_MAX]."""
+    if len(passes) < 3:
+        return passes[-1]
+    older, previous, last = (np.einsum("nhcx,hx->", np.asarray(g, np.float64), AXES) for g in passes[-3:])
+    step, before = last - previous, previous - older
+    ratio = float(np.clip(step / before, 0.0, TAIL_RATIO_MAX)) if before > 0 else 0.0
+    return (passes[-1] + (passes[-1] - passes[-2]) * np.float32(ratio / (1.0 - ratio))).astype(np.float32)

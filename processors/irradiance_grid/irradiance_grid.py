@@ -149,7 +149,7 @@ from ...geometry.mesh import backdrop_prims, receiver_prims, vertex_normals
 from ...kernels.light_bundles import NO_LIGHTS, SceneLighting, emissive_lights, has_light, scene_lighting
 from ...kernels.lights import Lights, Surfaces, hit_radiance, light_sample_count, sky_radiance, visible_light_sample
 from ...kernels.direction24 import AXES, decode_directions, dequantize_vectors, encode_directions
-from .grid_irradiance import GridVectors, grid_vectors, visible_grid_irradiance
+from .grid_irradiance import GridVectors, bounce_tail, grid_vectors, visible_grid_irradiance
 from ...kernels.rgb9e5 import encode_rgb9e5
 from ...kernels.sampling import strata_for, stratified_pair
 from ...kernels.sh import uniform_sphere
@@ -339,27 +339,6 @@ def fill_invalid(vectors: np.ndarray, resolution, valid: np.ndarray, *, smooth: 
         return vectors
     filled = streaming.push_pull(vectors.reshape(len(vectors), -1), resolution, valid, smooth=smooth)
     return filled.reshape(shape).astype(np.float32)
-
-
-TAIL_RATIO_MAX = 0.95
-"""The bounce ratio ``bounce_tail`` extrapolates with is at most this (a tail of 19 more passes' light)."""
-
-
-def bounce_tail(*passes: np.ndarray) -> np.ndarray:
-    """The indirect grid with all bounces from the last passes G_{j-1}, G_j (the first pass's predecessor
-    is 0): the bounces beyond j as the geometric tail of the last increment (Neumann series of the
-    transport operator T: after a few passes the increment dG_j = G_j - G_{j-1} ~ r dG_{j-1}, r the
-    spectral radius of T, as in power iteration), ``G_inf = G_j + dG_j r / (1 - r)``; the "ambient term"
-    of progressive radiosity (Cohen, Chen, Wallace & Greenberg, SIGGRAPH 1988, sec. 4) estimated from the
-    passes. r is the ratio of the increments' *signed* sums of hemisphere irradiance (``I_delta . delta``
-    over vertices, hemispheres and channels): the passes' noise cancels in a sum, where a sum of absolute
-    differences would count it as light. Clipped to [0, TAIL_RATIO_MAX]."""
-    if len(passes) < 3:
-        return passes[-1]
-    older, previous, last = (np.einsum("nhcx,hx->", np.asarray(g, np.float64), AXES) for g in passes[-3:])
-    step, before = last - previous, previous - older
-    ratio = float(np.clip(step / before, 0.0, TAIL_RATIO_MAX)) if before > 0 else 0.0
-    return (passes[-1] + (passes[-1] - passes[-2]) * np.float32(ratio / (1.0 - ratio))).astype(np.float32)
 
 
 def bake_grid(tracer, scene: Scene, layout: GridLayout, *, rays: int, seed: int = 0, include_direct: bool = True,
