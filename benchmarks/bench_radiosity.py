@@ -73,7 +73,7 @@ def cornell_sweep(quick: bool):
     counts = [250, 1000] if quick else [250, 1000, default, 4000]
     points, extra = [], {}
     for target in counts:
-        p = ff.FormFactors.Params(target_patches=target, rays=256 if quick else 1024)
+        p = ff.FormFactors.Params(target_patches=target, rays=256 if quick else 1024, infinite=False)
         started = time.perf_counter()
         product, dense = ff.precompute(tracer, scene, p)
         pre = time.perf_counter() - started
@@ -131,7 +131,7 @@ def atrium_figures(quick: bool) -> dict:
     scene = harness.load_scene("atrium")
     tracer = Tracer.from_scene(scene)
     p = ff.FormFactors.Params(target_patches=500 if quick else ff.FormFactors.Params().target_patches,
-                              rays=256 if quick else 1024)
+                              rays=256 if quick else 1024, infinite=False)
     with harness.measure() as m:
         product, dense = ff.precompute(tracer, scene, p)
     op, operator, form = product.operator, dense["operator"], dense["form"]
@@ -241,7 +241,7 @@ def sky_lit_window_room(paths: int) -> dict:
             ids = harness.receiver_points(scene)
             normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
             positions = rad.vertex_sample_positions(scene.points, scene.tri_vertices, scene.tri_areas)
-            product, _ = ff.precompute(tracer, scene, ff.FormFactors.Params())
+            product, _ = ff.precompute(tracer, scene, ff.FormFactors.Params(infinite=False))
             reference = path_traced_indirect(tracer, scene, positions[ids], normals[ids], paths=paths,
                                              bounces=product.bounces + 1)
             solved = rad.solve(tracer, scene, product, rad.Radiosity.Params(), ids)
@@ -288,7 +288,8 @@ def furnished_room(quick: bool) -> dict:
                  "indirect": path_traced_indirect(tracer, scene, points, normals, paths=paths, bounces=bounces)})
     figures = {}
     for label, names in (("refined", ["sky_visibility", "radiosity"]), ("unrefined", ["radiosity"])):
-        steps = Pipeline.build(names, runtime=Runtime(Tracer.from_scene)).run(scene)
+        params = {"form_factors": {"infinite": False}, "radiosity": {"refine": False}}  # k = 3, as the reference
+        steps = Pipeline.build(names, params, runtime=Runtime(Tracer.from_scene)).run(scene)
         products = {k: v for step in steps if step.result for k, v in step.result.products.items()}
         baked = products[RefinedScene].scene if RefinedScene in products else scene
         baked_tracer = Tracer.from_scene(baked)

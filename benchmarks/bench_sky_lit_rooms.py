@@ -42,11 +42,12 @@ def run(quick: bool = False) -> dict:
     import usdbake
     from usdbake.kernels.lights import LUMINANCE  # Rec. 709 weights only
 
-    from . import radiance_dome
+    from . import radiance_binaries, radiance_dome
     from . import sky_lit_references as references
     from . import sky_lit_scenes as scenes
 
     settings = QUICK if quick else FULL
+    with_radiance = not quick and radiance_binaries.radiance_available()  # the smoke run bakes and reads only
     rows, figures, checks = [], {}, {}
     for name in settings["scenes"]:
         with tempfile.TemporaryDirectory(prefix=f"sky_lit_{name}_") as folder:
@@ -55,6 +56,9 @@ def run(quick: bool = False) -> dict:
                                         free=settings["free"], near=settings["near"])
             query = points.rows()
             for sky, stage in stages.items():
+                if not with_radiance:
+                    figures.update(_bakes_only(usdbake, name, sky, stage, query, settings["params"]))
+                    continue
                 ref = references.reference(name, sky, stage, points, ambient_divisions=settings["ambient_divisions"])
                 reference = ref["irradiance"] @ LUMINANCE
                 noise = references.noise(ref, LUMINANCE)
@@ -93,7 +97,8 @@ def run(quick: bool = False) -> dict:
                                           and r["scene"] == name and r["sky"] == sky and r["rows_at"] == kind)
                             figures[f"{name}_{sky}_light_probes_over_equal_grid_{kind}_error"] = round(
                                 probes["error"] / max(row["error"], 1e-12), 3)
-    figures.update(_worst(figures, settings))
+    if with_radiance:
+        figures.update(_worst(figures, settings))
     table = harness.markdown_table(rows, ["scene", "sky", "technique", "rows_at", "rows", "seconds", "error",
                                           "bias", "mean_ratio_bias", "p90_error", "ref_noise"])
     table += ("\n\nSky conversion, empty scene, Radiance -ab 1 -ad 65536 vs the texture integrated texel by texel "
@@ -188,6 +193,20 @@ def _lookup_direct(stage, points: np.ndarray, normals: np.ndarray) -> np.ndarray
     tracer = Tracer.from_scene(scene)
     local = np.asarray(points, np.float64) - scene.origin
     return np.asarray(direct_light_irradiance(tracer, scene, local, normals), np.float64)
+
+
+def _bakes_only(usdbake, name: str, sky: str, stage, query: dict, params: dict) -> dict:
+    """Without Radiance (the smoke run): each technique baked and read back, its time and mean luminance."""
+    from usdbake.kernels.lights import LUMINANCE
+
+    figures = {}
+    for technique in TECHNIQUES:
+        seconds, values, _ = _bake_and_read(usdbake, stage.GetRootLayer().realPath, technique,
+                                            params.get(technique), [query[kind] for kind in KINDS[technique]])
+        figures[f"{name}_{sky}_{technique}_seconds"] = round(seconds, 2)
+        for kind, value in zip(KINDS[technique], values):
+            figures[f"{name}_{sky}_{technique}_{kind}_mean_luminance"] = round(float((value @ LUMINANCE).mean()), 4)
+    return figures
 
 
 def _worst(figures: dict, settings: dict) -> dict:
