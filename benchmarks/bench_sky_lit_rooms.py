@@ -219,6 +219,9 @@ def _worst(figures: dict, settings: dict) -> dict:
             figures[f"{case}_{technique}_{kind}_median_abs_error"] for case in cases)
         worst[f"worst_{technique}_{kind}_abs_bias"] = max(
             abs(figures[f"{case}_{technique}_{kind}_bias"]) for case in cases)
+    for technique in TECHNIQUES:  # the bake times on the 129k-triangle daylight room (issue 30's time clause)
+        worst[f"worst_{technique}_seconds"] = max(
+            figures[f"{case}_{technique}_seconds"] for case in cases if case.startswith("daylight_room"))
     for kind in ("free", "near"):
         worst[f"worst_light_probes_over_equal_grid_{kind}_error"] = max(
             figures[f"{case}_light_probes_over_equal_grid_{kind}_error"] for case in cases)

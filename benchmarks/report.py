@@ -140,6 +140,15 @@ TARGETS = [
      "worst_light_probes_over_equal_grid_free_error", "<=", 0.6),
     ("Sky-lit rooms: light_probes / uniform grid error at equal probes, near surfaces (worst)", "sky_lit_rooms",
      "worst_light_probes_over_equal_grid_near_error", "<=", 0.6),
+    ("Sky-lit rooms: grid probes for the placed cloud's error / its probes", "sky_lit_rooms",
+     "grid_probes_for_cloud_error_ratio", ">=", 2.0),
+    # Issue 30's time clause: at most 2x the issue's "today" on its 132k room (radiosity 150 s, grid and probes 7 s)
+    ("Sky-lit rooms: radiosity bake on the 129k-triangle room (s, worst sky)", "sky_lit_rooms",
+     "worst_radiosity_seconds", "<=", 300.0),
+    ("Sky-lit rooms: irradiance_grid bake on the 129k-triangle room (s, worst sky)", "sky_lit_rooms",
+     "worst_irradiance_grid_seconds", "<=", 14.0),
+    ("Sky-lit rooms: light_probes bake on the 129k-triangle room (s, worst sky)", "sky_lit_rooms",
+     "worst_light_probes_seconds", "<=", 14.0),
     # Issue 28 (technique packages): checked by tests/test_import_rules.py and counted by hand so far
     ("largest library module (lines)", "plan", "largest_module_lines", "<=", 500),
     ("places where six or more lines of real logic repeat", "plan", "real_logic_repeats", "<=", 10),
