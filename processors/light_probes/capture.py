@@ -55,6 +55,12 @@ REVOTE_DIRECTIONS = fibonacci_sphere_np(256).astype(np.float32)
 """(256, 3) the rays of a second vote (Fibonacci sphere, nearly uniform)."""
 
 
+@wp.func
+def probe_ray_direction(i: int, probe: int, strata: int, state: wp.uint32) -> wp.vec3:
+    """Ray i's direction: stratum k = i - probe * strata^2 of a stratified uniform sphere, jittered by state."""
+    u = stratified_pair(i - probe * strata * strata, strata, state)
+    return uniform_sphere(u[0], u[1])
+
 
 @wp.kernel
 def capture_kernel(
@@ -80,10 +86,8 @@ def capture_kernel(
     i = start + wp.tid()
     samples = strata * strata
     probe = i // samples
-    k = i - probe * samples
     state = wp.rand_init(seed, first * samples + i)
-    u = stratified_pair(k, strata, state)
-    d = uniform_sphere(u[0], u[1])
+    d = probe_ray_direction(i, probe, strata, state)
     directions[i] = d
     origin = probe_positions[probe]
     q = trace_closest(scene, origin, d, FAR)
@@ -116,10 +120,7 @@ def sky_kernel(
     i = start + wp.tid()
     samples = strata * strata
     probe = i // samples
-    k = i - probe * samples
-    state = wp.rand_init(seed, first * samples + i)
-    u = stratified_pair(k, strata, state)
-    d = uniform_sphere(u[0], u[1])
+    d = probe_ray_direction(i, probe, strata, wp.rand_init(seed, first * samples + i))
     directions[i] = d
     value = wp.vec3(0.0, 0.0, 0.0)
     if not trace_any(scene, probe_positions[probe], d, FAR):
