@@ -7,17 +7,20 @@ light illumination model", EGWR 1998, with the distance mapping a step at
 
     AO(x) = 1/pi * integral_{H(n)} V(x, w) cos(theta) dw          (dimensionless, in [0, 1])
 
-Drawing w with pdf cos(theta)/pi (Malley's method: the concentric disk map
-lifted to the hemisphere; Pharr, Jakob & Humphreys, PBRT 3rd ed., Sections
-13.6.2-13.6.3) cancels the cosine and the 1/pi in the Monte Carlo estimator
-f/p (PBRT Section 13.2), so AO is the mean of V over the rays. The rays are
-stratified: ray k of strata^2 draws its jitter in cell k of a strata x strata
-grid over the unit square (PBRT Section 7.3), from a generator seeded by
-(seed, point), so results do not depend on thread count or chunking.
+Drawing w with pdf cos(theta)/pi (Malley's method: a uniform point (u1, u2) of the unit square goes to
+the disk point sqrt(u1) (cos 2 pi u2, sin 2 pi u2), lifted to the hemisphere; Pharr, Jakob & Humphreys,
+PBRT 3rd ed., Section 13.6.3) cancels the cosine and the 1/pi in the Monte Carlo estimator f/p (PBRT
+Section 13.2), so AO is the mean of V over the rays.
 
-Both AO processors take their rays from ``ao_direction`` and their settings
-from one ``AORays``, so with the same seed they cast the same rays and differ
-only in how V is found.
+The rays are stratified: ray k of strata^2 is jittered inside cell k of a strata x strata grid over the
+unit square (PBRT Section 7.3; column k % strata in u1, row k // strata in u2). The jitter of ray k is one
+hash of (point, k) (``wp.rand_init(seed, point) + k`` through PCG; Jarzynski & Olano, "Hash functions for
+GPU rendering", JCGT 9(3), 2020), split into two 16-bit uniforms, so results do not depend on thread count
+or chunking. A table per strata holds each cell's u1 corner and the cosine and sine of its central azimuth;
+a ray turns that azimuth by its jitter, at most half a cell (``sin_cos_quarter_turn`` where strata >= 4).
+A ray so costs one hash, two square roots and a short polynomial, where a generator per ray and the
+concentric map cost three times as much (docs/ray_core.md); its direction is made while the previous ray
+is traced (``occlusion_at``), because the trace cannot start before it.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .sampling import cosine_hemisphere, strata_for, stratified_pair
+from .sampling import cosine_hemisphere, strata_for, tangent_frame
 from .tracer import FAR
 from .traversal import TraceScene
 
@@ -46,29 +49,58 @@ class AORays:
     epsilon: float
     """Ray origin offset along the normal (stage units): the tracer's ``epsilon``."""
     seed: int
-    """Random seed; point i draws from ``wp.rand_init(seed, i)``."""
+    """Random seed; ray k of point i jitters by a hash of (``wp.rand_init(seed, i)``, k)."""
+    cells: wp.array(dtype=wp.vec2)
+    """(strata^2,) cell k's corner (column / strata, row / strata): a table, not an integer division per ray."""
 
 
-def ao_rays(scene: TraceScene, *, samples: int, max_distance: float, epsilon: float, seed: int) -> AORays:
-    """An ``AORays`` for ``samples`` rays per point (rounded to a square, ``strata_for``)."""
+@wp.struct
+class AOPoint:
+    """One point's rays: its frame (the normal as third column) and the state its jitters hash."""
+
+    frame: wp.mat33
+    state: wp.uint32
+
+
+def ao_rays(scene: TraceScene, *, samples: int, max_distance: float, epsilon: float, seed: int,
+            device=None) -> AORays:
+    """An ``AORays`` for ``samples`` rays per point (rounded to a square, ``strata_for``), its cell table
+    stored on ``device`` (default: Warp's)."""
     rays = AORays()
     rays.scene = scene
     rays.strata = strata_for(samples)
     rays.max_distance = float(min(max_distance, FAR))
     rays.epsilon = float(epsilon)
     rays.seed = int(seed)
+    rays.cells = wp.array(stratum_table(rays.strata), dtype=wp.vec2, device=device)
     return rays
 
 
-@wp.func
-def ao_direction(rays: AORays, frame: wp.mat33, k: int, state: wp.uint32) -> wp.vec3:
-    """Unit direction of ray k (0 <= k < strata^2) around the third column of ``frame`` (the normal).
+def stratum_table(strata: int) -> np.ndarray:
+    """(strata^2, 2) float32 corners (column / strata, row / strata) of cell k, at column k % strata and row
+    k // strata of the strata x strata grid over the unit square."""
+    cells = np.arange(strata * strata)
+    return (np.stack([cells % strata, cells // strata], axis=1) / strata).astype(np.float32)
 
-    Stratum k of the unit square, jittered from ``state`` (``stratified_pair``), mapped by Malley's
-    method (``cosine_hemisphere``): pdf cos(theta)/pi per sr (PBRT 3rd ed., Section 13.6.3).
-    """
-    u = stratified_pair(k, rays.strata, state)
-    return frame * cosine_hemisphere(u[0], u[1])
+
+@wp.func
+def ao_point(rays: AORays, n: wp.vec3, point: int) -> AOPoint:
+    """The rays of point ``point`` (its index seeds them) with unit normal n."""
+    point_rays = AOPoint()
+    point_rays.frame = tangent_frame(n)
+    point_rays.state = wp.rand_init(rays.seed, point)
+    return point_rays
+
+
+@wp.func
+def ao_direction(rays: AORays, point: AOPoint, k: int) -> wp.vec3:
+    """Unit direction of ray k (0 <= k < strata^2): a uniform point of cell k, jittered by the hash of
+    (point.state + k), mapped by Malley's method (``cosine_hemisphere``), pdf cos(theta)/pi per sr (PBRT 3rd
+    ed., Section 13.6.3), in the point's frame."""
+    bits = wp.rand_init(wp.int32(point.state + wp.uint32(k)))
+    cell = rays.cells[k] + wp.vec2(float(bits >> wp.uint32(16)), float(bits & wp.uint32(65535))) * (
+        1.0 / (65536.0 * float(rays.strata)))
+    return point.frame * cosine_hemisphere(cell[0], cell[1])
 
 
 def launch_ao(tracer, kernel, count: int, rays: AORays, inputs: list) -> np.ndarray:

@@ -23,14 +23,15 @@ def concentric_disk(u1: float, u2: float) -> wp.vec2:
     """
     a = 2.0 * u1 - 1.0
     b = 2.0 * u2 - 1.0
-    if a == 0.0 and b == 0.0:
+    # phi = pi/4 (b/a) where |a| > |b|, else pi/2 - pi/4 (a/b): cos and sin of pi/4 x (|x| <= 1), swapped in
+    # the second case. Chosen by selects, not branches: the case is a coin toss per sample, which a CPU's
+    # branch predictor pays for in every ray generator.
+    wide = a * a > b * b
+    radius = wp.where(wide, a, b)
+    if radius == 0.0:
         return wp.vec2(0.0, 0.0)
-    # phi = pi/4 (b/a), or pi/2 - pi/4 (a/b): cos and sin of pi/4 x (|x| <= 1), swapped in the second case.
-    if a * a > b * b:
-        sin_cos = sin_cos_quarter_turn((wp.pi / 4.0) * (b / a))
-        return wp.vec2(a * sin_cos[1], a * sin_cos[0])
-    sin_cos = sin_cos_quarter_turn((wp.pi / 4.0) * (a / b))
-    return wp.vec2(b * sin_cos[0], b * sin_cos[1])
+    sin_cos = sin_cos_quarter_turn((wp.pi / 4.0) * (wp.where(wide, b, a) / radius))
+    return wp.vec2(radius * wp.where(wide, sin_cos[1], sin_cos[0]), radius * wp.where(wide, sin_cos[0], sin_cos[1]))
 
 
 @wp.func

@@ -1,4 +1,4 @@
-"""Sky dome patch layouts and sky radiance models (numpy), plus the Warp patch sampler.
+"""Sky dome patch layouts, their samples, and sky radiance models (numpy).
 
 Frames
 ------
@@ -49,11 +49,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import warp as wp
-
-from .sampling import sin_cos
-
-wp.set_module_options({"enable_backward": False})
 
 LUMINOUS_EFFICACY = 179.0
 """lm/W: Radiance's white efficacy, turns cd/m^2 into visible-equivalent W/(m^2 sr)."""
@@ -224,66 +219,54 @@ def patch_samples(patches: SkyPatches, per_side: int = 3) -> np.ndarray:
     return directions.reshape(len(patches), per_side * per_side, 3)
 
 
-@wp.func
-def patch_direction(z: float, azimuth: float) -> wp.vec3:
-    """The ENU unit direction at z = sin(altitude) and azimuth (radians from north towards east)."""
-    r = wp.sqrt(wp.max(0.0, 1.0 - z * z))
-    sc = sin_cos(azimuth)
-    return wp.vec3(r * sc[0], r * sc[1], z)
+def patch_jittered_samples(patches: SkyPatches, strata: int, seed: int, variants: int = 1) -> np.ndarray:
+    """(variants, N, strata^2, 3) ENU unit directions: in each patch, per variant, one uniform (equal solid
+    angle) direction per cell of a strata x strata grid over its (z, azimuth) rectangle, cell s at z column
+    s % strata, azimuth row s // strata.
 
-
-@wp.func
-def sample_patch(bounds: wp.vec4, enu_to_world: wp.mat33, u1: float, u2: float) -> wp.vec3:
-    """Uniform (equal solid angle) direction inside a patch: z and azimuth uniform within its bounds.
-
-    The random samples inside a sky patch of Bosch, Besuievsky & Martin,
-    Sec. 4.1 (Fig. 2 and 4: "generate s random samples within the patch"):
-    z = sin(altitude) and azimuth uniform within the bounds give directions of
-    constant density 1 / dw_j per steradian (Archimedes' hat-box theorem), so
-    the mean over them is the patch average the visibility factor V_ij needs.
-    ``bounds`` : (z_lo, z_hi, azimuth_lo, azimuth_hi), azimuth in radians from
-    north towards east; returns a unit direction in the scene frame.
+    The random samples inside a sky patch of Bosch, Besuievsky & Martin, Sec. 4.1 (Fig. 2 and 4: "generate
+    s random samples within the patch"), stratified (Cook 1986): z = sin(altitude) and azimuth uniform in a
+    cell give directions of constant density per steradian (Archimedes' hat-box theorem). Drawn once per
+    (seed, strata, variants) from a generator of their own, so a kernel reads them instead of making them
+    per ray; a face takes one of the ``variants`` sets, so that neighbouring faces do not all
+    err the same way (the paper's renderings share one set across all faces, and an average over faces then
+    keeps that set's error however many faces it spans).
     """
-    z = bounds[0] + u1 * (bounds[1] - bounds[0])
-    azimuth = bounds[2] + u2 * (bounds[3] - bounds[2])
-    return enu_to_world * patch_direction(z, azimuth)
+    rng = np.random.default_rng([seed, strata, variants])
+    cells = np.arange(strata * strata)
+    grid = np.stack([cells % strata, cells // strata], axis=1)
+    u = (grid[None, None] + rng.random((variants, len(patches), len(cells), 2))) / strata
+    z_lo, z_hi, az_lo, az_hi = (patches.patch_bounds[None, :, k, None] for k in range(4))
+    z = z_lo + u[..., 0] * (z_hi - z_lo)
+    return altaz_to_enu(np.arcsin(np.clip(z, -1.0, 1.0)), az_lo + u[..., 1] * (az_hi - az_lo))
 
 
-@wp.func
-def patch_mean_cosine(bounds: wp.vec4, n_enu: wp.vec3) -> float:
-    """Mean of n . w over a patch's directions (per steradian), exact: with z and azimuth uniform
-    (``sample_patch``), w = (r sin az, r cos az, z), r = sqrt(1 - z^2), so
+def patch_mean_directions(bounds: np.ndarray) -> np.ndarray:
+    """(N, 3) mean of the ENU direction w over each patch (per steradian), exact: n . (this) is the patch's
+    mean of n . w, which equals its mean of max(0, n . w) when the whole patch lies above the plane of n.
+    With z and azimuth uniform, w = (r sin az, r cos az, z), r = sqrt(1 - z^2), so
 
-        int n.w dw = n_e int r dz int sin az + n_n int r dz int cos az + n_u int z dz (az1 - az0),
+        int w dw = (int r dz (cos az0 - cos az1), int r dz (sin az1 - sin az0), (z1^2 - z0^2) / 2 (az1 - az0)),
 
-    int r dz = (z r + asin z) / 2. Equals the patch's mean of max(0, n . w) when the whole patch lies
-    above the plane of n (the caller checks)."""
-    z0 = bounds[0]
-    z1 = bounds[1]
-    a0 = bounds[2]
-    a1 = bounds[3]
-    r0 = wp.sqrt(wp.max(0.0, 1.0 - z0 * z0))
-    r1 = wp.sqrt(wp.max(0.0, 1.0 - z1 * z1))
-    int_r = 0.5 * ((z1 * r1 + wp.asin(wp.clamp(z1, -1.0, 1.0))) - (z0 * r0 + wp.asin(wp.clamp(z0, -1.0, 1.0))))
-    sc0 = sin_cos(a0)
-    sc1 = sin_cos(a1)
-    integral = (n_enu[0] * int_r * (sc0[1] - sc1[1]) + n_enu[1] * int_r * (sc1[0] - sc0[0])
-                + n_enu[2] * 0.5 * (z1 * z1 - z0 * z0) * (a1 - a0))
-    return integral / wp.max((z1 - z0) * (a1 - a0), 1e-30)
+    int r dz = (z r + asin z) / 2, divided by the patch's (z1 - z0)(az1 - az0)."""
+    z0, z1, a0, a1 = np.asarray(bounds, np.float64).T
+
+    def int_r(z):
+        return 0.5 * (z * np.sqrt(np.maximum(1.0 - z * z, 0.0)) + np.arcsin(np.clip(z, -1.0, 1.0)))
+
+    rings = int_r(z1) - int_r(z0)
+    integral = np.stack([rings * (np.cos(a0) - np.cos(a1)), rings * (np.sin(a1) - np.sin(a0)),
+                         0.5 * (z1 * z1 - z0 * z0) * (a1 - a0)], axis=1)
+    return integral / np.maximum((z1 - z0) * (a1 - a0), 1e-30)[:, None]
 
 
-@wp.func
-def patch_above(bounds: wp.vec4, n_enu: wp.vec3) -> bool:
-    """The patch's four corners and centre lie on or above the plane of n (n . w >= 0, to float rounding:
-    a horizontal face and the patches resting on the horizon)."""
-    zm = 0.5 * (bounds[0] + bounds[1])
-    am = 0.5 * (bounds[2] + bounds[3])
-    tolerance = -1.0e-6
-    return (wp.dot(n_enu, patch_direction(bounds[0], bounds[2])) >= tolerance
-            and wp.dot(n_enu, patch_direction(bounds[0], bounds[3])) >= tolerance
-            and wp.dot(n_enu, patch_direction(bounds[1], bounds[2])) >= tolerance
-            and wp.dot(n_enu, patch_direction(bounds[1], bounds[3])) >= tolerance
-            and wp.dot(n_enu, patch_direction(zm, am)) > 0.0)
+def patch_outlines(bounds: np.ndarray) -> np.ndarray:
+    """(N, 5, 3) ENU unit directions of each patch's four corners and its (z, azimuth) midpoint, which
+    ``patch_visibility`` holds against a face's plane to find the patches wholly above it."""
+    z0, z1, a0, a1 = np.asarray(bounds, np.float64).T
+    z = np.stack([z0, z0, z1, z1, 0.5 * (z0 + z1)], axis=1)
+    azimuth = np.stack([a0, a1, a0, a1, 0.5 * (a0 + a1)], axis=1)
+    return altaz_to_enu(np.arcsin(np.clip(z, -1.0, 1.0)), azimuth)
 
 
 # ---------------------------------------------------------------------------

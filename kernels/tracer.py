@@ -261,9 +261,10 @@ class Tracer:
 
     # -- launching ---------------------------------------------------------
 
-    def launch(self, kernel, dim: int, inputs: list, *, threads: int | None = None) -> None:
+    def launch(self, kernel, dim: int, inputs: list, *, threads: int | None = None,
+               min_chunk: int | None = None) -> None:
         """Launch ``kernel(start, *inputs)`` over ``dim`` items on this tracer's device (see launch_chunked)."""
-        launch_chunked(kernel, dim, inputs, device=self.device, threads=threads or self.threads)
+        launch_chunked(kernel, dim, inputs, device=self.device, threads=threads or self.threads, min_chunk=min_chunk)
 
     def array(self, values: np.ndarray, dtype) -> wp.array:
         return wp.array(np.ascontiguousarray(values), dtype=dtype, device=self.device)

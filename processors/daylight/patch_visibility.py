@@ -9,8 +9,8 @@ import numpy as np
 import warp as wp
 
 from ...kernels.sampling import strata_for, stratified_pair, triangle_point
-from ...kernels.sky import SkyPatches, patch_above, patch_mean_cosine, sample_patch
-from ...kernels.tracer import FAR, triangle_origin
+from ...kernels.sky import SkyPatches, patch_jittered_samples, patch_mean_directions, patch_outlines
+from ...kernels.tracer import FAR, MIN_CHUNK, triangle_origin
 from ...kernels.traversal import TraceScene, trace_any
 from .glazing import GlassPanes, glass_arguments, segment_transmittance
 
@@ -22,22 +22,49 @@ QUANT_LEVELS = 255
 PAIRS_PER_BATCH = 4_000_000
 """(triangle, patch) pairs per launch: bounds the temporary V/partial arrays to ~32 MB."""
 
+SAMPLE_SETS_BYTES = 2 ** 21
+"""Room for the patch sample sets (``sky.patch_jittered_samples``), up to MAX_SAMPLE_SETS of them: about a
+core's cache, so a sample costs a load from it."""
+MAX_SAMPLE_SETS = 64
+"""Sample sets a face draws one of: an average over many faces keeps 1 / sqrt(64) of one set's error."""
+
+
+@wp.kernel
+def sample_origins_kernel(start: int, scene: TraceScene, corners: wp.array(dtype=wp.vec3),
+                          normals: wp.array(dtype=wp.vec3), tri_ids: wp.array(dtype=int), strata: int,
+                          epsilon: float, seed: int, origins: wp.array(dtype=wp.vec3)):
+    """The ray origins of triangle i, one per sample s: a uniform point in cell s of a strata x strata grid
+    over the unit square (``stratified_pair``, seeded by (seed, tri_ids[i])), taken to the triangle by the
+    square-root warp (``triangle_point``), off its surface by ``triangle_origin``. Sample s of every patch
+    leaves from origin s, so the origins are made once per triangle, not once per (triangle, patch) pair."""
+    i = start + wp.tid()
+    n = normals[i]
+    count = strata * strata
+    a = corners[3 * i]
+    b = corners[3 * i + 1]
+    c = corners[3 * i + 2]
+    state = wp.rand_init(seed, tri_ids[i])
+    for s in range(count):
+        u = stratified_pair(s, strata, state)
+        origins[i * count + s] = triangle_origin(scene, a, b, c, triangle_point(a, b, c, u[0], u[1]), n, epsilon)
+
 
 @wp.kernel
 def patch_visibility_kernel(
     start: int,
     scene: TraceScene,
-    corners: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
     tri_ids: wp.array(dtype=int),
-    patch_bounds: wp.array(dtype=wp.vec4),
+    origins: wp.array(dtype=wp.vec3),
+    samples: wp.array(dtype=wp.vec3),
+    sample_sets: int,
     patch_centers: wp.array(dtype=wp.vec3),
     patch_horizon: wp.array(dtype=float),
-    to_world: wp.mat33,
+    patch_outlines: wp.array(dtype=wp.vec3),
+    patch_means: wp.array(dtype=wp.vec3),
     num_patches: int,
-    strata: int,
+    count: int,
     epsilon: float,
-    seed: int,
     any_partial: int,
     has_glass: int,
     glass: TraceScene,
@@ -46,72 +73,75 @@ def patch_visibility_kernel(
     visible: wp.array(dtype=float),
     partial: wp.array(dtype=float),
 ):
-    """V_ij (cosine-weighted visible share) and min(visible, occluded) for pair k = i * N + j.
+    """V_ij (cosine-weighted visible share) and min(visible, occluded) of triangle i for every patch j, at
+    k = i * N + j.
 
     The visibility factor of Bosch, Besuievsky & Martin, Sec. 4.1 (Fig. 4:
     V_ij += (f_v / f_c) cos theta_ik over the patch's samples k, then averaged),
-    with a ray per sample from a uniform point of the triangle instead of the
-    occlusion query's visible-fragment share f_v / f_c: V_ij = (1/s) sum_k
-    vis_k max(0, n_i . w_k), dimensionless in [0, 1]; for a patch wholly above
-    the triangle's plane, scaled to the exact mean cosine C_ij (``patch_mean_cosine``):
-    V_ij = C_ij sum_k vis_k cos_k / sum_k cos_k. ``partial`` feeds the
-    refinement test of Sec. 4.2 (0 < V_ij < 1 in the paper): min of the
+    with a ray per sample (``samples``: the patch's directions in one of ``sample_sets`` sets, the one a hash
+    of tri_ids[i] picks, read in order; ``origins``: the triangle's points) instead of the occlusion query's
+    visible-fragment share f_v / f_c: V_ij = (1/s) sum_k vis_k max(0, n_i . w_k), dimensionless in
+    [0, 1]; for a patch wholly above the triangle's plane (its ``patch_outlines`` on or above it), scaled
+    to the exact mean cosine C_ij = n_i . ``patch_means``_j: V_ij = C_ij sum_k vis_k cos_k / sum_k cos_k.
+    ``partial`` feeds the refinement test of Sec. 4.2 (0 < V_ij < 1 in the paper): min of the
     visible and occluded cosine-weighted shares (``criterion = share``), or
     their sum when both are non-zero (``any_partial``). With glazing (``has_glass``), ``scene`` holds the
     opaque triangles and a ray that escapes them counts its transmittance through the panes of ``glass``
     (``glazing.segment_transmittance``); for ``partial`` it counts as seen, so a face behind a window is not
-    refined for the glass alone.
+    refined for the glass alone. A sample below the triangle's horizon costs a dot product, not a ray.
     """
-    k = start + wp.tid()
-    i = k // num_patches
-    j = k - i * num_patches
+    i = start + wp.tid()
     n = normals[i]
-    visible[k] = 0.0
-    partial[k] = 0.0
-    if wp.length(n) < 0.5:
-        return
-    if wp.dot(n, patch_centers[j]) < patch_horizon[j]:
-        return  # the whole patch is below the triangle's horizon
-    a = corners[3 * i]
-    b = corners[3 * i + 1]
-    c = corners[3 * i + 2]
-    state = wp.rand_init(seed + 65537 * j, tri_ids[i])
-    bounds = patch_bounds[j]
-    vis = float(0.0)
-    seen = float(0.0)
-    occ = float(0.0)
-    count = strata * strata
-    for s in range(count):
-        u = stratified_pair(s, strata, state)
-        d = sample_patch(bounds, to_world, u[0], u[1])
-        cos_theta = wp.dot(n, d)
-        u1 = wp.randf(state)
-        u2 = wp.randf(state)
-        if cos_theta > 0.0:
-            x = triangle_point(a, b, c, u1, u2)
-            origin = triangle_origin(scene, a, b, c, x, n, epsilon)
-            if trace_any(scene, origin, d, FAR):
-                occ += cos_theta
-            else:
-                seen += cos_theta
-                through = float(1.0)
-                if has_glass != 0:
-                    through = segment_transmittance(glass, glass_tn, glass_normal, origin, d, FAR, epsilon)
-                vis += cos_theta * through
-    # A patch wholly above the triangle's plane: its cosine-weighted share is known exactly, so the samples
-    # only split it into visible and occluded (a ratio estimate): an open face sums to exactly 1, not 1 +- noise.
-    n_enu = wp.transpose(to_world) * n
-    if seen + occ > 0.0 and patch_above(bounds, n_enu):
-        scale = patch_mean_cosine(bounds, n_enu) * float(count) / (seen + occ)
-        vis = vis * scale
-        seen = seen * scale
-        occ = occ * scale
-    visible[k] = vis / float(count)
-    if any_partial != 0:
-        if seen > 0.0 and occ > 0.0:
-            partial[k] = (seen + occ) / float(count)
-    else:
-        partial[k] = wp.min(seen, occ) / float(count)
+    facing = wp.length(n) >= 0.5
+    sample_set = int(wp.rand_init(tri_ids[i]) % wp.uint32(sample_sets))
+    for j in range(num_patches):
+        k = i * num_patches + j
+        visible[k] = 0.0
+        partial[k] = 0.0
+        center_cos = wp.dot(n, patch_centers[j])
+        if not facing or center_cos < patch_horizon[j]:
+            continue  # the whole patch is below the triangle's horizon
+        first = (sample_set * num_patches + j) * count
+        vis = float(0.0)
+        seen = float(0.0)
+        occ = float(0.0)
+        for s in range(count):
+            d = samples[first + s]
+            cos_theta = wp.dot(n, d)
+            if cos_theta > 0.0:
+                origin = origins[i * count + s]
+                if trace_any(scene, origin, d, FAR):
+                    occ += cos_theta
+                else:
+                    seen += cos_theta
+                    through = float(1.0)
+                    if has_glass != 0:
+                        through = segment_transmittance(glass, glass_tn, glass_normal, origin, d, FAR, epsilon)
+                    vis += cos_theta * through
+        # A patch wholly above the triangle's plane: its cosine-weighted share is known exactly, so the samples
+        # only split it into visible and occluded (a ratio estimate): an open face sums to exactly 1, not 1 +- noise.
+        # (-patch_horizon is sin of the patch's angular radius: a centre that high has the whole patch above.)
+        if seen + occ > 0.0 and (center_cos > -patch_horizon[j] or above_plane(n, patch_outlines, j)):
+            scale = wp.dot(n, patch_means[j]) * float(count) / (seen + occ)
+            vis = vis * scale
+            seen = seen * scale
+            occ = occ * scale
+        visible[k] = vis / float(count)
+        if any_partial != 0:
+            if seen > 0.0 and occ > 0.0:
+                partial[k] = (seen + occ) / float(count)
+        else:
+            partial[k] = wp.min(seen, occ) / float(count)
+
+
+@wp.func
+def above_plane(n: wp.vec3, outlines: wp.array(dtype=wp.vec3), j: int) -> bool:
+    """Patch j's four corners lie on or above the plane of n (to float rounding: a horizontal face and the
+    patches resting on the horizon) and its midpoint above it (``sky.patch_outlines``)."""
+    tolerance = -1.0e-6
+    return (wp.dot(n, outlines[5 * j]) >= tolerance and wp.dot(n, outlines[5 * j + 1]) >= tolerance
+            and wp.dot(n, outlines[5 * j + 2]) >= tolerance and wp.dot(n, outlines[5 * j + 3]) >= tolerance
+            and wp.dot(n, outlines[5 * j + 4]) > 0.0)
 
 
 def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, patches: SkyPatches,
@@ -147,44 +177,61 @@ def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, p
     n_tri, n_patch = len(corners), len(patches)
     tri_ids = np.arange(n_tri, dtype=np.int32) if tri_ids is None else np.asarray(tri_ids, np.int32)
     to_world = np.asarray(to_world, np.float64)
-    centers = patches.patch_directions @ to_world.T
-    horizon = -np.sin(np.minimum(patches.patch_radius, np.pi / 2))
     strata = strata_for(samples)
-    bounds_wp = tracer.array(patches.patch_bounds.astype(np.float32), wp.vec4)
-    centers_wp = tracer.array(centers.astype(np.float32), wp.vec3)
-    horizon_wp = tracer.array(horizon.astype(np.float32), float)
-    matrix = wp.mat33(*to_world.astype(np.float32).ravel().tolist())
+    count = strata * strata
+
+    def world(enu: np.ndarray) -> wp.array:
+        return tracer.array((enu @ to_world.T).reshape(-1, 3).astype(np.float32), wp.vec3)
+
+    sets = sample_set_count(n_patch, count)
+    patch_arrays = [world(patch_jittered_samples(patches, strata, seed, sets)), sets, world(patches.patch_directions),
+                    tracer.array((-np.sin(np.minimum(patches.patch_radius, np.pi / 2))).astype(np.float32), float),
+                    world(patch_outlines(patches.patch_bounds)), world(patch_mean_directions(patches.patch_bounds))]
     glass = glass_arguments(tracer, glazing)
     visible = np.zeros((n_tri, n_patch), np.float32)
     partial = np.zeros((n_tri, n_patch), np.float32)
     batch = max(1, PAIRS_PER_BATCH // max(n_patch, 1))
     for lo in range(0, n_tri, batch):
         hi = min(n_tri, lo + batch)
-        pairs = (hi - lo) * n_patch
-        vis_wp = wp.empty(pairs, dtype=float, device=tracer.device)
-        part_wp = wp.empty(pairs, dtype=float, device=tracer.device)
-        tracer.launch(patch_visibility_kernel, pairs, [
-            tracer.scene, tracer.array(corners[lo:hi].reshape(-1, 3), wp.vec3),
-            tracer.array(normals[lo:hi], wp.vec3), tracer.array(tri_ids[lo:hi], int),
-            bounds_wp, centers_wp, horizon_wp, matrix, n_patch, strata, tracer.epsilon, int(seed),
+        normals_wp = tracer.array(normals[lo:hi], wp.vec3)
+        ids_wp = tracer.array(tri_ids[lo:hi], int)
+        origins = wp.empty((hi - lo) * count, dtype=wp.vec3, device=tracer.device)
+        tracer.launch(sample_origins_kernel, hi - lo, [
+            tracer.scene, tracer.array(corners[lo:hi].reshape(-1, 3), wp.vec3), normals_wp,
+            ids_wp, strata, tracer.epsilon, int(seed), origins],
+            min_chunk=max(1, MIN_CHUNK // count))
+        vis_wp = wp.empty((hi - lo) * n_patch, dtype=float, device=tracer.device)
+        part_wp = wp.empty((hi - lo) * n_patch, dtype=float, device=tracer.device)
+        tracer.launch(patch_visibility_kernel, hi - lo, [
+            tracer.scene, normals_wp, ids_wp, origins, *patch_arrays, n_patch, count, tracer.epsilon,
             int(criterion == "any"), *glass, vis_wp, part_wp,
-        ])
+        ], min_chunk=max(1, MIN_CHUNK // (n_patch * count)))  # a triangle is up to n_patch * count rays
         visible[lo:hi] = vis_wp.numpy().reshape(hi - lo, n_patch)
         partial[lo:hi] = part_wp.numpy().reshape(hi - lo, n_patch)
     tracer.rays_cast += traced_rays(normals, patches, to_world, samples)
     return visible, partial
 
 
+def sample_set_count(n_patch: int, count: int) -> int:
+    """How many sets of patch samples a pass draws: as many as SAMPLE_SETS_BYTES holds, 1 to MAX_SAMPLE_SETS."""
+    return int(np.clip(SAMPLE_SETS_BYTES // (n_patch * count * 12), 1, MAX_SAMPLE_SETS))
+
+
 def traced_rays(normals: np.ndarray, patches: SkyPatches, to_world: np.ndarray, samples: int) -> int:
     """Rays ``patch_visibility_kernel`` casts for triangles with these (T, 3) normals: strata^2 per pair
     whose patch is not wholly below the triangle's horizon (samples below the horizon inside such a
     patch included)."""
+    return int(patches_above(normals, patches, to_world).sum()) * strata_for(samples) ** 2
+
+
+def patches_above(normals: np.ndarray, patches: SkyPatches, to_world: np.ndarray) -> np.ndarray:
+    """(T,) int: the patches not wholly below each triangle's horizon (0 for a degenerate face): the
+    pairs ``patch_visibility_kernel`` samples."""
     centers = patches.patch_directions @ np.asarray(to_world, np.float64).T
     horizon = -np.sin(np.minimum(patches.patch_radius, np.pi / 2))
     normals = np.asarray(normals, np.float64)
-    normals = normals[np.linalg.norm(normals, axis=1) >= 0.5]  # a degenerate face casts nothing
-    above = int((normals @ centers.T >= horizon[None, :]).sum())
-    return above * strata_for(samples) ** 2
+    above = (normals @ centers.T >= horizon[None, :]).sum(axis=1)
+    return np.where(np.linalg.norm(normals, axis=1) >= 0.5, above, 0)
 
 
 def visibility_pass_chunk(tracer, first: int, corners: np.ndarray, normals: np.ndarray, tri_ids: np.ndarray, *,

@@ -77,8 +77,8 @@ from ...geometry.mesh import missing_receivers, receiver_prims, vertex_inward, v
 from .transforms import invertible
 from .field_kernels import INTERPOLATION_MODES, FieldArrays, FieldSet, field_visibility
 from .instance_points import InstancePoints
-from ...kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
-from ...kernels.sampling import strata_for, tangent_frame
+from ...kernels.occlusion import AORays, ao_direction, ao_point, ao_rays, as_points_and_normals, launch_ao
+from ...kernels.sampling import strata_for
 from ...kernels.tracer import FAR, Tracer, surface_origin
 from ...kernels.traversal import trace_any, trace_any_in_instance
 
@@ -134,12 +134,14 @@ def instance_ao_kernel(
     if wp.length(n) < 0.5:
         ao[i] = 1.0
         return
-    state = wp.rand_init(rays.seed, i)
-    frame = tangent_frame(n)
+    point = ao_point(rays, n, i)
     origin = surface_origin(rays.scene, positions[i], n, inward[i], rays.epsilon)
+    count = rays.strata * rays.strata
     visible = float(0.0)
-    for k in range(rays.strata * rays.strata):
-        direction = ao_direction(rays, frame, k, state)
+    next_direction = ao_direction(rays, point, 0)
+    for k in range(count):
+        direction = next_direction
+        next_direction = ao_direction(rays, point, wp.min(k + 1, count - 1))  # made during this ray's trace
         if trace_any(rays.scene, origin, direction, rays.max_distance):
             continue
         self_instance = own[i]
@@ -162,7 +164,7 @@ def instance_ao_kernel(
                                          instances.instance_inverse_linear[item],
                                          instances.instance_inverse_offset[item], fields, f, interpolate)
         visible += v
-    ao[i] = visible / float(rays.strata * rays.strata)
+    ao[i] = visible / float(count)
 
 
 @wp.kernel
@@ -268,7 +270,8 @@ def compute_instance_ao(tracer: Tracer, spheres: InstanceSpheres, positions: np.
     if own.shape != (len(positions),):
         raise ValueError(f"own {own.shape} does not match {len(positions)} positions")
     inward = np.zeros_like(positions) if inward is None else np.ascontiguousarray(inward, np.float32).reshape(-1, 3)
-    rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=epsilon, seed=seed)
+    rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=epsilon, seed=seed,
+                   device=tracer.device)
     return launch_ao(tracer, instance_ao_kernel, len(positions), rays, [
         spheres.arrays, spheres.fieldset.arrays, tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3),
         tracer.array(inward, wp.vec3), tracer.array(own, wp.int32), INTERPOLATION_MODES[interpolation],

@@ -49,8 +49,8 @@ from .products import AmbientOcclusionProduct
 from ...core.scene import Scene
 from .instances import instanced_receivers, per_instance_means
 from ...geometry.mesh import NO_RECEIVERS, face_means, receiver_prims, vertex_inward, vertex_normals
-from ...kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
-from ...kernels.sampling import strata_for, tangent_frame, triangle_point
+from ...kernels.occlusion import AOPoint, AORays, ao_direction, ao_point, ao_rays, as_points_and_normals, launch_ao
+from ...kernels.sampling import strata_for, triangle_point
 from ...kernels.tracer import surface_origin, triangle_origin
 from ...kernels.traversal import trace_any
 
@@ -58,16 +58,20 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.func
-def occlusion_at(rays: AORays, origin: wp.vec3, frame: wp.mat33, state: wp.uint32) -> float:
+def occlusion_at(rays: AORays, origin: wp.vec3, point: AOPoint) -> float:
     """AO estimate (dimensionless, [0, 1]) at ``origin``: the fraction of the strata^2 stratified
-    cosine-weighted rays around the frame's normal that hit nothing within ``max_distance`` (stage units):
+    cosine-weighted rays of ``point`` that hit nothing within ``max_distance`` (stage units):
     the Monte Carlo estimate of Zhukov et al.'s integral with pdf cos(theta)/pi (PBRT 3rd ed., Sections
     13.2 and 13.6.3; ``kernels.occlusion``)."""
+    count = rays.strata * rays.strata
     visible = int(0)
-    for k in range(rays.strata * rays.strata):
-        if not trace_any(rays.scene, origin, ao_direction(rays, frame, k, state), rays.max_distance):
+    direction = ao_direction(rays, point, 0)
+    for k in range(count):
+        current = direction
+        direction = ao_direction(rays, point, wp.min(k + 1, count - 1))  # the next ray's, made during this trace
+        if not trace_any(rays.scene, origin, current, rays.max_distance):
             visible += 1
-    return float(visible) / float(rays.strata * rays.strata)
+    return float(visible) / float(count)
 
 
 @wp.kernel
@@ -75,16 +79,15 @@ def vertex_ao_kernel(start: int, rays: AORays, first: int, positions: wp.array(d
                      normals: wp.array(dtype=wp.vec3), inward: wp.array(dtype=wp.vec3), ao: wp.array(dtype=float)):
     """AO (dimensionless, [0, 1]) at point i around its unit normal by ``occlusion_at`` (Zhukov et al. 1998
     integral, PBRT 3rd ed. Section 13.6.3 rays) from ``surface_origin`` (``inward``: the vertex's unit
-    tangent into its own faces, ``vertex_inward``); a point without a normal gets 1. Point i draws its
-    rays from (seed, first + i): ``first`` is the global index of positions[0] (a chunk's start)."""
+    tangent into its own faces, ``vertex_inward``); a point without a normal gets 1. Point i's rays are
+    seeded by (seed, first + i): ``first`` is the global index of positions[0] (a chunk's start)."""
     i = start + wp.tid()
     n = normals[i]
     if wp.length(n) < 0.5:
         ao[i] = 1.0
         return
-    state = wp.rand_init(rays.seed, first + i)
-    ao[i] = occlusion_at(rays, surface_origin(rays.scene, positions[i], n, inward[i], rays.epsilon), tangent_frame(n),
-                         state)
+    ao[i] = occlusion_at(rays, surface_origin(rays.scene, positions[i], n, inward[i], rays.epsilon),
+                         ao_point(rays, n, first + i))
 
 
 @wp.kernel
@@ -93,7 +96,7 @@ def face_ao_kernel(start: int, rays: AORays, first: int, points: wp.array(dtype=
     """AO (dimensionless, [0, 1]) averaged over triangle i's area and hemisphere: the estimator of
     vertex_ao_kernel (Zhukov et al. 1998 integral, PBRT 3rd ed. Section 13.6.3 rays), each ray from its
     own uniform random point on the triangle (Osada et al. 2002 square-root warp), so the mean estimates
-    (1/A) integral_A AO(x) dA. Triangle i draws from (seed, first + i), as vertex_ao_kernel."""
+    (1/A) integral_A AO(x) dA. Triangle i seeds its directions and its points by (seed, first + i)."""
     i = start + wp.tid()
     n = tri_normals[i]
     if wp.length(n) < 0.5:
@@ -103,13 +106,13 @@ def face_ao_kernel(start: int, rays: AORays, first: int, points: wp.array(dtype=
     a = points[tri[0]]
     b = points[tri[1]]
     c = points[tri[2]]
-    frame = tangent_frame(n)
-    state = wp.rand_init(rays.seed, first + i)
+    point = ao_point(rays, n, first + i)
+    state = wp.rand_init(wp.int32(point.state), -1)  # the points' own stream, apart from the rays' jitter hashes
     visible = int(0)
     for k in range(rays.strata * rays.strata):
-        x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))  # drawn before the direction: keep the order
+        x = triangle_point(a, b, c, wp.randf(state), wp.randf(state))
         origin = triangle_origin(rays.scene, a, b, c, x, n, rays.epsilon)
-        if not trace_any(rays.scene, origin, ao_direction(rays, frame, k, state), rays.max_distance):
+        if not trace_any(rays.scene, origin, ao_direction(rays, point, k), rays.max_distance):
             visible += 1
     ao[i] = float(visible) / float(rays.strata * rays.strata)
 
@@ -134,7 +137,8 @@ def compute_vertex_ao(tracer, positions: np.ndarray, normals: np.ndarray, *, sam
     (N,) float32 in [0, 1]; 1 where the normal is zero.
     """
     positions, normals = as_points_and_normals(positions, normals)
-    rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed)
+    rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed,
+                   device=tracer.device)
     inward = np.zeros_like(positions) if inward is None else np.ascontiguousarray(inward, np.float32).reshape(-1, 3)
     return launch_ao(tracer, vertex_ao_kernel, len(positions), rays, [
         int(first), tracer.array(positions, wp.vec3), tracer.array(normals, wp.vec3), tracer.array(inward, wp.vec3)])
@@ -148,7 +152,8 @@ def compute_face_ao(tracer, points: np.ndarray, tri_vertices: np.ndarray, tri_no
     ``points`` (P, 3) float32 stage units, ``tri_vertices`` (T, 3) int, ``tri_normals`` (T, 3) unit;
     ``first``: global index of triangle 0, which seeds its rays (core.chunks).
     """
-    rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed)
+    rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed,
+                   device=tracer.device)
     return launch_ao(tracer, face_ao_kernel, len(tri_vertices), rays, [
         int(first), tracer.array(points, wp.vec3), tracer.array(tri_vertices.astype(np.int32), wp.vec3i),
         tracer.array(tri_normals, wp.vec3)])

@@ -1,5 +1,6 @@
 """kernels.occlusion: the AO ray settings, the ray directions (cosine-weighted about the normal, against
-the moments of pdf cos(theta)/pi) and the launch helper, with a test kernel of its own."""
+the moments of pdf cos(theta)/pi; one ray per cell of the strata grid) and the launch helper, with a
+test kernel of its own."""
 
 import math
 
@@ -7,8 +8,7 @@ import numpy as np
 import pytest
 import warp as wp
 from tolerances import FLOAT32_STORAGE, MC_SIGMAS
-from usdbake.kernels.occlusion import AORays, ao_direction, ao_rays, as_points_and_normals, launch_ao
-from usdbake.kernels.sampling import tangent_frame
+from usdbake.kernels.occlusion import AORays, ao_direction, ao_point, ao_rays, as_points_and_normals, launch_ao, stratum_table
 from usdbake.kernels.tracer import FAR, Tracer
 
 SAMPLES = 64
@@ -22,20 +22,18 @@ def tracer():
 @wp.kernel
 def directions_kernel(start: int, rays: AORays, normals: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
     i = start + wp.tid()
-    state = wp.rand_init(rays.seed, i)
-    frame = tangent_frame(normals[i])
+    point = ao_point(rays, normals[i], i)
     for k in range(rays.strata * rays.strata):
-        out[i * rays.strata * rays.strata + k] = ao_direction(rays, frame, k, state)
+        out[i * rays.strata * rays.strata + k] = ao_direction(rays, point, k)
 
 
 @wp.kernel
 def cos_mean_kernel(start: int, rays: AORays, normals: wp.array(dtype=wp.vec3), ao: wp.array(dtype=float)):
     i = start + wp.tid()
-    state = wp.rand_init(rays.seed, i)
-    frame = tangent_frame(normals[i])
+    point = ao_point(rays, normals[i], i)
     total = float(0.0)
     for k in range(rays.strata * rays.strata):
-        total += wp.dot(ao_direction(rays, frame, k, state), normals[i])
+        total += wp.dot(ao_direction(rays, point, k), normals[i])
     ao[i] = total / float(rays.strata * rays.strata)
 
 
@@ -72,6 +70,30 @@ def test_rays_depend_on_the_seed_and_the_point_only(tracer):
     assert not np.array_equal(d[0], d[1])  # each point its own jitter
     np.testing.assert_array_equal(d, directions(tracer, np.array([[0, 0, 1]] * 4, np.float64)))
     assert not np.array_equal(d, directions(tracer, np.array([[0, 0, 1]] * 4, np.float64), seed=4))
+
+
+def test_ray_k_lies_in_cell_k_of_the_grid(tracer):
+    """Stratification: mapped back to the unit square (u1 = 1 - cos^2, u2 = azimuth / 2 pi in the frame of
+    the normal), ray k of every point falls in cell k (column k % strata, row k // strata); its position in
+    the cell differs from point to point."""
+    strata = int(math.isqrt(SAMPLES))
+    d = directions(tracer, np.array([[0, 0, 1]] * 50, np.float64))  # tangent_frame of +z: x and y themselves
+    u1 = 1.0 - d[..., 2] ** 2
+    u2 = np.mod(np.arctan2(d[..., 1], d[..., 0]) / (2 * np.pi), 1.0)
+    k = np.arange(SAMPLES)
+    inside = 1e-5  # float32 rounding at a cell's edge
+    assert (u1 >= (k % strata) / strata - inside).all() and (u1 <= (k % strata + 1) / strata + inside).all()
+    assert (u2 >= (k // strata) / strata - inside).all() and (u2 <= (k // strata + 1) / strata + inside).all()
+    within = np.mod(u1 * strata, 1.0)  # the jitter inside the cell: uniform over points, not one pattern
+    assert np.ptp(within, axis=0).min() > 0.5
+    assert abs(within.mean() - 0.5) < MC_SIGMAS * math.sqrt(1 / 12 / within.size)
+
+
+def test_the_cell_table_holds_column_edges_and_central_azimuths():
+    table = stratum_table(3).astype(np.float64)
+    np.testing.assert_allclose(table[:, 0], np.tile([0, 1 / 3, 2 / 3], 3), atol=1e-7)
+    azimuth = 2 * np.pi * (np.repeat([0, 1, 2], 3) + 0.5) / 3
+    np.testing.assert_allclose(table[:, 1:], np.stack([np.cos(azimuth), np.sin(azimuth)], 1), atol=1e-7)
 
 
 def test_launch_ao_returns_the_kernel_output_and_counts_the_rays(tracer):

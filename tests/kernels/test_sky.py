@@ -1,21 +1,18 @@
 """Sky models and patch geometry (kernels/sky.py) against the published formulas and tables, each written
 out again here in float64 (Preetham et al. 1999, Perez et al. 1993, the CIE overcast sky, Kasten 1966, the
-sRGB standard), and the patch functions Warp evaluates against float64 quadrature.
-
-No ``from __future__ import annotations`` here: Warp reads the test kernel's annotations as objects.
+sRGB standard), and the patch functions against float64 quadrature.
 """
 
 import math
 
 import numpy as np
 import pytest
-import warp as wp
-from tolerances import (FLOAT32_WARP_MAPS, FLOAT64_ROUNDING, KASTEN_PLANE_PARALLEL, PEREZ_NORMALISATION,
-                        QUOTED_4_DECIMALS, SRGB_MATRIX_DIGITS)
-from usdbake.kernels.sky import (LUMINOUS_EFFICACY, air_mass, enu_to_world, overcast_radiance, patch_above,
-                                 patch_layout, patch_mean_cosine, patch_radiance, perez_coefficients,
-                                 perez_radiance, perez_sky_state, preetham_radiance, reinhart_patches,
-                                 sample_patch, sun_normal_irradiance, uniform_patches)
+from tolerances import (FLOAT32_ACCUMULATED, FLOAT64_ROUNDING, KASTEN_PLANE_PARALLEL, PEREZ_NORMALISATION,
+                        PATCH_MIDPOINT_RULE, QUOTED_4_DECIMALS, SRGB_MATRIX_DIGITS)
+from usdbake.kernels.sky import (LUMINOUS_EFFICACY, air_mass, enu_to_world, overcast_radiance, patch_jittered_samples,
+                                 patch_layout, patch_mean_directions, patch_outlines, patch_radiance,
+                                 perez_coefficients, perez_radiance, perez_sky_state, preetham_radiance,
+                                 reinhart_patches, sun_normal_irradiance, uniform_patches)
 
 SRGB_TO_XYZ = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])
 """IEC 61966-2-1 (sRGB), linear RGB -> XYZ under D65, as the standard prints it (4 decimals)."""
@@ -189,43 +186,60 @@ def test_uniform_model_patch_radiance_is_the_constant():
                                2.5, rtol=FLOAT64_ROUNDING)
 
 
-@wp.kernel
-def patch_kernel(bounds: wp.array(dtype=wp.vec4), normals: wp.array(dtype=wp.vec3), frame: wp.mat33,
-                 mean_cos: wp.array(dtype=float), above: wp.array(dtype=int), corner: wp.array(dtype=wp.vec3)):
-    i = wp.tid()
-    mean_cos[i] = patch_mean_cosine(bounds[i], normals[i])
-    above[i] = wp.where(patch_above(bounds[i], normals[i]), 1, 0)
-    corner[i] = sample_patch(bounds[i], frame, 0.25, 0.75)
+def box_cosines(bounds: np.ndarray, normals: np.ndarray, steps: int = 400) -> np.ndarray:
+    """(P, steps, steps) n . w at the midpoints of a steps x steps grid over each patch's (z, azimuth) box."""
+    t = (np.arange(steps) + 0.5) / steps
+    z = bounds[:, :1, None] + t[None, :, None] * (bounds[:, 1:2, None] - bounds[:, :1, None])
+    az = bounds[:, 2:3, None] + t[None, None, :] * (bounds[:, 3:4, None] - bounds[:, 2:3, None])
+    r = np.sqrt(1 - z ** 2)
+    return normals[:, 0, None, None] * r * np.sin(az) + normals[:, 1, None, None] * r * np.cos(az) \
+        + normals[:, 2, None, None] * z
 
 
-def test_patch_mean_cosine_and_samples_against_float64():
-    """The mean of n . w over a (z, azimuth) box by a 400 x 400 midpoint rule (error ~1e-6), and the point
-    sample_patch puts at (u1, u2): z = z0 + u1 (z1 - z0), azimuth = a0 + u2 (a1 - a0), turned into the world."""
+def test_patch_mean_directions_and_outlines_against_float64():
+    """n . (mean direction) is the mean of n . w over a (z, azimuth) box by a 400 x 400 midpoint rule; the
+    outline test (corners on or above the plane, midpoint above) holds for patches wholly above and fails
+    for those wholly below; a horizontal face's mean cosines over the sky, by solid angle, add up to pi."""
     patches = reinhart_patches(2)
     rng = np.random.default_rng(5)  # fixed: 64 random patches and normals
     picks = rng.choice(len(patches), 64, replace=False)
     bounds = patches.patch_bounds[picks]
     normals = rng.normal(size=(64, 3))
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    frame = enu_to_world("Y", 30.0)
-    mean_cos = wp.zeros(64, dtype=float, device="cpu")
-    above = wp.zeros(64, dtype=int, device="cpu")
-    corner = wp.zeros(64, dtype=wp.vec3, device="cpu")
-    wp.launch(patch_kernel, dim=64, device="cpu",
-              inputs=[wp.array(bounds.astype(np.float32), dtype=wp.vec4), wp.array(normals.astype(np.float32),
-                      dtype=wp.vec3), wp.mat33(*frame.ravel()), mean_cos, above, corner])
-    t = (np.arange(400) + 0.5) / 400
-    z = bounds[:, :1, None] + t[None, :, None] * (bounds[:, 1:2, None] - bounds[:, :1, None])
-    az = bounds[:, 2:3, None] + t[None, None, :] * (bounds[:, 3:4, None] - bounds[:, 2:3, None])
-    r = np.sqrt(1 - z ** 2)
-    cosines = normals[:, 0, None, None] * r * np.sin(az) + normals[:, 1, None, None] * r * np.cos(az) \
-        + normals[:, 2, None, None] * z
-    np.testing.assert_allclose(mean_cos.numpy(), cosines.mean(axis=(1, 2)), rtol=0, atol=FLOAT32_WARP_MAPS)
+    cosines = box_cosines(bounds, normals)
+    mean_cos = np.einsum("pk,pk->p", patch_mean_directions(bounds), normals)
+    np.testing.assert_allclose(mean_cos, cosines.mean(axis=(1, 2)), rtol=0, atol=PATCH_MIDPOINT_RULE)
+    outline_cos = np.einsum("pck,pk->pc", patch_outlines(bounds), normals)
+    above = (outline_cos[:, :4] >= -1e-6).all(axis=1) & (outline_cos[:, 4] > 0)
     wholly_above = cosines.min(axis=(1, 2)) > 1e-3
     wholly_below = cosines.max(axis=(1, 2)) < 0
-    assert above.numpy()[wholly_above].all() and not above.numpy()[wholly_below].any()
+    assert above[wholly_above].all() and not above[wholly_below].any()
     assert wholly_above.any() and wholly_below.any()
-    zs = bounds[:, 0] + 0.25 * (bounds[:, 1] - bounds[:, 0])
-    azs = bounds[:, 2] + 0.75 * (bounds[:, 3] - bounds[:, 2])
-    enu = np.stack([np.sqrt(1 - zs ** 2) * np.sin(azs), np.sqrt(1 - zs ** 2) * np.cos(azs), zs], axis=1)
-    np.testing.assert_allclose(corner.numpy(), enu @ frame.T, rtol=0, atol=FLOAT32_WARP_MAPS)
+    up = np.array([0.0, 0.0, 1.0])
+    for layout in (uniform_patches(64), patches):
+        total = (patch_mean_directions(layout.patch_bounds) @ up * layout.patch_solid_angles).sum()
+        assert total == pytest.approx(np.pi, rel=FLOAT32_ACCUMULATED)
+
+
+def test_jittered_patch_samples_fall_one_in_each_cell_of_their_patch():
+    """Sample s of a patch lies in cell (s % strata, s // strata) of the patch's strata x strata (z, azimuth)
+    grid, in every set; the jitter comes from the seed alone (the same every call, another for another seed)
+    and differs between sets."""
+    patches = uniform_patches(32)
+    strata = 3
+    sets = patch_jittered_samples(patches, strata, seed=4, variants=2)
+    assert sets.shape == (2, 32, 9, 3)
+    assert not np.array_equal(sets[0], sets[1])
+    np.testing.assert_allclose(np.linalg.norm(sets, axis=3), 1.0, atol=FLOAT64_ROUNDING)
+    z0, z1, a0, a1 = (patches.patch_bounds[:, k, None] for k in range(4))
+    s = np.arange(9)[None]
+    inside = 1e-9
+    for samples in sets:
+        col = (samples[..., 2] - z0) / (z1 - z0) * strata
+        azimuth = np.arctan2(samples[..., 0], samples[..., 1])
+        row = np.mod(azimuth - a0, 2 * np.pi) / (a1 - a0) * strata
+        row = np.where(row > strata + 1e-9, row - 2 * np.pi / (a1 - a0) * strata, row)  # a patch across north
+        assert ((col >= s % strata - inside) & (col <= s % strata + 1 + inside)).all()
+        assert ((row >= s // strata - inside) & (row <= s // strata + 1 + inside)).all()
+    np.testing.assert_array_equal(sets, patch_jittered_samples(patches, strata, seed=4, variants=2))
+    assert not np.array_equal(sets, patch_jittered_samples(patches, strata, seed=5, variants=2))
