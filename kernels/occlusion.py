@@ -7,20 +7,17 @@ light illumination model", EGWR 1998, with the distance mapping a step at
 
     AO(x) = 1/pi * integral_{H(n)} V(x, w) cos(theta) dw          (dimensionless, in [0, 1])
 
-Drawing w with pdf cos(theta)/pi (Malley's method: a uniform point (u1, u2) of the unit square goes to
-the disk point sqrt(u1) (cos 2 pi u2, sin 2 pi u2), lifted to the hemisphere; Pharr, Jakob & Humphreys,
-PBRT 3rd ed., Section 13.6.3) cancels the cosine and the 1/pi in the Monte Carlo estimator f/p (PBRT
-Section 13.2), so AO is the mean of V over the rays.
+Drawing w with pdf cos(theta)/pi (Malley's method: the concentric disk map lifted to the hemisphere;
+Pharr, Jakob & Humphreys, PBRT 3rd ed., Sections 13.6.2-13.6.3) cancels the cosine and the 1/pi in the
+Monte Carlo estimator f/p (PBRT Section 13.2), so AO is the mean of V over the rays.
 
 The rays are stratified: ray k of strata^2 is jittered inside cell k of a strata x strata grid over the
-unit square (PBRT Section 7.3; column k % strata in u1, row k // strata in u2). The jitter of ray k is one
-hash of (point, k) (``wp.rand_init(seed, point) + k`` through PCG; Jarzynski & Olano, "Hash functions for
-GPU rendering", JCGT 9(3), 2020), split into two 16-bit uniforms, so results do not depend on thread count
-or chunking. A table per strata holds each cell's u1 corner and the cosine and sine of its central azimuth;
-a ray turns that azimuth by its jitter, at most half a cell (``sin_cos_quarter_turn`` where strata >= 4).
-A ray so costs one hash, two square roots and a short polynomial, where a generator per ray and the
-concentric map cost three times as much (docs/ray_core.md); its direction is made while the previous ray
-is traced (``occlusion_at``), because the trace cannot start before it.
+unit square (PBRT Section 7.3; column k % strata, row k // strata, corners from a table rather than an
+integer division per ray). The jitter of ray k is one hash of (point, k) (``wp.rand_init(seed, point) + k``
+through PCG; Jarzynski & Olano, "Hash functions for GPU rendering", JCGT 9(3), 2020) split into two 16-bit
+uniforms, where a generator seeded per ray and two draws from it cost four, so results do not depend on
+thread count or chunking. The kernels make ray k + 1's direction before tracing ray k (``occlusion_at``):
+the trace cannot start before its direction, and made in advance its latency hides behind the trace.
 """
 
 from __future__ import annotations
