@@ -35,7 +35,7 @@ from usdbake.kernels.tracer import Tracer
 from usdbake.processors.radiosity import form_factors as ff
 from usdbake.processors.radiosity import radiosity as rad
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 NAME = "radiosity"
 DESCRIPTION = ("Radiosity transfer: patch count vs indirect-irradiance error against a path tracer "

@@ -16,7 +16,7 @@ from usdbake.kernels.tracer import (MIN_CHUNK, RAY_EPSILON_RELATIVE, Tracer, def
                                     surface_origin)
 from usdbake.kernels.traversal import TraceScene, trace_any, trace_closest
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 NAME = "tracer"
 DESCRIPTION = (

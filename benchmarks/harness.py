@@ -23,7 +23,7 @@ from usdbake.geometry.mesh import receiver_prims
 from usdbake.kernels.sampling import triangle_point
 from usdbake.kernels.tracer import launch_chunked
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results"

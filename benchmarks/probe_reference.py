@@ -33,7 +33,7 @@ from usdbake.kernels.light_bundles import scene_lighting
 from usdbake.kernels.lights import LUMINANCE, Lights, direct_irradiance
 from usdbake.kernels.traversal import TraceScene
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 SCENES = ("atrium", "furnished_room", "thin_wall")
 VERSION = "1"

@@ -19,7 +19,7 @@ from usdbake.kernels.sampling import cosine_hemisphere, strata_for, stratified_p
 from usdbake.kernels.tracer import FAR, surface_origin
 from usdbake.kernels.traversal import TraceScene, trace_any, trace_closest
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 PATH_CHUNKS = 16
 """Work items per point of the path tracer: paths are split so long runs use every thread."""

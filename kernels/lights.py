@@ -45,7 +45,7 @@ from .sampling import concentric_disk, cosine_hemisphere, stratified_pair, tange
 from .tracer import FAR, surface_origin
 from .traversal import TraceScene, trace_any, trace_closest
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 AREA_SHADOW_SHORTENING = 1e-4
 """Shadow rays towards a point on an area light stop this fraction short of it, so the emitter's own

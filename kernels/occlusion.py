@@ -29,7 +29,7 @@ from .sampling import cosine_hemisphere, strata_for, tangent_frame
 from .tracer import FAR
 from .traversal import TraceScene
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 
 

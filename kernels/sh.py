@@ -43,7 +43,7 @@ import math
 import numpy as np
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 SH_COUNT = 9
 """Coefficients per colour channel for L2 (``(order + 1)^2``)."""

@@ -33,7 +33,7 @@ from .bvh_build import CHILD_OFFSET, TraceArrays, build_triangle_bvh, single_lev
 from .trace_instances import instanced_arrays
 from .traversal import TraceScene, surface_origin, trace_any, trace_closest
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 RAY_EPSILON_RELATIVE = 1e-5
 """Ray origin offset as a fraction of the scene diagonal: far above float32

@@ -35,7 +35,7 @@ import warp as wp
 
 from .bvh_build import CHILD_OFFSET, COUNT_OFFSET, LEAF_COUNT_BITS, NODE_FLOATS, PACKET, WIDTH
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 
 @wp.struct

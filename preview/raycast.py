@@ -35,7 +35,7 @@ import warp as wp
 from .camera import AUTO_AZIMUTH_DEG, Camera, auto_camera
 from ..kernels.traversal import TraceScene, trace_closest
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 MAX_CULLED_LAYERS = wp.constant(32)
 """Back faces a primary ray may pass through before it gives up (a miss)."""

@@ -60,7 +60,7 @@ from .glazing import scene_glazing
 from .interreflection import ground_radiance, sun_patch_weights
 from .sun_visibility import SunFaces, sun_bin_hits, sun_levels
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 RELIGHT_CHUNK = 16384
 """Rows per chunk when V is uint8: the float32 copy of a chunk (16 MB at 256 patches) stays small."""

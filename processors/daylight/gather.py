@@ -26,7 +26,7 @@ from ...kernels.tracer import FAR, triangle_origin
 from ...kernels.traversal import TraceScene, trace_closest
 from .glazing import glass_arguments, segment_transmittance
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 ESCAPED_SKY = -1
 """A gather ray that left the scene above the horizon (the sky, counted by V already)."""

@@ -27,7 +27,7 @@ import warp as wp
 from ...kernels.tracer import Tracer
 from ...kernels.traversal import TraceScene, trace_closest
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 GLASS_INDEX = 1.52
 """Refractive index of Radiance's ``glass`` (RINDEX in m_glass.c): the transmissivity formula below holds for it."""

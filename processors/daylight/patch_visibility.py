@@ -14,7 +14,7 @@ from ...kernels.tracer import FAR, MIN_CHUNK, triangle_origin
 from ...kernels.traversal import TraceScene, trace_any
 from .glazing import GlassPanes, glass_arguments, segment_transmittance
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 QUANT_LEVELS = 255
 """V is stored as round(V * 255) in uint8: error <= 0.5 / 255 per factor."""

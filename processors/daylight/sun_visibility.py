@@ -17,7 +17,7 @@ from ...kernels.tracer import FAR, triangle_origin
 from ...kernels.traversal import TraceScene, trace_any
 from .glazing import glass_arguments, segment_transmittance
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 PAIRS_PER_LAUNCH = 16_000_000
 """(sun bin, face) pairs per launch of ``sun_bins_kernel``: bounds the byte array of one launch."""

@@ -95,7 +95,7 @@ from ...kernels.sampling import tangent_frame
 from ...kernels.tracer import Tracer
 from ...kernels.traversal import TraceScene, trace_closest
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 SPHERE_INFLATION = 1e-4
 """The bounding sphere is grown by this fraction so no vertex lies on it (rays start strictly outside)."""

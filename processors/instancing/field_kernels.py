@@ -49,7 +49,7 @@ from .sphere_maps import (
 from ...kernels.tracer import Tracer
 from ...kernels.traversal import TraceScene
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 MISS_CODE = 255
 """Code of a ray that leaves the sphere without a hit."""

@@ -82,7 +82,7 @@ from ...kernels.sampling import strata_for
 from ...kernels.tracer import FAR, Tracer, surface_origin
 from ...kernels.traversal import trace_any, trace_any_in_instance
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 FRAME_MATCH = 1e-6
 """Requested frames match authored time codes within this."""

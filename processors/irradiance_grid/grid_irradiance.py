@@ -30,7 +30,7 @@ import warp as wp
 from ...kernels.direction24 import AXES
 from ...kernels.traversal import TraceScene, surface_origin, trace_any, trace_closest
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 
 @wp.struct

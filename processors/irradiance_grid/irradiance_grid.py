@@ -159,7 +159,7 @@ from ...kernels.traversal import TraceScene, trace_closest
 from .vector_grid import (MAX_GRID_VERTICES, RECONSTRUCTIONS, GridLayout, grid_bounds, grid_layout,
                           reconstruct_irradiance)
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 GRID_PRIM = "/usdbake/IrradianceGrid"
 VECTORS_PER_VERTEX = 6

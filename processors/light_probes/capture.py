@@ -24,7 +24,7 @@ from ...kernels.sh import COSINE_LOBE, fibonacci_sphere_np, project_kernel, sh_b
 from ...kernels.tracer import FAR
 from ...kernels.traversal import TraceScene, trace_any, trace_closest
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 SKY_RAYS_PER_RAY = 4
 """Sky visibility rays per capture ray while placing (``compute_probe_sh``'s ``sky_rays``): an any-hit ray

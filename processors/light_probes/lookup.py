@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 
 from ...kernels.tracer import launch_chunked
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 BARY_TOLERANCE = 1e-6
 """A float32 barycentric above -tolerance counts as inside (points on a shared face)."""

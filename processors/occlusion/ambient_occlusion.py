@@ -54,7 +54,7 @@ from ...kernels.sampling import strata_for, triangle_point
 from ...kernels.tracer import surface_origin, triangle_origin
 from ...kernels.traversal import trace_any
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 
 @wp.func

@@ -99,7 +99,7 @@ from ...kernels.sampling import cosine_hemisphere, stratified_pair, tangent_fram
 from ...kernels.tracer import FAR, launch_chunked, triangle_origin
 from ...kernels.traversal import TraceScene, trace_closest
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 PATCHES_PRIM = "/usdbake/RadiosityPatches"
 

@@ -46,7 +46,7 @@ import warp as wp
 from .products import CompressedOperator
 from .bc1 import blocks_to_image, decode_bc1_texels, encode_bc1
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 AUTO_FLOOR_MASS = 1e-3
 """Automatic log floor: the residual entries coded as zero sum to at most this share of the residual."""

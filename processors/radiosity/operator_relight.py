@@ -33,7 +33,7 @@ from .bc1 import bc1_palette_np
 from .operator_codec import stored_operator
 from ...kernels.tracer import launch_chunked
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 DENSE, COMPRESSED = "dense", "compressed"
 CUDA_LANES = 32

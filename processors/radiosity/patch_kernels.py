@@ -14,7 +14,7 @@ the patch of the fragment it lands in.
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 
 @wp.func

@@ -79,7 +79,7 @@ from ...kernels.sampling import cosine_hemisphere, strata_for, tangent_frame
 from ...kernels.tracer import FAR, surface_origin
 from ...kernels.traversal import TraceScene, trace_closest
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 
 # ---------------------------------------------------------------------------

@@ -43,7 +43,7 @@ from ...kernels.sampling import cosine_hemisphere, strata_for, stratified_pair
 from ...kernels.tracer import FAR, surface_origin
 from ...kernels.traversal import TraceScene
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 GUIDE_SIDE = 16
 """Cells along each side of the primary sample square."""
