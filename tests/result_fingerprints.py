@@ -52,8 +52,8 @@ def record_digest(record) -> tuple[str, str]:
     return key, digest.hexdigest()[:24]
 
 
-def fingerprints(sample: Path, name: str, params: dict) -> dict:
-    """{'action': run|skip, 'records': {key: digest}} for one processor (with its dependencies) on one sample."""
+def processor_step(sample: Path, name: str, params: dict, device: str = "cpu"):
+    """The run step of processor ``name`` (with its dependencies) on one sample, on ``device``."""
     from usdbake.stages.extract import extract_scene
     from usdbake.core.pipeline import Pipeline
     from usdbake.core.runtime import Runtime
@@ -61,9 +61,14 @@ def fingerprints(sample: Path, name: str, params: dict) -> dict:
     from pxr import Usd
 
     scene = extract_scene(Usd.Stage.Open(str(sample)))
-    steps = Pipeline.build([name], params, runtime=Runtime(Tracer.from_scene)).run(scene)
+    steps = Pipeline.build([name], params, runtime=Runtime(Tracer.from_scene, device=device)).run(scene)
+    return next(s for s in steps if s.name == name)
+
+
+def fingerprints(sample: Path, name: str, params: dict) -> dict:
+    """{'action': run|skip, 'records': {key: digest}} for one processor (with its dependencies) on one sample."""
+    step = processor_step(sample, name, params)
     records: dict[str, str] = {}
-    step = next(s for s in steps if s.name == name)
     if step.action == "skip":
         return {"action": "skip"}
     for record in step.result.outputs:
