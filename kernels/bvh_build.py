@@ -216,7 +216,13 @@ class TriangleBvh:
     nodes: np.ndarray
     """(M, NODE_FLOATS) float32, root at 0."""
     packets: np.ndarray
-    """(P, 9, PACKET) float32: per packet v0.xyz, v1.xyz, v2.xyz, one lane per triangle."""
+    """(P, 9, PACKET) float32: per packet v0.xyz, v1.xyz, v2.xyz, one lane per triangle; NaN in an empty lane.
+
+    NaN, not 0: a lane of zeros is a point triangle at the origin, whose edge functions the watertight test
+    computes as exactly 0 (no hit) only if no product and difference are fused into an FMA; fused (CUDA's
+    default contraction), they are one rounding error each, of one sign, and the lane was hit at the
+    origin's depth (issue 33). Every comparison with NaN is false, so a NaN lane is never hit, whatever
+    the arithmetic, at no cost to the traversal."""
     packet_triangle: np.ndarray
     """(P, PACKET) int32 triangle index of each lane, -1 for an empty lane."""
 
@@ -269,7 +275,7 @@ def build_triangle_bvh(points: np.ndarray, tri_vertices: np.ndarray) -> Triangle
     traced = np.flatnonzero(np.abs(np.cross(edges[:, 0], edges[:, 1])).max(axis=1) > 0)
     traced = traced[first_copies(corners[traced])]
     if len(traced) == 0:  # nothing to hit: one empty leaf
-        return TriangleBvh(_empty_nodes(), np.zeros((1, 9, PACKET), np.float32), np.full((1, PACKET), -1, np.int32))
+        return TriangleBvh(_empty_nodes(), np.full((1, 9, PACKET), np.nan, np.float32), np.full((1, PACKET), -1, np.int32))
     tree = build_binary(corners[traced].min(axis=1), corners[traced].max(axis=1), max_leaf=2 * PACKET, packet=PACKET)
     leaves = np.flatnonzero(tree.left < 0)
     leaf_count = tree.count[leaves]
@@ -281,7 +287,7 @@ def build_triangle_bvh(points: np.ndarray, tri_vertices: np.ndarray) -> Triangle
     rank = np.arange(leaf_count.sum()) - np.repeat(np.cumsum(leaf_count) - leaf_count, leaf_count)
     packet = np.repeat(first_packet, leaf_count) + rank // PACKET
     triangle = traced[tree.order[np.repeat(tree.first[leaves], leaf_count) + rank]]
-    packets = np.zeros((int(leaf_packets.sum()), 9, PACKET), np.float32)
+    packets = np.full((int(leaf_packets.sum()), 9, PACKET), np.nan, np.float32)  # NaN: empty lanes (see TriangleBvh)
     packet_triangle = np.full((len(packets), PACKET), -1, np.int32)
     packets[packet, :, rank % PACKET] = corners[triangle].reshape(-1, 9)
     packet_triangle[packet, rank % PACKET] = triangle

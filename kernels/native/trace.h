@@ -18,10 +18,7 @@ auto trace_instance = [&](int instance, float& tfar) -> bool {
     for (int p = first; p < end; ++p) {
       Packet k; k.test(PACKETS + PACKET_FLOATS * p, r, t);
       for (int l = 0; l < 4; ++l) {
-        // An empty lane (LANES -1) holds a point triangle at the origin: its edge functions are exactly 0 and
-        // it is never hit, unless a compiler fuses them (U = V = W = one rounding error, a hit at the
-        // origin's depth: CUDA with FMA contraction); it is skipped here whatever the arithmetic.
-        if (k.ok[l] && k.t[l] < t && LANES[4 * p + l] >= 0) {
+        if (k.ok[l] && k.t[l] < t) {
           if (ANY_HIT) return true;
           t = k.t[l]; best = {4 * p + l, instance, k.U[l], k.V[l], k.det[l]};
         }

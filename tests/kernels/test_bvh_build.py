@@ -108,3 +108,15 @@ def test_stacked_copies_get_the_ao_of_one_triangle():
     normals = np.tile([0.0, 0.0, 1.0], (len(points), 1)).astype(np.float32)
     ao = compute_vertex_ao(Tracer(points, triangles), points, normals, samples=16)
     np.testing.assert_array_equal(ao, 1.0)
+
+
+def test_empty_packet_lanes_hold_nan():
+    """A lane without a triangle is NaN, not a point triangle at the origin: every comparison with NaN is false,
+    so the watertight test never hits it, even where a compiler fuses its products (CUDA's contraction made a
+    zero lane's edge functions one rounding error each, all of one sign: a hit at the origin's depth)."""
+    points = np.random.default_rng(2).normal(size=(30, 3)).astype(np.float32)  # fixed: 10 triangles, 3 packets
+    bvh = build_triangle_bvh(points, np.arange(30).reshape(10, 3))
+    empty = bvh.packet_triangle < 0
+    assert empty.any() and (~empty).any()
+    lanes = bvh.packets.transpose(0, 2, 1)  # (P, PACKET, 9)
+    assert np.isnan(lanes[empty]).all() and np.isfinite(lanes[~empty]).all()

@@ -7,10 +7,11 @@ compiles a module ahead of time for an architecture with the NVRTC it ships, dri
 side is checked here on every machine. Running it needs a GPU and is left to the benchmark.
 
 NVRTC fuses a * b - c * d into one FMA unless a module says ``fuse_fp: False``; the CPU build fuses
-nothing. Fused, the watertight test's edge functions of an empty packet lane (a point triangle at the
-origin) are one rounding error each, all of one sign, and the lane is hit at the origin's depth: the
-CUDA bakes' false occlusion and their reads at face -1 (issue 33). Every module of the library therefore
-turns fusion off, and the ray core's PTX holds no fused multiply-add.
+nothing. Fused, the watertight test's edge functions of a packet lane of zeros (a point triangle at the
+origin, as empty lanes were) are one rounding error each, all of one sign, and the lane is hit at the
+origin's depth: the CUDA bakes' false occlusion and their reads at face -1 (issue 33). Empty lanes are
+NaN now (``bvh_build.TriangleBvh``), and every module of the library turns fusion off, so CUDA rounds as
+the CPU does: the ray core's PTX holds no fused multiply-add.
 """
 
 import importlib
