@@ -28,15 +28,24 @@ core's cache, so a sample costs a load from it."""
 MAX_SAMPLE_SETS = 64
 """Sample sets a face draws one of: an average over many faces keeps 1 / sqrt(64) of one set's error."""
 
+ORIGIN_SETS = 8
+"""Sets of origins a triangle's patches take in turn (at most one per patch): a large face partly in shade
+is sampled at ORIGIN_SETS x samples places, not at samples places only. Measured on building, relative RMS
+of the faces' sky view against 4096-ray references over 4 seeds: one set 0.0162 (0.0116-0.0211), 4 sets
+0.0131, 8 sets 0.0105, 16 sets 0.0105; rays from their own point per pair, as before, 0.0106."""
+ORIGINS_PER_BATCH = 1_000_000
+"""Ray origins per launch: bounds the origin array to 12 MB, whatever the patch count."""
+
 
 @wp.kernel
 def sample_origins_kernel(start: int, scene: TraceScene, corners: wp.array(dtype=wp.vec3),
-                          normals: wp.array(dtype=wp.vec3), tri_ids: wp.array(dtype=int), strata: int,
+                          normals: wp.array(dtype=wp.vec3), tri_ids: wp.array(dtype=int), strata: int, sets: int,
                           epsilon: float, seed: int, origins: wp.array(dtype=wp.vec3)):
-    """The ray origins of triangle i, one per sample s: a uniform point in cell s of a strata x strata grid
-    over the unit square (``stratified_pair``, seeded by (seed, tri_ids[i])), taken to the triangle by the
-    square-root warp (``triangle_point``), off its surface by ``triangle_origin``. Sample s of every patch
-    leaves from origin s, so the origins are made once per triangle, not once per (triangle, patch) pair."""
+    """``sets`` sets of ray origins of triangle i, strata^2 each: origin s of set m is a uniform point in
+    cell s of a strata x strata grid over the unit square (``stratified_pair``, seeded by (seed, tri_ids[i], m)),
+    taken to the triangle by the square-root warp (``triangle_point``), off its surface by
+    ``triangle_origin``. Patch j's sample s leaves from origin s of set j % sets: the origins are made once
+    per triangle, not once per (triangle, patch) pair, and still sample a face at sets x strata^2 places."""
     i = start + wp.tid()
     n = normals[i]
     count = strata * strata
@@ -44,9 +53,12 @@ def sample_origins_kernel(start: int, scene: TraceScene, corners: wp.array(dtype
     b = corners[3 * i + 1]
     c = corners[3 * i + 2]
     state = wp.rand_init(seed, tri_ids[i])
-    for s in range(count):
-        u = stratified_pair(s, strata, state)
-        origins[i * count + s] = triangle_origin(scene, a, b, c, triangle_point(a, b, c, u[0], u[1]), n, epsilon)
+    for m in range(sets):
+        set_state = wp.rand_init(wp.int32(state), m)
+        for s in range(count):
+            u = stratified_pair(s, strata, set_state)
+            origins[(i * sets + m) * count + s] = triangle_origin(scene, a, b, c, triangle_point(a, b, c, u[0], u[1]),
+                                                                  n, epsilon)
 
 
 @wp.kernel
@@ -56,6 +68,7 @@ def patch_visibility_kernel(
     normals: wp.array(dtype=wp.vec3),
     tri_ids: wp.array(dtype=int),
     origins: wp.array(dtype=wp.vec3),
+    origin_sets: int,
     samples: wp.array(dtype=wp.vec3),
     sample_sets: int,
     patch_centers: wp.array(dtype=wp.vec3),
@@ -79,7 +92,8 @@ def patch_visibility_kernel(
     The visibility factor of Bosch, Besuievsky & Martin, Sec. 4.1 (Fig. 4:
     V_ij += (f_v / f_c) cos theta_ik over the patch's samples k, then averaged),
     with a ray per sample (``samples``: the patch's directions in one of ``sample_sets`` sets, the one a hash
-    of tri_ids[i] picks, read in order; ``origins``: the triangle's points) instead of the occlusion query's
+    of tri_ids[i] picks, read in order; ``origins``: the triangle's points, set j % ``origin_sets``) instead
+    of the occlusion query's
     visible-fragment share f_v / f_c: V_ij = (1/s) sum_k vis_k max(0, n_i . w_k), dimensionless in
     [0, 1]; for a patch wholly above the triangle's plane (its ``patch_outlines`` on or above it), scaled
     to the exact mean cosine C_ij = n_i . ``patch_means``_j: V_ij = C_ij sum_k vis_k cos_k / sum_k cos_k.
@@ -102,6 +116,7 @@ def patch_visibility_kernel(
         if not facing or center_cos < patch_horizon[j]:
             continue  # the whole patch is below the triangle's horizon
         first = (sample_set * num_patches + j) * count
+        first_origin = (i * origin_sets + j % origin_sets) * count
         vis = float(0.0)
         seen = float(0.0)
         occ = float(0.0)
@@ -109,7 +124,7 @@ def patch_visibility_kernel(
             d = samples[first + s]
             cos_theta = wp.dot(n, d)
             if cos_theta > 0.0:
-                origin = origins[i * count + s]
+                origin = origins[first_origin + s]
                 if trace_any(scene, origin, d, FAR):
                     occ += cos_theta
                 else:
@@ -190,20 +205,21 @@ def compute_patch_visibility(tracer, corners: np.ndarray, normals: np.ndarray, p
     glass = glass_arguments(tracer, glazing)
     visible = np.zeros((n_tri, n_patch), np.float32)
     partial = np.zeros((n_tri, n_patch), np.float32)
-    batch = max(1, PAIRS_PER_BATCH // max(n_patch, 1))
+    origin_sets = max(1, min(ORIGIN_SETS, n_patch))
+    batch = max(1, min(PAIRS_PER_BATCH // max(n_patch, 1), ORIGINS_PER_BATCH // (origin_sets * count)))
     for lo in range(0, n_tri, batch):
         hi = min(n_tri, lo + batch)
         normals_wp = tracer.array(normals[lo:hi], wp.vec3)
         ids_wp = tracer.array(tri_ids[lo:hi], int)
-        origins = wp.empty((hi - lo) * count, dtype=wp.vec3, device=tracer.device)
+        origins = wp.empty((hi - lo) * origin_sets * count, dtype=wp.vec3, device=tracer.device)
         tracer.launch(sample_origins_kernel, hi - lo, [
             tracer.scene, tracer.array(corners[lo:hi].reshape(-1, 3), wp.vec3), normals_wp,
-            ids_wp, strata, tracer.epsilon, int(seed), origins],
-            min_chunk=max(1, MIN_CHUNK // count))
+            ids_wp, strata, origin_sets, tracer.epsilon, int(seed), origins],
+            min_chunk=max(1, MIN_CHUNK // (origin_sets * count)))
         vis_wp = wp.empty((hi - lo) * n_patch, dtype=float, device=tracer.device)
         part_wp = wp.empty((hi - lo) * n_patch, dtype=float, device=tracer.device)
         tracer.launch(patch_visibility_kernel, hi - lo, [
-            tracer.scene, normals_wp, ids_wp, origins, *patch_arrays, n_patch, count, tracer.epsilon,
+            tracer.scene, normals_wp, ids_wp, origins, origin_sets, *patch_arrays, n_patch, count, tracer.epsilon,
             int(criterion == "any"), *glass, vis_wp, part_wp,
         ], min_chunk=max(1, MIN_CHUNK // (n_patch * count)))  # a triangle is up to n_patch * count rays
         visible[lo:hi] = vis_wp.numpy().reshape(hi - lo, n_patch)
