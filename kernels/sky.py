@@ -45,6 +45,7 @@ Sky models (radiance in W/(m^2 sr), "visible-equivalent" RGB: luminance / 179 lm
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -230,15 +231,26 @@ def patch_jittered_samples(patches: SkyPatches, strata: int, seed: int, variants
     (seed, strata, variants) from a generator of their own, so a kernel reads them instead of making them
     per ray; a face takes one of the ``variants`` sets, so that neighbouring faces do not all
     err the same way (the paper's renderings share one set across all faces, and an average over faces then
-    keeps that set's error however many faces it spans).
+    keeps that set's error however many faces it spans). Kept for the next pass (a few ms each to draw):
+    the array is read-only.
     """
+    bounds = np.ascontiguousarray(patches.patch_bounds, np.float64)
+    return _jittered_samples(bounds.tobytes(), len(bounds), strata, seed, variants)
+
+
+@functools.lru_cache(maxsize=8)
+def _jittered_samples(bounds: bytes, count: int, strata: int, seed: int, variants: int) -> np.ndarray:
+    """``patch_jittered_samples`` of the (count, 4) float64 patch bounds in ``bounds``."""
+    bounds = np.frombuffer(bounds, np.float64).reshape(count, 4)
     rng = np.random.default_rng([seed, strata, variants])
     cells = np.arange(strata * strata)
     grid = np.stack([cells % strata, cells // strata], axis=1)
-    u = (grid[None, None] + rng.random((variants, len(patches), len(cells), 2))) / strata
-    z_lo, z_hi, az_lo, az_hi = (patches.patch_bounds[None, :, k, None] for k in range(4))
+    u = (grid[None, None] + rng.random((variants, count, len(cells), 2))) / strata
+    z_lo, z_hi, az_lo, az_hi = (bounds[None, :, k, None] for k in range(4))
     z = z_lo + u[..., 0] * (z_hi - z_lo)
-    return altaz_to_enu(np.arcsin(np.clip(z, -1.0, 1.0)), az_lo + u[..., 1] * (az_hi - az_lo))
+    samples = altaz_to_enu(np.arcsin(np.clip(z, -1.0, 1.0)), az_lo + u[..., 1] * (az_hi - az_lo))
+    samples.flags.writeable = False
+    return samples
 
 
 def patch_mean_directions(bounds: np.ndarray) -> np.ndarray:
