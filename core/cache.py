@@ -56,10 +56,13 @@ def code_fingerprint(cls: type) -> str:
     usdbake that it imports, followed transitively; an edited kernel never serves a stale cached
     result, and an edit elsewhere (the preview renderer, the CLI) invalidates nothing. Modules are
     named by their import name, not their path: two installs of the same code in different folders
-    (farm workers) share their cache entries."""
+    (farm workers) share their cache entries. A module's ``NATIVE_SOURCES`` (files it reads as code, the
+    ray core's C++) count as its code too."""
     modules = library_modules(cls.__module__)
+    files = modules + [(f"{name}:{path.name}", Path(path)) for name, _ in modules
+                       for path in getattr(sys.modules.get(name), "NATIVE_SOURCES", ())]
     return _digest_files(tuple((name, str(path), path.stat().st_mtime_ns, path.stat().st_size)
-                               for name, path in modules))
+                               for name, path in files))
 
 
 def library_modules(module_name: str) -> list[tuple[str, Path]]:

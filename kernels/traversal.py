@@ -88,6 +88,8 @@ class RayHit:
 NATIVE = Path(__file__).with_name("native")
 """The ray core's C++ (``wp.func_native`` snippets, pasted into the bodies of the functions below): ``bits.h``,
 ``ray_core.h`` (rays, node and packet tests, the one tree walk), ``trace.h`` and ``surface_origin.h``."""
+NATIVE_SOURCES = tuple(sorted(NATIVE.glob("*.h")))
+"""The C++ this module reads: part of its code for the result cache (``core.cache.code_fingerprint``)."""
 
 assert WIDTH == 8 and PACKET == 4  # the C++'s vector widths (and the node layout's offsets 8 k, 24 + 8 k)
 

@@ -795,3 +795,19 @@ def test_code_fingerprint_is_the_same_wherever_the_code_is_installed(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(tmp_path / "install_a")}
     edited = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert edited.stdout.strip() != keys[0]  # the code itself still counts
+
+
+def test_an_edit_to_the_ray_cores_cpp_changes_the_code_fingerprint(tmp_path, monkeypatch):
+    """The ray core's C++ is read by kernels.traversal, not imported: its NATIVE_SOURCES count as code, so an edited
+    traversal never serves a bake cached before the edit."""
+    from usdbake.core.cache import code_fingerprint
+    from usdbake.kernels import traversal
+    from usdbake.processors.occlusion.ambient_occlusion import AmbientOcclusion
+
+    header = tmp_path / "trace.h"
+    header.write_text("// the traversal\n")
+    monkeypatch.setattr(traversal, "NATIVE_SOURCES", (*traversal.NATIVE_SOURCES, header))
+    before = code_fingerprint(AmbientOcclusion)
+    assert before == code_fingerprint(AmbientOcclusion)
+    header.write_text("// the traversal, edited\n")
+    assert code_fingerprint(AmbientOcclusion) != before
