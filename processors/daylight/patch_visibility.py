@@ -108,7 +108,9 @@ def patch_visibility_kernel(
     n = normals[i]
     facing = wp.length(n) >= 0.5
     sample_set = int(wp.rand_init(tri_ids[i]) % wp.uint32(sample_sets))
+    origin_set = int(-1)  # j % origin_sets, counted (an integer division per pair costs as much as a ray's setup)
     for j in range(num_patches):
+        origin_set = wp.where(origin_set + 1 == origin_sets, 0, origin_set + 1)
         k = i * num_patches + j
         visible[k] = 0.0
         partial[k] = 0.0
@@ -116,7 +118,7 @@ def patch_visibility_kernel(
         if not facing or center_cos < patch_horizon[j]:
             continue  # the whole patch is below the triangle's horizon
         first = (sample_set * num_patches + j) * count
-        first_origin = (i * origin_sets + j % origin_sets) * count
+        first_origin = (i * origin_sets + origin_set) * count
         vis = float(0.0)
         seen = float(0.0)
         occ = float(0.0)
