@@ -41,6 +41,14 @@ TARGETS = [
      "ao_atrium_64_vs_bare_same_rays", ">=", 0.9),
     ("Tracer: rays/s inside sky_visibility vs the bare core on its own rays", "tracer",
      "sky_visibility_building_vs_bare_same_rays", ">=", 0.9),
+    # Issue 33's CUDA figures: measured only on a machine with a GPU (none lent so far; bench_tracer records
+    # cuda_closest/any_mrays there, and tests/processors/test_cuda_agreement.py checks the agreement).
+    ("CUDA: ambient_occlusion on a >= 1M-triangle scene, GPU vs the same machine's CPU on all cores", "tracer",
+     "cuda_ambient_occlusion_vs_cpu", ">=", 10.0),
+    ("CUDA: sky_visibility on a >= 1M-triangle scene, GPU vs the same machine's CPU on all cores", "tracer",
+     "cuda_sky_visibility_vs_cpu", ">=", 10.0),
+    ("CUDA: share of output values equal to the CPU's within rounding (worst processor and sample)", "tracer",
+     "cuda_cpu_agreement_min", ">=", 0.999),
     ("Tracer: memory of 1000 instances vs one prototype", "tracer", "instanced_memory_vs_prototype", "<=", 3.0),
     ("Tracer: 1000 instances, closest-hit time vs flattened", "tracer", "instanced_closest_slowdown_vs_flattened",
      "<=", 1.5),
