@@ -8,10 +8,10 @@ imports what it needs from here: ``from ..core import Processor, Params, param, 
 
 from . import registry
 from .errors import OutputError, StageError, UsageError
-from .params import ParamError, Params, param
+from .params import ParamError, Params, TextureTargetParams, param
 from .processor import Context, Processor, Result
 from .records import Attribute, Block, File, Output, Prim, Primvar, RefinedMesh, Texture
 from .scene import Scene
 
 __all__ = ["Attribute", "Block", "Context", "File", "Output", "OutputError", "ParamError", "Params", "Prim", "Primvar", "Processor",
-           "RefinedMesh", "Result", "Scene", "StageError", "Texture", "UsageError", "param", "registry"]
+           "RefinedMesh", "Result", "Scene", "StageError", "Texture", "TextureTargetParams", "UsageError", "param", "registry"]

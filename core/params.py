@@ -103,6 +103,19 @@ class Params:
         return dataclasses.asdict(self)
 
 
+@dataclass(frozen=True)
+class TextureTargetParams(Params):
+    """Parameters of every processor that can bake into lightmap textures (``kernels.lightmap_bake``)."""
+
+    target: str = param("vertex", "where per-surface results go: vertex (primvars, as authored), texture "
+                        "(lightmaps on the asset's UVs, no mesh changed) or both", choices=("vertex", "texture", "both"))
+    texel_density: float = param(32.0, "texture target: lightmap texels per metre of surface", low=0.01, high=1e5)
+    max_texture_size: int = param(4096, "texture target: largest lightmap side in texels (a mesh whose density "
+                                  "needs more gets fewer texels per metre, and the bake says so)", low=8, high=16384)
+    margin: int = param(16, "texture target: texels each chart is dilated by into the empty space around it",
+                        low=0, high=256)
+
+
 TABLE_COLUMNS = ("param", "type", "default", "range", "meaning")
 """Column headers of ``Params.table_rows()`` and ``Params.markdown_table()``."""
 

@@ -12,6 +12,8 @@ keys of the steps it depends on. Every step reads the one run-time object of the
 
 from __future__ import annotations
 
+import numpy as np
+
 import time
 from dataclasses import dataclass, field
 from graphlib import CycleError, TopologicalSorter
@@ -191,6 +193,11 @@ def _after_refinement(wanted: list[str], graph: dict[str, set[str]], registry: d
     return {name: refiner for name in chosen}
 
 
+SHARED_WRITES = ("primvars:bake:lightmapST",)
+"""Properties several processors may author in one run when they author one value: the texture target's
+generated lightmap UVs (every processor lays out the same atlas from the same scene and texture params)."""
+
+
 def writes_overlap(a: str, b: str) -> bool:
     """Two declared property names (or ``namespace:`` prefixes) can name one property."""
     return a == b or (a.endswith(":") and b.startswith(a)) or (b.endswith(":") and a.startswith(b))
@@ -202,7 +209,8 @@ def write_conflicts(names: list[str], registry: dict) -> list[str]:
     names = sorted(names)
     for i, first in enumerate(names):
         for second in names[i + 1:]:
-            shared = [a for a in registry[first].writes for b in registry[second].writes if writes_overlap(a, b)]
+            shared = [a for a in registry[first].writes for b in registry[second].writes
+                      if writes_overlap(a, b) and a not in SHARED_WRITES]
             if shared:
                 lines.append(f"{first} and {second} both write {shared[0]}; run one of them")
     return lines
@@ -346,6 +354,7 @@ class Pipeline:
     def outputs(self) -> list:
         """Every step's output records; two steps writing the same property at the same time is an error."""
         writers: dict[tuple, str] = {}
+        shared_values: dict[tuple, object] = {}
         records = []
         for step in self.steps:
             outputs = step.result.outputs if step.result else []
@@ -357,6 +366,14 @@ class Pipeline:
                             f"it wrote {record.prim}.{record.name}, which its `writes` does not declare"))
                     name = f"primvars:{record.name}" if isinstance(record, Primvar) else record.name
                     key = (record.prim, name, record.time)
+                    if name in SHARED_WRITES and key in shared_values:
+                        if np.array_equal(shared_values[key], record.values):
+                            continue
+                        raise UsageError(f"{record.prim}.{name} is written with different values by "
+                                         f"{writers[key]} and {step.name}; give both the same texture "
+                                         f"parameters (texel_density, max_texture_size)")
+                    if name in SHARED_WRITES:
+                        shared_values[key] = record.values
                     if writers.setdefault(key, step.name) != step.name:
                         raise UsageError(f"{record.prim}.{name} is written by both {writers[key]} and {step.name}; "
                                          f"run one of them")

@@ -60,7 +60,8 @@ class Texture:
     path: str
     """File name relative to the bake layer."""
     pixels: np.ndarray
-    """(H, W, C) array; float32 -> EXR, uint8 -> PNG."""
+    """(H, W, C) array, row 0 at the top; float32 or float16 -> EXR, uint8 or uint16 -> PNG (the path's
+    extension must match)."""
 
 
 @dataclass(frozen=True)

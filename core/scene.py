@@ -188,11 +188,35 @@ class Scene:
     """(T,) float32 visible transmittance at normal incidence in [0, 1] (glazing: ``bake:transmittance``, or
     1 - opacity of a UsdPreviewSurface), 0 for opaque faces (the default)."""
 
+    tri_st: np.ndarray | None = None
+    """(T, 3, 2) float32 UV of each triangle corner in the prim's main UV set (``prim_st``), in ``tri_vertices``
+    corner order; NaN where the prim has none (the default)."""
+    prim_st: tuple[str, ...] | None = None
+    """Per prim: the primvar ``tri_st`` was read from ('st', ...), '' when none."""
+    tri_lightmap_uv: np.ndarray | None = None
+    """(T, 3, 2) float32 UV of each corner in the prim's dedicated lightmap UV set (``prim_lightmap_uv``); NaN
+    where it has none (the default)."""
+    prim_lightmap_uv: tuple[str, ...] | None = None
+    """Per prim: the primvar ``tri_lightmap_uv`` was read from ('st1', ...), '' when none."""
+    prim_corner_count: np.ndarray | None = None
+    """(prims,) int64 face-vertex slots of each prim (len(faceVertexIndices)): the length of its faceVarying
+    primvars; by default one past the largest slot its triangles use."""
+
     def __post_init__(self) -> None:
         if self.prim_instance_roots is None:
             object.__setattr__(self, "prim_instance_roots", ((),) * len(self.prim_paths))
         if self.tri_corner is None:
             object.__setattr__(self, "tri_corner", np.full((len(self.tri_vertices), 3), -1, np.int32))
+        if self.prim_corner_count is None:
+            counts = np.zeros(len(self.prim_paths), np.int64)
+            if len(self.tri_prim):
+                np.maximum.at(counts, self.tri_prim, self.tri_corner.max(axis=1).astype(np.int64) + 1)
+            object.__setattr__(self, "prim_corner_count", counts)
+        for uvs, names in (("tri_st", "prim_st"), ("tri_lightmap_uv", "prim_lightmap_uv")):
+            if getattr(self, uvs) is None:
+                object.__setattr__(self, uvs, np.full((len(self.tri_vertices), 3, 2), np.nan, np.float32))
+            if getattr(self, names) is None:
+                object.__setattr__(self, names, ("",) * len(self.prim_paths))
         if self.tri_transmittance is None:
             object.__setattr__(self, "tri_transmittance", np.zeros(len(self.tri_vertices), np.float32))
         for f in fields(self):
@@ -259,6 +283,7 @@ FACETS: dict[str, tuple[str, ...]] = {
         "instances.prototype_targets",
     ),
     "time": ("time_code",),
+    "uvs": ("tri_st", "prim_st", "tri_lightmap_uv", "prim_lightmap_uv", "prim_corner_count"),
 }
 
 

@@ -89,13 +89,16 @@ def _assemble(stage, builder: SceneBuilder, light_prims, volume_prims, instances
     _check_extent(stage, all_points)
 
     point_start = np.zeros(len(builder.meshes) + 1, np.int64)
-    tri_parts, corner_parts, face_parts, prim_parts = [], [], [], []
+    tri_parts, corner_parts, face_parts, prim_parts, st_parts, lightmap_parts = [], [], [], [], [], []
     for m_index, ((mesh, world, _, _), points) in enumerate(zip(builder.meshes, world_points)):
         point_start[m_index + 1] = point_start[m_index] + len(points)
         flip = mesh.left_handed ^ (np.linalg.det(world[:3, :3]) < 0)
         triangles = mesh.triangles[:, ::-1] if flip else mesh.triangles
         tri_parts.append(triangles + point_start[m_index])
         corner_parts.append(mesh.tri_corner[:, ::-1] if flip else mesh.tri_corner)
+        for parts, uvs in ((st_parts, mesh.tri_st), (lightmap_parts, mesh.tri_lightmap_uv)):
+            uvs = np.full((len(triangles), 3, 2), np.nan, np.float32) if uvs is None else uvs
+            parts.append(uvs[:, ::-1] if flip else uvs)
         prim_parts.append(np.full(len(triangles), m_index, np.int32))
         face_parts.append(mesh.tri_face)
 
@@ -121,10 +124,14 @@ def _assemble(stage, builder: SceneBuilder, light_prims, volume_prims, instances
         prim_paths=tuple(m.path for m in meshes),
         prim_point_start=point_start,
         prim_face_count=np.array([m.face_count for m in meshes], np.int32),
+        prim_corner_count=np.array([m.corner_count for m in meshes], np.int64),
         prim_writable=np.array([w for _, _, w, _ in builder.meshes], bool),
         prim_skip=np.array([m.skip for m in meshes], bool),
         prim_instance_roots=tuple(builder.instance_roots),
         prim_surface=tuple(m.surface for m in meshes),
+        tri_st=cat(st_parts, (0, 3, 2), np.float32), prim_st=tuple(m.st_name for m in meshes),
+        tri_lightmap_uv=cat(lightmap_parts, (0, 3, 2), np.float32),
+        prim_lightmap_uv=tuple(m.lightmap_uv_name for m in meshes),
         lights=read_lights(light_prims, xforms, timecode, origin),
         instances=scene_instances(instances, origin),
         origin=origin,

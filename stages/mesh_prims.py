@@ -11,6 +11,7 @@ from pxr import Usd, UsdGeom
 from ..core.errors import StageError
 from .materials import MaterialReader
 from .triangulate import triangulate_corners
+from .uv_sets import LIGHTMAP_NAMES, ST_NAMES, corner_uvs
 
 RENDERABLE_PURPOSES = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
 
@@ -25,6 +26,7 @@ class LocalMesh:
     tri_corner: np.ndarray    # (T, 3) int32 face-vertex slot of each corner (faceVertexIndices position)
     tri_face: np.ndarray      # (T,) int32
     face_count: int
+    corner_count: int           # face-vertex slots: len(faceVertexIndices)
     tri_albedo: np.ndarray    # (T, 3) float32
     tri_emission: np.ndarray  # (T, 3) float32
     tri_transmittance: np.ndarray  # (T,) float32 visible transmittance at normal incidence, 0: opaque
@@ -32,6 +34,10 @@ class LocalMesh:
     double_sided: bool
     skip: bool
     surface: str
+    st_name: str = ""           # the main UV set's primvar (stages.uv_sets.ST_NAMES), "" when none
+    tri_st: np.ndarray | None = None  # (T, 3, 2) float32 its UV per triangle corner
+    lightmap_uv_name: str = ""  # a dedicated lightmap UV set (stages.uv_sets.LIGHTMAP_NAMES), "" when none
+    tri_lightmap_uv: np.ndarray | None = None  # (T, 3, 2) float32
 
 
 @dataclass
@@ -82,12 +88,16 @@ def read_mesh(prim: Usd.Prim, timecode: Usd.TimeCode, materials: "MaterialReader
     albedo, emission, surface = materials.face_shading(prim, len(counts))
     transmittance = materials.face_transmittance(prim, len(counts))
     skip_attr = prim.GetAttribute("bake:skip")
+    uv_args = (triangles, tri_corner, tri_face, len(counts), timecode, warnings)
+    st_name, tri_st = corner_uvs(prim, ST_NAMES, *uv_args)
+    lightmap_uv_name, tri_lightmap_uv = corner_uvs(prim, LIGHTMAP_NAMES, *uv_args)
     return LocalMesh(
-        path=path, points=points, triangles=triangles, tri_corner=tri_corner, tri_face=tri_face, face_count=len(counts),
+        path=path, points=points, triangles=triangles, tri_corner=tri_corner, tri_face=tri_face, face_count=len(counts), corner_count=len(indices),
         tri_albedo=albedo[tri_face], tri_emission=emission[tri_face], tri_transmittance=transmittance[tri_face],
         left_handed=mesh.GetOrientationAttr().Get(timecode) == UsdGeom.Tokens.leftHanded,
         double_sided=bool(mesh.GetDoubleSidedAttr().Get(timecode)),
-        skip=bool(skip_attr and skip_attr.Get(timecode)), surface=surface,
+        skip=bool(skip_attr and skip_attr.Get(timecode)), surface=surface, st_name=st_name, tri_st=tri_st,
+        lightmap_uv_name=lightmap_uv_name, tri_lightmap_uv=tri_lightmap_uv,
     )
 
 

@@ -260,7 +260,7 @@ def remove_sidecars(owned: dict[Path, str]) -> None:
 
 
 def write_texture(texture: Texture, directory: str) -> str:
-    """Write an image with OpenImageIO (float -> EXR/half data as given, uint8 -> PNG) to
+    """Write an image with OpenImageIO (float32/float16 -> EXR as given, uint8/uint16 -> PNG) to
     ``directory / texture.path``; returns the path."""
     path = Path(directory) / texture.path
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -274,7 +274,8 @@ def _write_image(pixels: np.ndarray, path: Path) -> None:
     pixels = np.ascontiguousarray(pixels)
     if pixels.ndim == 2:
         pixels = pixels[:, :, None]
-    fmt = oiio.UINT8 if pixels.dtype == np.uint8 else oiio.FLOAT
+    fmt = {np.dtype(np.uint8): oiio.UINT8, np.dtype(np.uint16): oiio.UINT16,
+           np.dtype(np.float16): oiio.HALF}.get(pixels.dtype, oiio.FLOAT)
     spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], fmt)
     output = oiio.ImageOutput.create(str(path))
     if output is None or not output.open(str(path), spec):

@@ -49,8 +49,8 @@ def refine_scene(scene: Scene, points: np.ndarray, point_source: np.ndarray, tri
     scene_start = np.searchsorted(scene.tri_prim[scene_order], np.arange(len(scene.prim_paths) + 1))
 
     parts = {name: [] for name in ("points", "tris", "normals", "albedo", "emission", "face", "corner",
-                                    "instance", "double_sided", "source")}
-    point_start, face_count, records = [0], [], []
+                                    "instance", "double_sided", "source", "weights")}
+    point_start, face_count, corner_count, records = [0], [], [], []
     for prim in range(len(scene.prim_paths)):
         span = scene.prim_points(prim)
         authored = scene.points[span]
@@ -65,11 +65,13 @@ def refine_scene(scene: Scene, points: np.ndarray, point_source: np.ndarray, tri
             order = _REVERSED if mirrored else _FORWARD  # the record's corner order, in scene winding
             corner = 3 * np.arange(len(faces))[:, None] + order[None, :]
             face = np.arange(len(faces))
+            parts["weights"].append(weights[faces])
         else:
             tri_source = scene_order[scene_start[prim]:scene_start[prim + 1]]
             prim_points = authored
             local = scene.tri_vertices[tri_source].astype(np.int64) - span.start
             corner, face = scene.tri_corner[tri_source], scene.tri_face[tri_source]
+            parts["weights"].append(np.broadcast_to(np.eye(3), (len(tri_source), 3, 3)))
         parts["points"].append(prim_points)
         parts["tris"].append(local + point_start[-1])
         parts["corner"].append(corner)
@@ -77,6 +79,7 @@ def refine_scene(scene: Scene, points: np.ndarray, point_source: np.ndarray, tri
         parts["source"].append(tri_source)
         point_start.append(point_start[-1] + len(prim_points))
         face_count.append(len(faces) if prim in refined_bounds else int(scene.prim_face_count[prim]))
+        corner_count.append(3 * len(faces) if prim in refined_bounds else int(scene.prim_corner_count[prim]))
 
     all_source = np.concatenate(parts["source"]) if parts["source"] else np.zeros(0, np.int64)
     new_points = np.concatenate(parts["points"]) if parts["points"] else np.zeros((0, 3), np.float32)
@@ -91,11 +94,22 @@ def refine_scene(scene: Scene, points: np.ndarray, point_source: np.ndarray, tri
         tri_transmittance=scene.tri_transmittance[all_source], tri_prim=tri_prim, tri_face=np.concatenate(parts["face"]).astype(np.int32),
         tri_instance=scene.tri_instance[all_source], tri_double_sided=scene.tri_double_sided[all_source],
         tri_corner=np.concatenate(parts["corner"]).astype(np.int32).reshape(-1, 3),
+        tri_st=_refined_uvs(scene.tri_st, all_source, parts["weights"]),
+        tri_lightmap_uv=_refined_uvs(scene.tri_lightmap_uv, all_source, parts["weights"]),
         point_prim=np.repeat(np.arange(len(scene.prim_paths), dtype=np.int32), np.diff(point_start)),
         prim_point_start=np.array(point_start, np.int64), prim_face_count=np.array(face_count, np.int32),
+        prim_corner_count=np.array(corner_count, np.int64),
         lights=_stored_lights(scene.lights),
     )
     return refined, records
+
+
+def _refined_uvs(tri_uvs: np.ndarray, source: np.ndarray, weights: list) -> np.ndarray:
+    """(F, 3, 2) float32 UVs of the refined triangles' corners: their barycentric weights in the source
+    triangle applied to its corners' UVs (NaN stays NaN: a prim without the set)."""
+    if not weights:
+        return np.zeros((0, 3, 2), np.float32)
+    return np.einsum("fik,fkd->fid", np.concatenate(weights), tri_uvs[source].astype(np.float64)).astype(np.float32)
 
 
 def _stored_lights(lights):

@@ -25,6 +25,14 @@ inputs:occlusion         float     (connection)  ``connect_occlusion``, on each 
                                                  UsdPrimvarReader_float
 ======================== ========= ============= ===================================
 
+Texture target (``target=texture`` or ``both``; ``kernels.lightmap_layout`` and ``kernels.lightmap_bake``): AO
+per lightmap texel at the texel's point of its triangle, on the mesh's lightmap UVs (its own, or generated as
+faceVarying ``primvars:bake:lightmapST``), one 16-bit PNG per page (linear, row 0 at the top) with gutters
+dilated by ``margin``; ``LightmapAPI:ao`` on each mesh names the file, the UV primvar, the channel (r) and the
+units; each bound UsdPreviewSurface gets ``inputs:occlusion`` from a UsdUVTexture of the page read through a
+UsdPrimvarReader_float2 of those UVs (unless meshes on different pages share the material: the bake says so).
+No mesh is changed.
+
 Instanced receivers (``instances``; ``processors/occlusion/instances.py``): USD holds no per-vertex data on an
 instance, so with ``mean`` (the default) each instance gets the area-weighted mean AO of its
 surface: ``primvars:bake:ao`` (constant) on a native instance's root prim, which its meshes
@@ -44,11 +52,13 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ...core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
+from ...core import Attribute, Context, Prim, Primvar, Processor, Result, TextureTargetParams, param
 from .products import AmbientOcclusionProduct
 from ...core.scene import Scene
 from .instances import instanced_receivers, per_instance_means
 from ...geometry.mesh import NO_RECEIVERS, face_means, receiver_prims, vertex_inward, vertex_normals
+from ...kernels.lightmap_bake import layout_messages, lightmap_records, page_image, texel_samples, texture_record
+from ...kernels.lightmap_layout import lightmap_layout
 from ...kernels.occlusion import AOPoint, AORays, ao_direction, ao_point, ao_rays, as_points_and_normals, launch_ao
 from ...kernels.sampling import strata_for, triangle_point
 from ...kernels.tracer import surface_origin, triangle_origin
@@ -117,6 +127,37 @@ def face_ao_kernel(start: int, rays: AORays, first: int, points: wp.array(dtype=
     ao[i] = float(visible) / float(rays.strata * rays.strata)
 
 
+@wp.kernel
+def texel_ao_kernel(start: int, rays: AORays, first: int, points: wp.array(dtype=wp.vec3),
+                    normals: wp.array(dtype=wp.vec3), corners: wp.array(dtype=wp.vec3), ao: wp.array(dtype=float)):
+    """AO (dimensionless, [0, 1]) at texel point i of its triangle (corners 3i .. 3i + 2) around its unit
+    shading normal by ``occlusion_at`` (Zhukov et al. 1998 integral, PBRT 3rd ed. Section 13.6.3 rays), from
+    ``triangle_origin`` (the per-face origin rule); point i's rays are seeded by (seed, first + i)."""
+    i = start + wp.tid()
+    a = corners[3 * i]
+    b = corners[3 * i + 1]
+    c = corners[3 * i + 2]
+    face = wp.cross(b - a, c - a)
+    n = normals[i]
+    if wp.length(n) < 0.5 or wp.length(face) <= 0.0:
+        ao[i] = 1.0
+        return
+    origin = triangle_origin(rays.scene, a, b, c, points[i], wp.normalize(face), rays.epsilon)
+    ao[i] = occlusion_at(rays, origin, ao_point(rays, n, first + i))
+
+
+def texel_ao_chunk(tracer, first: int, points: np.ndarray, normals: np.ndarray, corners: np.ndarray, *,
+                   samples: int, max_distance: float, seed: int) -> np.ndarray:
+    """(N,) float32 AO at texel points first .. first + N - 1 (texel_ao_kernel) given their (N, 3) points,
+    unit shading normals and (N, 3, 3) triangle corners: one chunk (core.chunks)."""
+    rays = ao_rays(tracer.scene, samples=samples, max_distance=max_distance, epsilon=tracer.epsilon, seed=seed,
+                   device=tracer.device)
+    flat = np.ascontiguousarray(corners, np.float32).reshape(-1, 3)
+    return launch_ao(tracer, texel_ao_kernel, len(points), rays, [
+        int(first), tracer.array(np.ascontiguousarray(points, np.float32), wp.vec3),
+        tracer.array(np.ascontiguousarray(normals, np.float32), wp.vec3), tracer.array(flat, wp.vec3)])
+
+
 def compute_vertex_ao(tracer, positions: np.ndarray, normals: np.ndarray, *, samples: int,
                       max_distance: float = math.inf, seed: int = 0, inward: np.ndarray | None = None,
                       first: int = 0) -> np.ndarray:
@@ -179,17 +220,19 @@ class AmbientOcclusion(Processor):
     name = "ambient_occlusion"
     version = "2"
     summary = "Per-vertex ambient occlusion by cosine-weighted hemisphere ray casts (the reference AO)."
-    facets = ("geometry",)
+    facets = ("geometry", "uvs")
     follows_refinement = True
-    writes = ("primvars:bake:ao", "primvars:bake:aoFace", "inputs:occlusion")
+    writes = ("primvars:bake:ao", "primvars:bake:aoFace", "inputs:occlusion", "bake:lightmap:ao:",
+              "primvars:bake:lightmapST")
     provides = (AmbientOcclusionProduct,)
 
     @dataclass(frozen=True)
-    class Params(Params):
+    class Params(TextureTargetParams):
         samples: int = param(256, "rays per point (rounded to a square for stratification)", low=1, high=65536)
         max_distance: float = param(math.inf, "hits farther than this (stage units) do not occlude", low=0.0)
         per_face: bool = param(False, "also write per-face AO as primvars:bake:aoFace (uniform)")
-        connect_occlusion: bool = param(False, "wire bake:ao into each bound UsdPreviewSurface inputs:occlusion")
+        connect_occlusion: bool = param(False, "vertex target: wire bake:ao into each bound UsdPreviewSurface "
+                                        "inputs:occlusion (the texture target always wires its texture)")
         seed: int = param(0, "random seed (identical results across thread counts)", low=0)
         instances: str = param("mean", "instanced receivers: mean (per-instance mean AO on the instance root "
                                "or PointInstancer) or skip; --deinstance bakes native ones per vertex",
@@ -206,36 +249,80 @@ class AmbientOcclusion(Processor):
         receivers = receiver_prims(scene)
         instanced = instanced_receivers(scene) if p.instances != "skip" else np.zeros(0, np.int64)
         normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
-        point_mask = np.isin(scene.point_prim, np.concatenate([receivers, instanced]))
-        point_ids = np.flatnonzero(point_mask)
+        vertex_target = p.target in ("vertex", "both")
+        vertex_prims = np.concatenate([receivers, instanced]) if vertex_target else instanced
+        point_ids = np.flatnonzero(np.isin(scene.point_prim, vertex_prims))
         ao_points = np.ones(scene.num_points, np.float32)
+        shares = self._progress_shares(p, len(point_ids))
         ctx.progress(0.0)
         inward = vertex_inward(scene.points, scene.tri_vertices, normals)
-        share = 0.5 if p.per_face else 1.0
         ao_points[point_ids] = ctx.chunks.map(
             vertex_ao_chunk, (scene.points[point_ids], normals[point_ids], inward[point_ids]),
-            progress=lambda f: ctx.progress(share * f), samples=p.samples, max_distance=p.max_distance, seed=p.seed)
-        ctx.progress(share)
+            progress=lambda f: ctx.progress(shares[0] * f), samples=p.samples, max_distance=p.max_distance,
+            seed=p.seed)
+        ctx.progress(shares[0])
 
         result = Result(products={AmbientOcclusionProduct: AmbientOcclusionProduct(ao_points)})
-        for prim in receivers:
-            result.outputs.append(Primvar(scene.prim_paths[prim], "bake:ao", ao_points[scene.prim_points(prim)],
-                                          "float", "vertex"))
+        rays_per_point = strata_for(p.samples) ** 2
+        rays = len(point_ids) * rays_per_point
+        if vertex_target:
+            for prim in receivers:
+                result.outputs.append(Primvar(scene.prim_paths[prim], "bake:ao", ao_points[scene.prim_points(prim)],
+                                              "float", "vertex"))
         if p.per_face:
-            self._per_face(scene, p, ctx, receivers, result)
-            ctx.progress(1.0)
-        if p.connect_occlusion:
+            self._per_face(scene, p, ctx, receivers, result, shares)
+            rays += int(np.isin(scene.tri_prim, receivers).sum()) * rays_per_point
+        if p.target in ("texture", "both"):
+            rays += self._textures(scene, p, ctx, receivers, normals, result, shares) * rays_per_point
+        elif p.connect_occlusion:
             result.outputs.extend(occlusion_network(scene, receivers))
+        ctx.progress(1.0)
         if len(instanced):
             self._instances(scene, p, instanced, ao_points, result)
-        rays_per_point = strata_for(p.samples) ** 2
-        result.stats["rays"] = float(len(point_ids) * rays_per_point
-                                     + (int(np.isin(scene.tri_prim, receivers).sum()) * rays_per_point
-                                        if p.per_face else 0))
+        result.stats["rays"] = float(rays)
         skipped = len(instanced_receivers(scene)) if p.instances == "skip" else 0
         if skipped:
             result.messages.append(f"{skipped} instanced meshes occlude but receive no AO (instances=skip)")
         return result
+
+    @staticmethod
+    def _progress_shares(p, vertex_points: int) -> tuple[float, float, float]:
+        """Where each pass ends on the progress bar: vertices, faces, texels."""
+        passes = [vertex_points > 0, p.per_face, p.target in ("texture", "both")]
+        ends, done = [], 0.0
+        for active in passes:
+            done += 1.0 / max(sum(passes), 1) if active else 0.0
+            ends.append(done)
+        return ends[0], ends[1], ends[2]
+
+    @staticmethod
+    def _textures(scene: Scene, p, ctx: Context, receivers: np.ndarray, normals: np.ndarray, result: Result,
+                  shares: tuple) -> int:
+        """The texture target: AO per lightmap texel, one 16-bit PNG per page, described on each mesh
+        (``LightmapAPI:ao``) and wired into its UsdPreviewSurface's occlusion. Returns the texels baked."""
+        layout = lightmap_layout(scene, receivers, density=p.texel_density, max_size=p.max_texture_size,
+                                 device=ctx.device)
+        pages = texel_samples(scene, layout, normals, ctx.device)
+        total = sum(len(page.texel) for page in pages)
+        files, first = [], 0
+        for page in pages:
+            done = first
+            values = ctx.chunks.map(
+                texel_ao_chunk, (page.points, page.normals, page.corners),
+                progress=lambda f: ctx.progress(shares[1] + (shares[2] - shares[1]) * (done + f * len(page.texel))
+                                                / max(total, 1)),
+                samples=p.samples, max_distance=p.max_distance, seed=p.seed) if len(page.texel) else np.zeros(0)
+            first += len(page.texel)
+            texture = texture_record(f"ao_lightmap_{page.page}", page_image(page, values, p.margin, 1.0),
+                                     eight_bit_range=True)
+            result.outputs.append(texture)
+            files.append(texture.path)
+        result.outputs.extend(lightmap_records(scene, layout, "ao", files, channels="r", units="fraction"))
+        wiring, notes = occlusion_texture_network(scene, layout, files)
+        result.outputs.extend(wiring)
+        result.messages.extend(layout_messages(scene, layout, p.texel_density) + notes)
+        result.stats["texels"] = float(total)
+        return total
 
     @staticmethod
     def _instances(scene: Scene, p, instanced: np.ndarray, ao_points: np.ndarray, result: Result) -> None:
@@ -253,10 +340,11 @@ class AmbientOcclusion(Processor):
                                    f"primvars:bake:ao (one value per instance)")
 
     @staticmethod
-    def _per_face(scene: Scene, p, ctx: Context, receivers: np.ndarray, result: Result) -> None:
+    def _per_face(scene: Scene, p, ctx: Context, receivers: np.ndarray, result: Result, shares: tuple) -> None:
         tris = np.flatnonzero(np.isin(scene.tri_prim, receivers))
         tri_ao = ctx.chunks.map(face_ao_chunk, (scene.points[scene.tri_vertices[tris]], scene.tri_normals[tris]),
-                                progress=lambda f: ctx.progress(0.5 + 0.5 * f), samples=p.samples,
+                                progress=lambda f: ctx.progress(shares[0] + (shares[1] - shares[0]) * f),
+                                samples=p.samples,
                                 max_distance=p.max_distance, seed=p.seed)
         for prim in receivers:
             mine = scene.tri_prim[tris] == prim
@@ -280,3 +368,42 @@ def occlusion_network(scene: Scene, receivers: np.ndarray) -> list:
             Attribute(surface, "inputs:occlusion", None, "float", connect_to=f"{reader}.outputs:result"),
         ]
     return records
+
+
+def occlusion_texture_network(scene: Scene, layout, files: list[str]) -> tuple[list, list[str]]:
+    """Records for a UsdUVTexture of each mesh's AO page, read through a UsdPrimvarReader_float2 of its
+    lightmap UVs, into each bound UsdPreviewSurface's inputs:occlusion; and a line for each material its
+    meshes cannot share (meshes on different pages or UV sets bound to one material: their lightmaps stay
+    described by ``bake:lightmap:ao:file`` on each mesh)."""
+    records: list = []
+    notes: list[str] = []
+    by_surface: dict[str, set] = {}
+    for mesh in layout.meshes:
+        surface = scene.prim_surface[mesh.prim]
+        if surface:
+            by_surface.setdefault(surface, set()).add((files[mesh.page], mesh.uv_name))
+    for surface, uses in sorted(by_surface.items()):
+        if len(uses) > 1:
+            notes.append(f"{surface}: bound to meshes on {len(uses)} AO lightmaps, so inputs:occlusion is not "
+                         f"wired; each mesh's bake:lightmap:ao:file names its own")
+            continue
+        (file, uv_name), = uses
+        material = surface.rsplit("/", 1)[0]
+        reader, texture = f"{material}/bakeLightmapUV", f"{material}/bakeAoTexture"
+        records += [
+            Prim(reader, "Shader"),
+            Attribute(reader, "info:id", "UsdPrimvarReader_float2", "token", uniform=True),
+            Attribute(reader, "inputs:varname", uv_name, "string"),
+            Attribute(reader, "outputs:result", None, "float2"),
+            Prim(texture, "Shader"),
+            Attribute(texture, "info:id", "UsdUVTexture", "token", uniform=True),
+            Attribute(texture, "inputs:file", file, "asset"),
+            Attribute(texture, "inputs:sourceColorSpace", "raw", "token"),
+            Attribute(texture, "inputs:wrapS", "repeat", "token"),
+            Attribute(texture, "inputs:wrapT", "repeat", "token"),
+            Attribute(texture, "inputs:fallback", (1.0, 1.0, 1.0, 1.0), "float4"),
+            Attribute(texture, "inputs:st", None, "float2", connect_to=f"{reader}.outputs:result"),
+            Attribute(texture, "outputs:r", None, "float"),
+            Attribute(surface, "inputs:occlusion", None, "float", connect_to=f"{texture}.outputs:r"),
+        ]
+    return records, notes

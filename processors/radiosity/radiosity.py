@@ -60,16 +60,17 @@ Parameters: ``usdbake list radiosity`` or docs/radiosity.md, both generated from
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
-from ...core import Context, Params, Primvar, Processor, Result, param
+from ...core import Context, Primvar, Processor, Result, TextureTargetParams, param
 from .products import FormFactorProduct, RadiosityProduct
 from ...core.scene import LIGHT_DOME, Scene
 from ...geometry.mesh import missing_receivers, receiver_prims, vertex_normals
+from ...kernels.lightmap_bake import inset_points, layout_messages, lightmap_records, page_image, texel_samples, texture_record
+from ...kernels.lightmap_layout import lightmap_layout
 from ...kernels.light_bundles import NO_LIGHTS, has_light, light_bundle, shadow_rays_per_point
 from ...kernels.lights import Lights, direct_irradiance
 from .sky_guide import guided_ray_split, guided_sky_irradiance, learn_sky_guides
@@ -343,7 +344,7 @@ def _patch_points(patches, points_per_patch: int, seed: int) -> tuple[np.ndarray
 
 
 def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lambda f: None,
-          apply_operator=None) -> dict:
+          apply_operator=None, texels: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """Direct light, compressed relight and transfer for the points ``point_ids`` (pure; run and benchmarks).
 
     Vertex indirect light: with ``gather_rays`` > 0 a final gather over the patches' direct + k-bounce
@@ -351,7 +352,8 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
     point looking at the patches sees), with direct light evaluated at near hits; with 0 the patches'
     k-bounce indirect light interpolated (``transfer_to_vertices``: no rays, smooth, blurred in corners).
     ``apply_operator(E0) -> E_ind`` replaces the relight (run: an OperatorRelighter for the step's memory budget; benchmarks: the dense operator).
-    ``transfer_seconds`` in the result: the time of the transfer to the points (the gather or the blend).
+    ``texels``: (points, unit normals) of lightmap texels (the texture target), lit by the same transfer as the
+    vertices (``texel_direct``, ``texel_indirect`` in the result).
     """
     patches, op = product.patches, product.operator
     points, fragment = _patch_points(patches, p.patch_points, p.seed)
@@ -372,29 +374,41 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
     tri_vertices, tri_areas = scene.tri_vertices[tris], scene.tri_areas[tris]
     normals = vertex_normals(scene.points, tri_vertices, scene.tri_normals[tris], tri_areas)[point_ids]
     positions = vertex_sample_positions(scene.points, tri_vertices, tri_areas)[point_ids]
-    e0_vertex = compute_direct_irradiance(tracer, scene, positions, normals, light_samples=p.light_samples,
-                                          sky_samples=p.sky_samples, sky_training=p.sky_training, seed=p.seed + 2,
-                                          emissive=p.emissive_lights)
-    progress(0.6)
-    started = time.perf_counter()
+    first_patch = None
     if p.gather_rays > 0:
         zero = np.zeros_like(e_ind_patch)
         first_patch = final_gather(tracer, scene, patches, e0_patch, zero, zero, points, point_normals,
                                    rays=max(1, p.gather_rays // p.patch_points), near=0.0, sky_samples=1,
                                    seed=p.seed + 3).reshape(patches.count, p.patch_points, 3).mean(axis=1)
-        higher = np.maximum(e_ind_patch - first_patch, 0.0)
-        e_ind_vertex = final_gather(tracer, scene, patches, e0_patch, e_ind_patch, higher, positions, normals,
-                                    rays=p.gather_rays, near=p.near_hits * patches.voxel_size,
-                                    sky_samples=p.hit_sky_samples, seed=p.seed + 4, emissive=p.emissive_lights)
-    else:
-        e_ind_vertex = transfer_to_vertices(positions, normals, patches.patch_centroids, patches.patch_normals,
-                                            e_ind_patch, neighbors=p.neighbors, normal_cos=p.normal_cos,
-                                            smoothing=0.5 * patches.voxel_size)
-    transfer_seconds = time.perf_counter() - started
+    e0_vertex, e_ind_vertex = _light_at(tracer, scene, patches, p, e0_patch, e_ind_patch, first_patch, positions,
+                                        normals, seed=p.seed)
+    progress(0.6)
+    solved = {"patch_direct": e0_patch.astype(np.float32), "patch_indirect": e_ind_patch,
+              "vertex_direct": e0_vertex, "vertex_indirect": e_ind_vertex}
+    if texels is not None:
+        solved["texel_direct"], solved["texel_indirect"] = _light_at(
+            tracer, scene, patches, p, e0_patch, e_ind_patch, first_patch, *texels, seed=p.seed + 10)
     progress(0.9)
-    return {"patch_direct": e0_patch.astype(np.float32), "patch_indirect": e_ind_patch,
-            "vertex_direct": e0_vertex, "vertex_indirect": np.maximum(e_ind_vertex, 0.0).astype(np.float32),
-            "transfer_seconds": transfer_seconds}
+    return solved
+
+
+def _light_at(tracer, scene: Scene, patches, p, e0_patch: np.ndarray, e_ind_patch: np.ndarray,
+              first_patch: np.ndarray | None, positions: np.ndarray, normals: np.ndarray, *,
+              seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(direct, indirect) (N, 3) float32 irradiance at points with unit normals (``solve``'s transfer)."""
+    direct = compute_direct_irradiance(tracer, scene, positions, normals, light_samples=p.light_samples,
+                                       sky_samples=p.sky_samples, sky_training=p.sky_training, seed=seed + 2,
+                                       emissive=p.emissive_lights)
+    if first_patch is not None:
+        higher = np.maximum(e_ind_patch - first_patch, 0.0)
+        indirect = final_gather(tracer, scene, patches, e0_patch, e_ind_patch, higher, positions, normals,
+                                rays=p.gather_rays, near=p.near_hits * patches.voxel_size,
+                                sky_samples=p.hit_sky_samples, seed=seed + 4, emissive=p.emissive_lights)
+    else:
+        indirect = transfer_to_vertices(positions, normals, patches.patch_centroids, patches.patch_normals,
+                                        e_ind_patch, neighbors=p.neighbors, normal_cos=p.normal_cos,
+                                        smoothing=0.5 * patches.voxel_size)
+    return direct, np.maximum(indirect, 0.0).astype(np.float32)
 
 
 def relighter_for(tracer, op, p) -> OperatorRelighter:
@@ -409,13 +423,14 @@ class Radiosity(Processor):
     summary = "Direct + multi-bounce indirect irradiance per vertex from the compressed form-factor operator."
     requires = (FormFactorProduct,)
     provides = (RadiosityProduct,)
-    facets = ("geometry", "materials", "lights")
+    facets = ("geometry", "materials", "lights", "uvs")
     follows_refinement = True
     refined_by = "sky_visibility"
-    writes = ("primvars:bake:irradianceDirect", "primvars:bake:irradianceIndirect")
+    writes = ("primvars:bake:irradianceDirect", "primvars:bake:irradianceIndirect", "bake:lightmap:irradianceDirect:",
+              "bake:lightmap:irradianceIndirect:", "primvars:bake:lightmapST")
 
     @dataclass(frozen=True)
-    class Params(Params):
+    class Params(TextureTargetParams):
         light_samples: int = param(16, "shadow-ray samples per light, and for the emissive triangles "
                                    "(picked by power)", low=1, high=65536)
         sky_samples: int = param(256, "rays a point for the dome lights: a quarter cosine-weighted, the rest "
@@ -462,8 +477,17 @@ class Radiosity(Processor):
         receivers = receiver_prims(scene)
         point_ids = np.flatnonzero(np.isin(scene.point_prim, receivers))
         relighter = relighter_for(ctx.tracer, ctx.products[FormFactorProduct].operator, p)
+        layout = pages = None
+        texels = None
+        if p.target in ("texture", "both"):
+            layout = lightmap_layout(scene, receivers, density=p.texel_density, max_size=p.max_texture_size,
+                                     device=ctx.device)
+            pages = texel_samples(scene, layout, vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals,
+                                                                scene.tri_areas), ctx.device)
+            texels = (np.concatenate([inset_points(page) for page in pages]),
+                      np.concatenate([page.normals for page in pages]))
         solved = solve(ctx.tracer, scene, ctx.products[FormFactorProduct], p, point_ids, progress=ctx.progress,
-                       apply_operator=relighter.apply)
+                       apply_operator=relighter.apply, texels=texels)
         e0_vertex = np.zeros((scene.num_points, 3), np.float32)
         e_ind_vertex = np.zeros((scene.num_points, 3), np.float32)
         e0_vertex[point_ids] = solved["vertex_direct"]
@@ -477,12 +501,14 @@ class Radiosity(Processor):
             patch_irradiance_indirect=e_ind_patch, patch_radiosity=radiosity.astype(np.float32),
             vertex_irradiance_direct=e0_vertex, vertex_irradiance_indirect=e_ind_vertex,
         )})
-        for prim in receivers:
+        for prim in receivers if p.target != "texture" else ():
             sl = scene.prim_points(prim)
             result.outputs.append(Primvar(scene.prim_paths[prim], "bake:irradianceDirect", e0_vertex[sl],
                                           "color3f", "vertex"))
             result.outputs.append(Primvar(scene.prim_paths[prim], "bake:irradianceIndirect", e_ind_vertex[sl],
                                           "color3f", "vertex"))
+        if layout is not None:
+            self._textures(scene, p, layout, pages, solved, result)
         result.stats["rays"] = float(ctx.tracer.rays_cast - rays_before)
         result.stats["patches"] = float(patches.count)
         result.messages.append(f"indirect light relit with the {relighter.form} operator "
@@ -492,3 +518,21 @@ class Radiosity(Processor):
             result.messages.append(f"{skipped} instanced prims occlude and bounce light but get no primvars")
         ctx.progress(1.0)
         return result
+
+    @staticmethod
+    def _textures(scene: Scene, p, layout, pages: list, solved: dict, result: Result) -> None:
+        """The texture target: direct and indirect irradiance (W/m^2, RGB) per lightmap texel, one half-float
+        EXR each per page, described on each mesh (``LightmapAPI:irradianceDirect`` / ``irradianceIndirect``)."""
+        for channel, key in (("irradianceDirect", "texel_direct"), ("irradianceIndirect", "texel_indirect")):
+            files, first = [], 0
+            for page in pages:
+                values = solved[key][first:first + len(page.texel)]
+                first += len(page.texel)
+                texture = texture_record(f"{channel}_lightmap_{page.page}", page_image(page, values, p.margin),
+                                         eight_bit_range=False)
+                result.outputs.append(texture)
+                files.append(texture.path)
+            result.outputs.extend(lightmap_records(scene, layout, channel, files, channels="rgb", units="W/m^2",
+                                                   with_uvs=channel == "irradianceDirect"))
+        result.messages.extend(layout_messages(scene, layout, p.texel_density))
+        result.stats["texels"] = float(first)
