@@ -179,6 +179,7 @@ def _bake_batch(args, inputs: list[str], scheduler: str | None, console: Console
         results = bake_many(inputs, args.output, processors=names, params=params, device=args.device,
                             cache_dir=args.cache, force=args.force, threads=args.threads, time=args.time,
                             allow_missing=args.allow_missing, deinstance=args.deinstance, scheduler=scheduler,
+                            target=args.target,
                             workers=args.workers, on_outcome=None if args.json else on_outcome)
     failed = [outcome for outcome in results if outcome.status == "failed"]
     if args.json:

@@ -42,6 +42,10 @@ def add_stage_options(sub: argparse.ArgumentParser, *, many: bool = False) -> No
     sub.add_argument("--set", action="append", default=[], metavar="NAME.param=value",
                      help="set a processor parameter (repeatable)")
     sub.add_argument("--config", metavar="FILE.toml", help="processors and params from a TOML file")
+    sub.add_argument("--target", choices=("vertex", "texture", "both"), default=None,
+                     help="where per-surface results go: vertex primvars (each processor's default), lightmap "
+                          "textures on the asset's UVs (no mesh changed), or both; a processor's own "
+                          "--set NAME.target=... wins")
     sub.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda:N")
     sub.add_argument("--threads", type=positive_count, default=None, metavar="N",
                      help="CPU threads for ray casting (default: every core)")
@@ -126,6 +130,7 @@ def build_pipeline(args, names: list[str], params: dict[str, dict], console: Con
     runtime = Runtime(Tracer.from_scene, device=args.device, threads=args.threads, chunks=chunks)
     try:
         pipeline = Pipeline.build(names, params, runtime=runtime, cache_dir=args.cache, force=args.force,
+                                  target=args.target,
                                   allow_conflicts=allow_conflicts,
                                   ignorable=[name for name in args.config_tables if name not in named_by_set])
     except ParamsOutsideRun as error:

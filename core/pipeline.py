@@ -12,12 +12,13 @@ keys of the steps it depends on. Every step reads the one run-time object of the
 
 from __future__ import annotations
 
-import numpy as np
-
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from graphlib import CycleError, TopologicalSorter
 from typing import Callable, Collection
+
+import numpy as np
 
 from .cache import ResultCache, step_key
 from .errors import UsageError
@@ -89,9 +90,11 @@ class Step:
 
 
 def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dict] | None = None, *,
-                allow_conflicts: bool = False, ignorable: Collection[str] = ()) -> list[Step]:
+                allow_conflicts: bool = False, ignorable: Collection[str] = (), target: str | None = None) -> list[Step]:
     """Requested processors plus everything they depend on, in dependency order. Two of them declaring
     one property in ``writes`` is a GraphError unless ``allow_conflicts`` (``plan`` lists them instead).
+    ``target`` (vertex, texture, both: ``--target``) is the ``target`` param of every step that has one and
+    is not given its own in ``params``.
 
     The one check of ``params`` against the run: ParamError for an unknown processor, ParamsOutsideRun
     for one the run does not hold, unless ``ignorable`` names it (a shared config file's table)."""
@@ -100,6 +103,11 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
     for name in params:
         if name not in registry:
             raise ParamError(f"parameters given for unknown processor {name!r}")
+    if target is not None:
+        if target not in TARGETS:
+            raise ParamError(f"target={target!r} is not one of {list(TARGETS)}")
+        params = {name: {"target": target, **params.get(name, {})} for name, cls in registry.items()
+                  if name in params or any(f.name == "target" for f in dataclasses.fields(cls.Params))}
     producers: dict[str, str] = {}
     for name, cls in registry.items():
         for product in (*cls.provides, *cls.requires):
@@ -147,7 +155,7 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
         steps.append(Step(name, cls(step_params), step_params, after=(after[name],) if name in after else (),
                           requested=name in requested, asked_by=asked.get(name, "")))
     for name in outside_run(params, steps):
-        if name not in ignorable:
+        if name not in ignorable and (target is None or set(params[name]) != {"target"}):
             raise ParamsOutsideRun(name, [step.name for step in steps])
     return steps
 
@@ -160,12 +168,14 @@ def outside_run(params: dict, steps: list[Step]) -> list[str]:
 
 def _refiners_asked_for(wanted: list[str], params: dict, registry: dict) -> dict[str, str]:
     """{refiner: the step asking for it}: for a run without a mesh refiner, the first ``refined_by`` of a
-    wanted step whose ``refine`` param is true (Processor.refined_by)."""
+    wanted step whose ``refine`` param is true and whose results go to vertices (Processor.refined_by): the
+    texture target changes no mesh."""
     if any(RefinedScene in registry[name].provides for name in wanted):
         return {}
     for name in sorted(wanted):
         cls = registry[name]
-        if cls.refined_by and cls.Params.from_dict(params.get(name, {})).as_dict().get("refine", False):
+        values = cls.Params.from_dict(params.get(name, {})).as_dict()
+        if cls.refined_by and values.get("refine", False) and values.get("target", "vertex") == "vertex":
             return {cls.refined_by: name}
     return {}
 
@@ -193,6 +203,8 @@ def _after_refinement(wanted: list[str], graph: dict[str, set[str]], registry: d
     return {name: refiner for name in chosen}
 
 
+TARGETS = ("vertex", "texture", "both")
+"""Where per-surface results go (``core.params.TextureTargetParams.target``)."""
 SHARED_WRITES = ("primvars:bake:lightmapST",)
 """Properties several processors may author in one run when they author one value: the texture target's
 generated lightmap UVs (every processor lays out the same atlas from the same scene and texture params)."""
@@ -255,9 +267,10 @@ class Pipeline:
 
     @classmethod
     def build(cls, names=None, params=None, *, runtime: Runtime, cache_dir=None, force=False,
-              allow_conflicts=False, ignorable: Collection[str] = ()) -> "Pipeline":
-        """The steps of ``names`` (see build_steps, which checks ``params``) run with ``runtime``."""
-        steps = build_steps(names, params, allow_conflicts=allow_conflicts, ignorable=ignorable)
+              allow_conflicts=False, ignorable: Collection[str] = (), target: str | None = None) -> "Pipeline":
+        """The steps of ``names`` (see build_steps, which checks ``params`` and applies ``target``) run with
+        ``runtime``."""
+        steps = build_steps(names, params, allow_conflicts=allow_conflicts, ignorable=ignorable, target=target)
         return cls(steps, runtime, cache=ResultCache(cache_dir), force=force,
                    ignored_params=tuple(outside_run(params or {}, steps)))
 

@@ -46,10 +46,12 @@ class BatchOptions:
     time_code: float | None = None
     allow_missing: bool = False
     deinstance: bool = False
+    target: str | None = None
+    """Where per-surface results go (vertex, texture, both) for every processor without its own target param."""
 
     def check(self) -> None:
         """Refuse, before any stage is sent, what would fail every stage: processors, params, threads."""
-        build_steps(self.names(), self.params)
+        build_steps(self.names(), self.params, target=self.target)
         check_threads(self.threads)
 
     def pipeline(self) -> Pipeline:
@@ -57,7 +59,8 @@ class BatchOptions:
         share of the cores."""
         threads = self.threads if self.threads is not None else worker_threads()
         runtime = Runtime(Tracer.from_scene, device=self.device, threads=threads)
-        return Pipeline.build(self.names(), self.params, runtime=runtime, cache_dir=self.cache_dir, force=self.force)
+        return Pipeline.build(self.names(), self.params, runtime=runtime, cache_dir=self.cache_dir, force=self.force,
+                              target=self.target)
 
     def names(self) -> list[str] | None:
         return list(self.processors) if self.processors else None
@@ -140,19 +143,19 @@ def bake_stage(input_path: str, output: str, options: BatchOptions) -> StageOutc
 def bake_many(paths: list[str], output_dir: str | None = None, *, processors=None, params=None,
               device: str = "cpu", cache_dir: str | None = None, force: bool = False, threads: int | None = None,
               time: float | None = None, allow_missing: bool = False, deinstance: bool = False,
-              scheduler: str | None = None, workers: int | None = None,
+              scheduler: str | None = None, workers: int | None = None, target: str | None = None,
               on_outcome: Callable[[StageOutcome], None] | None = None) -> list[StageOutcome]:
     """Bake every stage of ``paths`` (paths or glob patterns) into ``output_dir`` (default: beside each).
 
     One task per stage: on a local pool of ``workers`` processes (default: one per core, at most one
     per stage), or on the Dask cluster at ``scheduler``. Processors and params are checked once, before
     any work (UsageError); each stage's own failure is its outcome's ``error``. ``on_outcome`` hears
-    each stage as it ends. Returns the outcomes in the order of the inputs.
+    each stage as it ends. ``target``: as ``usdbake.bake``'s. Returns the outcomes in the order of the inputs.
     """
     inputs = expand_inputs([str(path) for path in paths])
     outputs = batch_outputs(inputs, output_dir)
     options = BatchOptions(tuple(processors) if processors else None, dict(params or {}), device, cache_dir, force,
-                           threads, time, allow_missing, deinstance)
+                           threads, time, allow_missing, deinstance, target)
     options.check()  # before any work
     jobs = list(zip(inputs, outputs))
     report = on_outcome or (lambda outcome: None)

@@ -246,8 +246,10 @@ def _author_prim(layer: Sdf.Layer, record: Prim) -> None:
     if record.type_name:
         spec.specifier = Sdf.SpecifierDef
         spec.typeName = record.type_name
-    if record.api_schemas:
-        spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=list(record.api_schemas)))
+    if record.api_schemas:  # added to what earlier records applied to the prim (several processors, or channels)
+        earlier = list(spec.GetInfo("apiSchemas").prependedItems) if spec.HasInfo("apiSchemas") else []
+        schemas = earlier + [name for name in record.api_schemas if name not in earlier]
+        spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=schemas))
     if record.instanceable is not None:
         spec.instanceable = record.instanceable
 

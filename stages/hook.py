@@ -39,7 +39,7 @@ from .inputs import check_cache_folder, check_device, check_writable_folder
 def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | None = None,
          time: float | None = None, device: str = "cpu", cache_dir: str | None = None, force: bool = False,
          texture_dir: str | None = None, on_progress=None, allow_missing: bool = False,
-         deinstance: bool = False, threads: int | None = None) -> Sdf.Layer:
+         deinstance: bool = False, threads: int | None = None, target: str | None = None) -> Sdf.Layer:
     """Run processors on ``stage`` and author their results into a bake layer.
 
     Parameters
@@ -55,6 +55,9 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     deinstance : bake natively instanced meshes as ordinary ones (per vertex); the layer sets
         ``instanceable = false`` on the instances whose meshes receive data
     threads : CPU threads for ray casting (None, the default: every core)
+    target : where per-surface results go, for every processor that has a ``target`` param and is not given
+        its own in ``params``: 'vertex' (primvars), 'texture' (lightmaps on the asset's UVs; no mesh is
+        changed) or 'both'; None keeps each processor's default (vertex)
     on_progress : ``on_progress(name, fraction)`` hears 'reading stage' and each processor
 
     Warnings (missing assets allowed, textures that could not be read and the fallback used, faces
@@ -67,7 +70,7 @@ def bake(stage: Usd.Stage, processors=None, params=None, *, layer: Sdf.Layer | N
     processors = check_arguments(stage, processors, params, layer=layer, device=device, cache_dir=cache_dir,
                                  texture_dir=texture_dir)
     runtime = Runtime(Tracer.from_scene, device=device, threads=threads)
-    pipeline = Pipeline.build(processors, params, runtime=runtime, cache_dir=cache_dir, force=force)
+    pipeline = Pipeline.build(processors, params, runtime=runtime, cache_dir=cache_dir, force=force, target=target)
     target = layer if layer is not None else _session_bake_layer(stage)
     muted = _mute_for_extraction(stage, target)
     try:  # the stage is read without an earlier bake's opinions, also where refined meshes are completed

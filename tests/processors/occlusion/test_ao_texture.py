@@ -1,0 +1,110 @@
+"""ambient_occlusion's texture target end to end through the hook: values against the analytic AO of a floor
+beside an (almost) infinite wall, the meshes untouched, the texture wired into the material."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pxr import Sdf, Usd, UsdGeom, UsdShade
+from stage_builders import add_mesh, add_preview_material, bind, new_stage
+
+import usdbake
+from usdbake.core import ParamError
+
+WALL = 400.0
+"""Half-size of the wall (m): it hides half the cosine-weighted hemisphere of a floor point at distance d up to
+a share of order d / WALL of it."""
+
+
+def wall_and_floor_stage(tmp_path):
+    """Y-up metres: a 1 m floor (x in [0.25, 1.25], z in [0, 1], st = its xz) beside the wall x = 0 (bake:skip),
+    bound to a UsdPreviewSurface, and a tile without UVs (a generated layout)."""
+    stage = new_stage(up_axis="Y", meters_per_unit=1.0)
+    floor = add_mesh(stage, "/World/Floor", [(0.25, 0, 0), (0.25, 0, 1), (1.25, 0, 1), (1.25, 0, 0)], [4],
+                     [0, 1, 2, 3])
+    st = UsdGeom.PrimvarsAPI(floor).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                  UsdGeom.Tokens.faceVarying)
+    st.Set([(0, 0), (0, 1), (1, 1), (1, 0)])
+    wall = add_mesh(stage, "/World/Wall", [(0, 0, -WALL), (0, WALL, -WALL), (0, WALL, WALL), (0, 0, WALL)], [4],
+                    [0, 1, 2, 3])
+    wall.GetPrim().CreateAttribute("bake:skip", Sdf.ValueTypeNames.Bool).Set(True)  # occludes, receives nothing
+    add_mesh(stage, "/World/Tile", [(3, 0, 3), (3, 0, 3.5), (3.5, 0, 3.5), (3.5, 0, 3)], [4], [0, 1, 2, 3])
+    bind(floor.GetPrim(), add_preview_material(stage, "/World/Looks/Floor", diffuse=(0.5, 0.5, 0.5)))
+    path = tmp_path / "wall.usda"
+    stage.GetRootLayer().Export(str(path))
+    return Usd.Stage.Open(str(path))
+
+
+def composed_meshes(stage) -> dict:
+    return {(str(prim.GetPath()), attr.GetName()): np.asarray(attr.Get()).tobytes()
+            for prim in stage.Traverse() if prim.IsA(UsdGeom.Mesh)
+            for attr in prim.GetAttributes()
+            if attr.GetName() in ("points", "faceVertexCounts", "faceVertexIndices", "primvars:st", "normals")
+            and attr.HasValue()}
+
+
+def read_image(path: str) -> np.ndarray:
+    import OpenImageIO as oiio
+
+    buffer = oiio.ImageBuf(path)
+    assert not buffer.has_error, buffer.geterror()
+    return buffer.get_pixels(oiio.FLOAT)
+
+
+@pytest.fixture(scope="module")
+def baked(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("ao_texture")
+    stage = wall_and_floor_stage(tmp_path)
+    before = composed_meshes(stage)
+    layer = usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 256}}, target="texture",
+                         texture_dir=str(tmp_path))
+    return stage, layer, before
+
+
+def test_texels_match_the_analytic_half_hemisphere_and_none_are_black(baked):
+    stage, _, _ = baked
+    floor = stage.GetPrimAtPath("/World/Floor")
+    assert floor.HasAPI("LightmapAPI") and "LightmapAPI:ao" in floor.GetAppliedSchemas()
+    assert floor.GetAttribute("bake:lightmap:ao:uv").Get() == "st"
+    file = floor.GetAttribute("bake:lightmap:ao:file").Get().resolvedPath
+    image = read_image(file)[:, :, 0]
+    assert image.shape == (32, 32)  # 1 m of floor at the default 32 texels per metre
+    # analytic: 1/2 for an infinite wall; the finite one leaves a share of order d / WALL open
+    assert abs(image.mean() - 0.5) < 4 * 0.5 / np.sqrt(image.size * 256) + 1.25 / WALL
+    assert image.min() > 0.5 - 4 * 0.5 / 16  # each texel within 4 sigma of 256 rays: none black
+    assert not stage.GetPrimAtPath("/World/Floor").HasAttribute("primvars:bake:ao")
+
+
+def test_meshes_are_unchanged_and_the_generated_uvs_are_written(baked):
+    stage, _, before = baked
+    assert composed_meshes(stage) == before
+    tile = stage.GetPrimAtPath("/World/Tile")
+    uv = UsdGeom.PrimvarsAPI(tile).GetPrimvar("bake:lightmapST")
+    assert uv.GetInterpolation() == UsdGeom.Tokens.faceVarying and len(uv.Get()) == 4
+    assert tile.GetAttribute("bake:lightmap:ao:uv").Get() == "bake:lightmapST"
+    assert not stage.GetPrimAtPath("/World/Wall").HasAttribute("bake:lightmap:ao:file")
+
+
+def test_ao_texture_is_wired_into_the_bound_surface(baked):
+    stage, _, _ = baked
+    surface = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Floor/Surface"))
+    source = surface.GetInput("occlusion").GetConnectedSources()[0][0]
+    texture = UsdShade.Shader(source.source.GetPrim())
+    assert texture.GetIdAttr().Get() == "UsdUVTexture" and source.sourceName == "r"
+    assert texture.GetInput("file").Get().resolvedPath == \
+        stage.GetPrimAtPath("/World/Floor").GetAttribute("bake:lightmap:ao:file").Get().resolvedPath
+    reader = UsdShade.Shader(texture.GetInput("st").GetConnectedSources()[0][0].source.GetPrim())
+    assert reader.GetIdAttr().Get() == "UsdPrimvarReader_float2" and reader.GetInput("varname").Get() == "st"
+
+
+@pytest.mark.parametrize("values", [{"texel_density": 0.0}, {"max_texture_size": 4}, {"target": "pixels"},
+                                    {"margin": -1}])
+def test_bad_texture_params_are_refused_before_compute(tmp_path, values):
+    stage = wall_and_floor_stage(tmp_path)
+    with pytest.raises(ParamError, match=next(iter(values))):
+        usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": values})
+
+
+def test_bad_target_option_is_refused(tmp_path):
+    with pytest.raises(ParamError, match="target='uv'"):
+        usdbake.bake(wall_and_floor_stage(tmp_path), "ambient_occlusion", target="uv")
