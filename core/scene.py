@@ -190,12 +190,12 @@ class Scene:
 
     tri_st: np.ndarray | None = None
     """(T, 3, 2) float32 UV of each triangle corner in the prim's main UV set (``prim_st``), in ``tri_vertices``
-    corner order; NaN where the prim has none (the default)."""
+    corner order, finite; 0 where the prim has none (the default)."""
     prim_st: tuple[str, ...] | None = None
     """Per prim: the primvar ``tri_st`` was read from ('st', ...), '' when none."""
     tri_lightmap_uv: np.ndarray | None = None
-    """(T, 3, 2) float32 UV of each corner in the prim's dedicated lightmap UV set (``prim_lightmap_uv``); NaN
-    where it has none (the default)."""
+    """(T, 3, 2) float32 UV of each corner in the prim's dedicated lightmap UV set (``prim_lightmap_uv``),
+    finite; 0 where it has none (the default)."""
     prim_lightmap_uv: tuple[str, ...] | None = None
     """Per prim: the primvar ``tri_lightmap_uv`` was read from ('st1', ...), '' when none."""
     prim_corner_count: np.ndarray | None = None
@@ -214,7 +214,7 @@ class Scene:
             object.__setattr__(self, "prim_corner_count", counts)
         for uvs, names in (("tri_st", "prim_st"), ("tri_lightmap_uv", "prim_lightmap_uv")):
             if getattr(self, uvs) is None:
-                object.__setattr__(self, uvs, np.full((len(self.tri_vertices), 3, 2), np.nan, np.float32))
+                object.__setattr__(self, uvs, np.zeros((len(self.tri_vertices), 3, 2), np.float32))
             if getattr(self, names) is None:
                 object.__setattr__(self, names, ("",) * len(self.prim_paths))
         if self.tri_transmittance is None:

@@ -3,7 +3,7 @@
 Per receiver mesh, in this order (``MeshLightmap.reason`` says which and why):
 
 1. its dedicated lightmap UV set (``Scene.prim_lightmap_uv``: ``st1``, ``lightmapST``, ...) as authored;
-   one that spans several UDIM tiles is refused (``LightmapError``), as is one that is not finite;
+   one that spans several UDIM tiles is refused (``LightmapError``; extraction leaves out sets with NaN);
 2. else its ``st`` when that lies in one tile and overlaps itself on under ``OVERLAP_LIMIT`` of its texels
    (mirrored or stacked shells share texels, so they cannot hold a lightmap);
 3. else a generated layout: xatlas (Young, *xatlas*, after Levy et al.'s LSCM charts and a skyline
@@ -117,9 +117,6 @@ def _own_uvs(scene: Scene, prim: int, tris: np.ndarray, world_area: float, densi
     lightmap_name = scene.prim_lightmap_uv[prim]
     if lightmap_name:
         uvs = scene.tri_lightmap_uv[tris]
-        if not np.isfinite(uvs).all():
-            raise LightmapError(path, f"primvars:{lightmap_name}", "holds NaN or infinite UVs; fix the set or "
-                                                                   "remove it to let usdbake generate one")
         tiles = _tiles(uvs)
         if len(tiles) > 1:
             raise LightmapError(path, f"primvars:{lightmap_name}",
@@ -132,8 +129,6 @@ def _own_uvs(scene: Scene, prim: int, tris: np.ndarray, world_area: float, densi
     if not st_name:
         return "it has no UVs"
     uvs = scene.tri_st[tris]
-    if not np.isfinite(uvs).all():
-        return f"primvars:{st_name} holds NaN or infinite UVs"
     tiles = _tiles(uvs)
     if len(tiles) > 1:
         return f"primvars:{st_name} spans {len(tiles)} UDIM tiles"
@@ -194,8 +189,6 @@ def _generate(scene: Scene, prims: list[tuple[int, str]], density: float, max_si
     meshes; returns each prim's faceVarying values."""
     if not prims:
         return {}
-    import xatlas
-
     inputs = []
     for prim, _ in prims:
         tris = np.flatnonzero(scene.tri_prim == prim)
@@ -234,7 +227,7 @@ def _generate(scene: Scene, prims: list[tuple[int, str]], density: float, max_si
 
 
 def _pack(inputs: list, texels_per_unit: float, resolution: int):
-    import xatlas
+    import xatlas  # here, not at import: only a generated layout needs it
 
     atlas = xatlas.Atlas()
     for _, _, _, corner_vertex, positions in inputs:

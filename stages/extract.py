@@ -97,7 +97,7 @@ def _assemble(stage, builder: SceneBuilder, light_prims, volume_prims, instances
         tri_parts.append(triangles + point_start[m_index])
         corner_parts.append(mesh.tri_corner[:, ::-1] if flip else mesh.tri_corner)
         for parts, uvs in ((st_parts, mesh.tri_st), (lightmap_parts, mesh.tri_lightmap_uv)):
-            uvs = np.full((len(triangles), 3, 2), np.nan, np.float32) if uvs is None else uvs
+            uvs = np.zeros((len(triangles), 3, 2), np.float32) if uvs is None else uvs
             parts.append(uvs[:, ::-1] if flip else uvs)
         prim_parts.append(np.full(len(triangles), m_index, np.int32))
         face_parts.append(mesh.tri_face)

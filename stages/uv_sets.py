@@ -2,8 +2,8 @@
 the texture target (``geometry.lightmap_layout`` decides which one a bake uses, or generates one).
 
 Every primvar interpolation USD allows for a UV set is read (faceVarying, vertex, varying, uniform; indexed
-or not, through ``UsdGeom.Primvar.ComputeFlattened``). A set that cannot be used (a constant, a count
-that does not match the topology, a value type that is not two floats) is left out with a warning naming
+or not). A set that cannot be used (a constant, a count
+that does not match the topology, a value type that is not two floats, NaN or infinite values) is left out with a warning naming
 the prim, the primvar and the value, never an error: vertex bakes do not read UVs at all.
 """
 
@@ -30,12 +30,20 @@ def corner_uvs(prim: Usd.Prim, names: tuple[str, ...], triangles: np.ndarray, tr
         primvar = primvars.GetPrimvar(name)
         if not primvar or not primvar.HasValue():
             continue
-        values = primvar.ComputeFlattened(timecode)
+        values = primvar.Get(timecode)
         where = f"{prim.GetPath()}: primvars:{name}"
         if primvar.GetTypeName().scalarType not in {t.scalarType for t in _UV_TYPES} or values is None:
             warnings.append(f"{where} is {primvar.GetTypeName()}, not two floats per element: not used as UVs")
             continue
         values = np.asarray(values, np.float64).reshape(-1, 2)
+        if primvar.IsIndexed():  # flattened here: USD's ComputeFlattened prints a warning of its own for bad indices
+            indices = np.asarray(primvar.GetIndices(timecode), np.int64)
+            bad = np.flatnonzero((indices < 0) | (indices >= len(values)))
+            if len(bad):
+                warnings.append(f"{where}:indices: index {int(indices[bad[0]])} at position {int(bad[0])} is outside "
+                                f"0..{len(values) - 1}: not used as UVs")
+                continue
+            values = values[indices]
         interpolation = primvar.GetInterpolation()
         index = {UsdGeom.Tokens.faceVarying: tri_corner, UsdGeom.Tokens.vertex: triangles,
                  UsdGeom.Tokens.varying: triangles,
@@ -45,6 +53,10 @@ def corner_uvs(prim: Usd.Prim, names: tuple[str, ...], triangles: np.ndarray, tr
         if index is None or len(values) < needed:
             warnings.append(f"{where} ({interpolation}) has {len(values)} values where the topology needs "
                             f"{needed}: not used as UVs")
+            continue
+        if not np.isfinite(values).all():
+            bad = int(np.flatnonzero(~np.isfinite(values).all(axis=1))[0])
+            warnings.append(f"{where} holds {tuple(values[bad])} at {bad}: not used as UVs")
             continue
         return name, values[index].astype(np.float32) if index.size else np.zeros((0, 3, 2), np.float32)
     return "", None

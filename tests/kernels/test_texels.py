@@ -132,7 +132,6 @@ def test_layout_moves_st_of_one_udim_tile_into_the_page():
     ("overlaps", squares_uv(3, shared=True)),
     ("outside its tile", squares_uv(2) * np.float32(1.2) - np.float32(0.1)),
     ("UDIM tiles", np.concatenate([squares_uv(1), squares_uv(1, offset=(1.0, 0.0))])),
-    ("NaN", np.where(np.arange(4 * 3 * 2).reshape(4, 3, 2) == 0, np.nan, squares_uv(2))),
 ])
 def test_layout_generates_uvs_where_st_cannot_hold_a_lightmap(why, uv):
     scene = flat_scene(uv)

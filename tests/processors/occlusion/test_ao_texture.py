@@ -108,3 +108,44 @@ def test_bad_texture_params_are_refused_before_compute(tmp_path, values):
 def test_bad_target_option_is_refused(tmp_path):
     with pytest.raises(ParamError, match="target='uv'"):
         usdbake.bake(wall_and_floor_stage(tmp_path), "ambient_occlusion", target="uv")
+
+
+def test_texture_and_vertex_targets_agree_where_vertices_are_dense(tmp_path):
+    """A 2 m floor of 20 x 20 quads beside a 0.5 m box off its centre (so a flipped image would read the wrong
+    side): the texel under each vertex (64 texels/m) against the vertex's own AO, away from the box's sharp
+    contact shadow."""
+    stage = new_stage(up_axis="Y", meters_per_unit=1.0)
+    n = 20
+    xs = np.linspace(-1.0, 1.0, n + 1)
+    points = [(x, 0.0, z) for z in xs for x in xs]
+    quads = [(j * (n + 1) + i, (j + 1) * (n + 1) + i, (j + 1) * (n + 1) + i + 1, j * (n + 1) + i + 1)
+             for j in range(n) for i in range(n)]
+    floor = add_mesh(stage, "/World/Floor", points, [4] * len(quads), [k for q in quads for k in q])
+    uv = UsdGeom.PrimvarsAPI(floor).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    uv.Set([((x + 1) / 2, (z + 1) / 2) for x, _, z in points])
+    centre = np.array([0.35, 0.0, -0.35])
+    box = [tuple(centre + corner) for corner in
+           [(-0.25, 0, -0.25), (0.25, 0, -0.25), (0.25, 0, 0.25), (-0.25, 0, 0.25),
+            (-0.25, 0.5, -0.25), (0.25, 0.5, -0.25), (0.25, 0.5, 0.25), (-0.25, 0.5, 0.25)]]
+    faces = [(0, 1, 2, 3), (4, 7, 6, 5), (0, 4, 5, 1), (1, 5, 6, 2), (2, 6, 7, 3), (3, 7, 4, 0)]
+    cube = add_mesh(stage, "/World/Box", box, [4] * 6, [k for f in faces for k in f])
+    cube.GetPrim().CreateAttribute("bake:skip", Sdf.ValueTypeNames.Bool).Set(True)
+    path = tmp_path / "dense.usda"
+    stage.GetRootLayer().Export(str(path))
+    stage = Usd.Stage.Open(str(path))
+    usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 1024, "texel_density": 64.0}},
+                 target="both", texture_dir=str(tmp_path))
+    prim = stage.GetPrimAtPath("/World/Floor")
+    vertex_ao = np.asarray(UsdGeom.PrimvarsAPI(prim).GetPrimvar("bake:ao").Get())
+    image = read_image(prim.GetAttribute("bake:lightmap:ao:file").Get().resolvedPath)[::-1, :, 0]  # row 0: v = 0
+    height, width = image.shape
+    uvs = np.array([((x + 1) / 2, (z + 1) / 2) for x, _, z in points])
+    texel = image[np.clip((uvs[:, 1] * height).astype(int), 0, height - 1),
+                  np.clip((uvs[:, 0] * width).astype(int), 0, width - 1)]
+    p = np.asarray(points)
+    from_box = np.abs(p[:, [0, 2]] - centre[[0, 2]]).max(axis=1)
+    away = (from_box > 0.4) & (np.abs(p[:, [0, 2]]).max(axis=1) < 0.99)
+    difference = texel[away] - vertex_ao[away]
+    noise = 0.5 / np.sqrt(1024)  # one i.i.d. estimate's bound; stratified rays have less
+    assert abs(difference.mean()) < 4 * np.sqrt(2) * noise / np.sqrt(away.sum()) + 0.005
+    assert np.sqrt(np.mean(difference ** 2)) < np.sqrt(2) * noise + 0.01

@@ -1,0 +1,333 @@
+"""AO lightmaps (the texture target) on the furnished room: accuracy against Embree, seams, coverage, untouched
+meshes, throughput, and time against error beside Blender's Cycles baking the same texels."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import harness
+
+NAME = "lightmaps"
+DESCRIPTION = (
+    "ambient_occlusion's texture target on the furnished daylight room (issue 29's, Z-up metres, open windows; "
+    "its ground and exterior skins marked `bake:skip`: they occlude but get no texels; the floor given a planar "
+    "faceVarying `st`, every other mesh charted by xatlas). Accuracy: 1000 random texels whose centre lies inside "
+    "their triangle, against Embree (embreex) tracing 4096 float64 cosine-weighted rays per texel at the texel's "
+    "world point and shading normal (origin: the point 1e-5 of the scene diagonal along the face normal). Noise: half "
+    "the mean squared difference of two seeds at the same texels. Seams: texel pairs of different charts whose "
+    "world points lie within a quarter texel and whose normals agree (cos > 0.99). Cycles: Blender 5's Cycles "
+    "AO bake (CPU, 2 threads, Sobol sampling, the same mesh, UVs, corner normals and texel count, unlimited "
+    "distance), its bake call only; ours: rasterization, texel points and the AO pass (the layout is given to "
+    "both). Error of both against the Embree reference at the same texels.")
+ROOM_CELL = 0.1
+THROUGHPUT_CELL = 0.035
+"""Shell cell (m) of the throughput room (~270k triangles)."""
+REFERENCE_RAYS = 4096
+DEFAULT_SAMPLES = 256
+TEXELS_CHECKED = 1000
+
+
+def room_scene(cell: float):
+    """(stage, scene): the furnished room with the bench's UVs and skips (module DESCRIPTION)."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    from usdbake.benchmarks.furnished_daylight_room import room_stage
+    from usdbake.stages.extract import extract_scene
+
+    stage = room_stage(cell=cell, glazed=False)
+    for path in ("/World/Ground", "/World/Room/Exterior"):
+        stage.GetPrimAtPath(path).CreateAttribute("bake:skip", Sdf.ValueTypeNames.Bool).Set(True)
+    floor = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Room/Floor"))
+    points = np.asarray(floor.GetPointsAttr().Get(), np.float64)
+    indices = np.asarray(floor.GetFaceVertexIndicesAttr().Get(), np.int64)
+    lo, hi = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
+    uv = (points[indices, :2] - lo) / (hi - lo).max()
+    primvar = UsdGeom.PrimvarsAPI(floor).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                       UsdGeom.Tokens.faceVarying)
+    primvar.Set(Vt.Vec2fArray.FromNumpy(uv.astype(np.float32)))
+    return stage, extract_scene(stage)
+
+
+def prepared(scene, density: float, max_size: int = 4096):
+    """(layout, pages, seconds of layout, seconds of texel rasterization and points)."""
+    from usdbake.geometry.mesh import receiver_prims, vertex_normals
+    from usdbake.kernels.lightmap_bake import texel_samples
+    from usdbake.kernels.lightmap_layout import lightmap_layout
+
+    started = time.perf_counter()
+    layout = lightmap_layout(scene, receiver_prims(scene), density=density, max_size=max_size)
+    layout_seconds = time.perf_counter() - started
+    started = time.perf_counter()
+    normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
+    pages = texel_samples(scene, layout, normals)
+    return layout, pages, layout_seconds, time.perf_counter() - started
+
+
+def texel_ao(tracer, page, samples: int, seed: int) -> tuple[np.ndarray, float]:
+    from usdbake.processors.occlusion.ambient_occlusion import texel_ao_chunk
+
+    started = time.perf_counter()
+    values = texel_ao_chunk(tracer, 0, page.points, page.normals, page.corners, samples=samples,
+                            max_distance=math.inf, seed=seed)
+    return values, time.perf_counter() - started
+
+
+def interior(page) -> np.ndarray:
+    """Indices of the page's texels whose centre lies inside their triangle, away from its edges (the point
+    is the centre itself, and the ray origin is the point pushed along the face normal)."""
+    corners = page.corners.astype(np.float64)
+    ab, ac = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    rel = page.points.astype(np.float64) - corners[:, 0]
+    d00, d01, d11 = (ab * ab).sum(1), (ab * ac).sum(1), (ac * ac).sum(1)
+    d20, d21 = (rel * ab).sum(1), (rel * ac).sum(1)
+    denominator = d00 * d11 - d01 * d01
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = (d11 * d20 - d01 * d21) / denominator
+        w = (d00 * d21 - d01 * d20) / denominator
+    smallest = np.minimum(np.minimum(1 - v - w, v), w)
+    return np.flatnonzero(np.nan_to_num(smallest, nan=-1.0) > 0.02)
+
+
+def embree_ao(scene, points: np.ndarray, normals: np.ndarray, face_normals: np.ndarray, rays: int,
+              seed: int) -> np.ndarray:
+    """AO at points: the share of ``rays`` float64 cosine-weighted directions about each normal that Embree
+    finds unoccluded (origin: point + 1e-5 diagonal * face normal). Independent of usdbake's ray core and
+    sampling."""
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
+    embree = rtcore_scene.EmbreeScene()
+    TriangleMesh(embree, np.ascontiguousarray(scene.points[scene.tri_vertices], np.float32))
+    offset = 1e-5 * scene.diagonal
+    rng = np.random.default_rng(seed)
+    out = np.zeros(len(points))
+    for i, (point, normal, face) in enumerate(zip(points.astype(np.float64), normals.astype(np.float64),
+                                                  face_normals.astype(np.float64))):
+        helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        t1 = np.cross(normal, helper)
+        t1 /= np.linalg.norm(t1)
+        t2 = np.cross(normal, t1)
+        r, phi = np.sqrt(rng.random(rays)), 2 * np.pi * rng.random(rays)
+        local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(0.0, 1 - r * r))], axis=1)
+        directions = local[:, :1] * t1 + local[:, 1:2] * t2 + local[:, 2:] * normal
+        origins = np.repeat((point + offset * face)[None], rays, axis=0)
+        hit = embree.run(origins.astype(np.float32), directions.astype(np.float32), query="OCCLUDED")
+        out[i] = float((hit == -1).mean())
+    return out
+
+
+def seam_pairs(page, density: float) -> np.ndarray:
+    """(M, 2) texel indices of pairs on different charts at one world point (module DESCRIPTION)."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(page.points.astype(np.float64))
+    pairs = tree.query_pairs(0.25 / density, output_type="ndarray")
+    if not len(pairs):
+        return pairs
+    cos = (page.normals[pairs[:, 0]] * page.normals[pairs[:, 1]]).sum(1)
+    texel_distance = np.hypot(page.texel[pairs[:, 0]] % page.width - page.texel[pairs[:, 1]] % page.width,
+                              page.texel[pairs[:, 0]] // page.width - page.texel[pairs[:, 1]] // page.width)
+    return pairs[(cos > 0.99) & (texel_distance > 2.5)]  # adjacent texels of one chart are not a seam
+
+
+def uncovered_inside(layout, page) -> int:
+    """Texels whose centre lies inside a triangle's UVs (float64, written here) but that were not baked."""
+    tris = np.flatnonzero(layout.tri_page == page.page)
+    covered = np.zeros(page.width * page.height, bool)
+    covered[page.texel] = True
+    missing = 0
+    scale = np.array([page.width, page.height], np.float64)
+    for tri in layout.tri_uv[tris].astype(np.float64) * scale:
+        lo, hi = np.floor(tri.min(axis=0)).astype(int), np.ceil(tri.max(axis=0)).astype(int)
+        xs, ys = np.meshgrid(np.arange(max(lo[0], 0), min(hi[0], page.width)),
+                             np.arange(max(lo[1], 0), min(hi[1], page.height)))
+        centres = np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], axis=1)
+        a, b, c = tri
+        def edge(u, v):
+            return (v[0] - u[0]) * (centres[:, 1] - u[1]) - (v[1] - u[1]) * (centres[:, 0] - u[0])
+        e1, e2, e3 = edge(a, b), edge(b, c), edge(c, a)
+        inside = ((e1 > 0) & (e2 > 0) & (e3 > 0)) | ((e1 < 0) & (e2 < 0) & (e3 < 0))
+        index = ys.ravel()[inside] * page.width + xs.ravel()[inside]
+        missing += int((~covered[index]).sum())
+    return missing
+
+
+def meshes_unchanged(stage, folder: Path) -> bool:
+    """Bake the texture target through the hook and compare every mesh's composed geometry before/after."""
+    from pxr import UsdGeom
+
+    import usdbake
+
+    def meshes():
+        return {(str(prim.GetPath()), attr.GetName()): np.asarray(attr.Get()).tobytes()
+                for prim in stage.Traverse() if prim.IsA(UsdGeom.Mesh) for attr in prim.GetAttributes()
+                if attr.GetName() in ("points", "faceVertexCounts", "faceVertexIndices", "primvars:st", "normals")
+                and attr.HasValue()}
+
+    before = meshes()
+    usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 16}}, target="texture",
+                 texture_dir=str(folder))
+    return meshes() == before
+
+
+def has_embree() -> bool:
+    return importlib.util.find_spec("embreex") is not None
+
+
+def blender_python() -> str | None:
+    candidate = os.environ.get("USDBAKE_BLENDER_PYTHON", "/work/bpyvenv/bin/python")
+    return candidate if Path(candidate).exists() else None
+
+
+def cycles_bake(python: str, scene, layout, page, vertex_normals: np.ndarray, samples: int,
+                folder: Path) -> tuple[np.ndarray, float]:
+    """Cycles' AO of the page's triangles (cycles_ao.py in Blender's venv): (H, W) values, bake seconds."""
+    tris = np.flatnonzero(layout.tri_page == page.page)
+    others = np.setdiff1d(np.arange(scene.num_triangles), tris)
+    request = folder / "cycles_in.npz"
+    np.savez(request, positions=scene.points, triangles=scene.tri_vertices[tris], uvs=layout.tri_uv[tris],
+             normals=vertex_normals[scene.tri_vertices[tris]], smooth=1, width=page.width, height=page.height,
+             samples=samples, margin=0, threads=2, occluder_positions=scene.points,
+             occluder_triangles=scene.tri_vertices[others])
+    answer = folder / "cycles_out.npz"
+    subprocess.run([python, str(Path(__file__).with_name("cycles_ao.py")), str(request), str(answer)], check=True,
+                   capture_output=True)
+    with np.load(answer) as data:
+        return data["ao"], float(data["bake_seconds"])
+
+
+def equal_error_speedup(ours: list[dict], theirs: list[dict]) -> float:
+    """Cycles' time / ours at Cycles' error, log-log interpolated on our curve, at the Cycles point whose error
+    our curve brackets with the smallest ratio (the least favourable for us); nan when none is bracketed."""
+    errors = np.log([row["error"] for row in ours])
+    seconds = np.log([row["seconds"] for row in ours])
+    order = np.argsort(errors)
+    ratios = []
+    for row in theirs:
+        e = math.log(row["error"])
+        if errors.min() <= e <= errors.max():
+            ratios.append(row["seconds"] / math.exp(np.interp(e, errors[order], seconds[order])))
+    return float(min(ratios)) if ratios else math.nan
+
+
+def run(quick: bool = False) -> dict:
+    from usdbake.geometry.mesh import vertex_normals
+    from usdbake.kernels.tracer import Tracer
+
+    stage, scene = room_scene(ROOM_CELL)
+    tracer = Tracer.from_scene(scene)
+    normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
+    density = 8.0 if quick else 32.0  # the quick sweep: a sixteenth of the texels
+    layout, pages, layout_s, raster_s = prepared(scene, density)
+    page = max(pages, key=lambda p: len(p.texel))
+    texel_ao(tracer, pages[0], 4, 0)  # compile outside the timing
+    ao, _ = texel_ao(tracer, page, DEFAULT_SAMPLES, 0)
+    ao_other, _ = texel_ao(tracer, page, DEFAULT_SAMPLES, 1)
+
+    rng = np.random.default_rng(31)
+    pairs = seam_pairs(page, density)
+    seam_rms = math.sqrt(np.mean((ao[pairs[:, 0]] - ao[pairs[:, 1]]) ** 2)) if len(pairs) else math.nan
+    seam_noise = math.sqrt(np.mean((ao[pairs].ravel() - ao_other[pairs].ravel()) ** 2) / 2) if len(pairs) else math.nan
+    figures = {
+        "triangles": scene.num_triangles, "texels_per_m": density, "pages": len(pages),
+        "texels": int(sum(len(p.texel) for p in pages)),
+        "layout_seconds": round(layout_s, 3), "raster_seconds": round(raster_s, 3),
+        "seam_pairs": int(len(pairs)),
+        "uncovered_texels_inside_charts": int(sum(uncovered_inside(layout, p) for p in pages)),
+        "split_faces": int(sum(m.split_faces for m in layout.meshes)),
+    }
+    if len(pairs):
+        figures["seam_rms_over_pair_noise"] = round(seam_rms / (math.sqrt(2) * seam_noise), 3)
+    rows: list[dict] = []
+    cycles_rows: list[dict] = []
+    if not has_embree():  # the independent reference is a bench extra (".[bench]"); the quick sweep runs without
+        return harness.result(NAME, description=DESCRIPTION, settings={"embree": False}, points=rows,
+                              figures=figures, knob="rays per texel")
+    candidates = interior(page)
+    chosen = rng.choice(candidates, min(TEXELS_CHECKED, len(candidates)), replace=False)
+    reference = harness.cached_reference(
+        "lightmap_ao_room", {"rays": REFERENCE_RAYS, "texels": len(chosen), "cell": ROOM_CELL, "seed": 31,
+                             "density": density, "version": 2},
+        lambda: {"ao": embree_ao(scene, page.points[chosen], page.normals[chosen],
+                                 scene.tri_normals[page.triangle[chosen]], REFERENCE_RAYS, seed=5)})["ao"]
+    noise = math.sqrt(np.mean((ao[chosen] - ao_other[chosen]) ** 2) / 2)
+    rms = math.sqrt(np.mean((ao[chosen] - reference) ** 2))
+    figures.update({"rms_vs_embree_at_256": round(rms, 5), "noise_at_256": round(noise, 5),
+                    "rms_over_noise": round(rms / noise, 3)})
+    if quick:
+        return harness.result(NAME, description=DESCRIPTION, settings={"embree": True}, points=rows,
+                              figures=figures, knob="rays per texel")
+    with tempfile.TemporaryDirectory() as folder:
+        figures["meshes_identical"] = int(meshes_unchanged(stage, Path(folder)))
+    python = blender_python()
+    for size in (1024, 4096):
+        density = 32.0 * size / max(layout.page_sizes[page.page])
+        size_layout, size_pages, _, size_raster = prepared(scene, density, max_size=size)
+        size_page = max(size_pages, key=lambda p: len(p.texel))
+        chosen_here = rng.choice(interior(size_page), min(TEXELS_CHECKED, len(size_page.texel)), replace=False)
+        reference_here = harness.cached_reference(
+            f"lightmap_ao_room_{size}", {"rays": REFERENCE_RAYS, "texels": len(chosen_here), "cell": ROOM_CELL,
+                                         "seed": 31, "size": size, "pages": len(size_pages), "version": 2},
+            lambda: {"ao": embree_ao(scene, size_page.points[chosen_here], size_page.normals[chosen_here],
+                                     scene.tri_normals[size_page.triangle[chosen_here]], REFERENCE_RAYS, seed=6),
+                     "texel": size_page.texel[chosen_here]})
+        for samples in ([4, 16, 64] if size > 1024 else [4, 16, 64, 256]):
+            values, seconds = texel_ao(tracer, size_page, samples, 0)
+            error = math.sqrt(np.mean((values[chosen_here] - reference_here["ao"]) ** 2))
+            rows.append({"label": f"usdbake {size} {samples}", "baker": "usdbake", "size": size, "samples": samples,
+                         "seconds": seconds + size_raster, "error": error, "texels": len(size_page.texel),
+                         "mtexels_per_s": len(size_page.texel) / (seconds + size_raster) / 1e6,
+                         "default": samples == DEFAULT_SAMPLES and size == 1024})
+        if python is not None:
+            for samples in ([4, 16, 64] if size > 1024 else [4, 16, 64, 256]):
+                with tempfile.TemporaryDirectory() as folder:
+                    image, seconds = cycles_bake(python, scene, size_layout, size_page, normals, samples, Path(folder))
+                picked = image.reshape(-1)[reference_here["texel"]]
+                error = math.sqrt(np.mean((picked - reference_here["ao"]) ** 2))
+                cycles_rows.append({"label": f"cycles {size} {samples}", "baker": "cycles", "size": size,
+                                    "samples": samples, "seconds": seconds, "error": error,
+                                    "texels": len(size_page.texel),
+                                    "mtexels_per_s": len(size_page.texel) / seconds / 1e6, "default": False})
+            figures[f"speedup_vs_cycles_at_equal_error_{size}"] = round(equal_error_speedup(
+                [r for r in rows if r["size"] == size], [r for r in cycles_rows if r["size"] == size]), 3)
+    figures.update(throughput())
+    table = harness.markdown_table(rows + cycles_rows, ["baker", "size", "samples", "texels", "seconds", "error",
+                                                        "mtexels_per_s"])
+    return harness.result(NAME, description=DESCRIPTION, settings={"reference_rays": REFERENCE_RAYS,
+                                                                   "texels_checked": TEXELS_CHECKED},
+                          points=rows + cycles_rows, figures=figures, table=table, knob="rays per texel",
+                          error_label="AO RMS vs Embree (4096 rays) at interior texels")
+
+
+def throughput() -> dict:
+    """Texels per second and peak memory of the texture target on the ~270k-triangle room at 32 texels/m at
+    the default 256 rays, in a child process (its own peak resident set)."""
+    code = ("import json, sys, time, resource\n"
+            "from usdbake.benchmarks.bench_lightmaps import room_scene, prepared, texel_ao\n"
+            "from usdbake.kernels.tracer import Tracer\n"
+            f"stage, scene = room_scene({THROUGHPUT_CELL})\n"
+            "tracer = Tracer.from_scene(scene)\n"
+            "layout, pages, layout_s, raster_s = prepared(scene, 32.0)\n"
+            "texel_ao(tracer, pages[0], 4, 0)\n"
+            f"seconds = sum(texel_ao(tracer, page, {DEFAULT_SAMPLES}, 0)[1] for page in pages)\n"
+            "texels = sum(len(p.texel) for p in pages)\n"
+            "print(json.dumps({'triangles': scene.num_triangles, 'texels': texels, 'layout_s': layout_s,\n"
+            "    'raster_s': raster_s, 'ao_s': seconds,\n"
+            "    'peak_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))\n")
+    output = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
+    data = json.loads(output.strip().splitlines()[-1])
+    total = data["layout_s"] + data["raster_s"] + data["ao_s"]
+    return {"throughput_triangles": data["triangles"], "throughput_texels": data["texels"],
+            "throughput_ktexels_per_s": round(data["texels"] / total / 1e3, 1),
+            "throughput_seconds": round(total, 2), "throughput_layout_seconds": round(data["layout_s"], 2),
+            "throughput_peak_mb": round(data["peak_mb"], 1)}
