@@ -16,6 +16,11 @@ module only names, selects, sums and maps them (numpy).
   colours each instance.
 - Channels whose name starts with ``irradiance``, ``daylight`` or
   ``radiosity`` are irradiance: shaded as Lambertian radiance albedo * E / pi.
+- A channel no prim has as a primvar but some mesh has as a lightmap
+  (``bake:lightmap:<name>:file``, the texture target) is read from its image:
+  the corners carry the lightmap UVs (and the page), and ``sample_textures``
+  reads the image bilinearly (repeat wrap, as the bake wires it) at each
+  pixel's interpolated UV.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ import numpy as np
 
 from ..core.errors import UsageError
 from ..core.scene import Scene
-from ..stages.baked_data import PrimvarValues, has_attribute, read_primvar
+from ..stages.baked_data import PrimvarValues, has_attribute, read_lightmap, read_lightmap_image, read_primvar
 
 IRRADIANCE_PREFIXES = ("irradiance", "daylight", "radiosity")
 """Channels whose last name part starts with one of these are irradiance (W/m^2), shaded as albedo * E / pi."""
@@ -51,6 +56,8 @@ class Channel:
     attributes: list[str] = field(default_factory=list)
     """Attribute paths read."""
     messages: list[str] = field(default_factory=list)
+    textures: list[np.ndarray] | None = None
+    """Lightmap channel: the images ((H, W, C), row 0 at v = 0); ``corner_values`` then hold (u, v, image)."""
 
 
 def attribute_candidates(name: str) -> list[str]:
@@ -73,6 +80,10 @@ def read_channel(stage, scene: Scene, name: str, time: float | None = None) -> C
 
     def exists(part: str) -> bool:
         return has_attribute(stage, scene.prim_paths, attribute_candidates(part))
+
+    if len(parts) == 1 and not exists(parts[0]) and \
+            has_attribute(stage, scene.prim_paths, [f"bake:lightmap:{parts[0]}:file"]):
+        return _read_lightmaps(stage, scene, parts[0], time)
 
     if len(parts) == 1 and parts[0] == "irradiance" and not exists("irradiance"):
         if exists("irradianceDirect"):
@@ -233,6 +244,61 @@ def _map_to_corners(scene: Scene, m: int, tris: np.ndarray, values: np.ndarray, 
         return values[position]
     messages.append(f"{attribute}: interpolation {interpolation!r} is not supported; skipped")
     return None
+
+
+def _read_lightmaps(stage, scene: Scene, name: str, time: float | None) -> Channel:
+    """A lightmap channel (module docstring): per-corner UVs and pages, the images, their value range."""
+    corners = np.zeros((scene.num_triangles, 3, 3), np.float32)
+    has = np.zeros(scene.num_triangles, bool)
+    textures: list[np.ndarray] = []
+    files: dict[str, int] = {}
+    attributes, messages = [], []
+    for m, path in enumerate(scene.prim_paths):
+        tris = np.flatnonzero(scene.tri_prim == m)
+        lightmap = read_lightmap(stage, path, name, time) if len(tris) else None
+        if lightmap is None:
+            continue
+        mapped = _map_to_corners(scene, m, tris, lightmap.uvs.values, lightmap.uvs, messages)
+        if mapped is None:
+            continue
+        page = files.setdefault(lightmap.file, len(textures))
+        if page == len(textures):
+            textures.append(read_lightmap_image(lightmap.file))
+        corners[tris, :, :2] = mapped
+        corners[tris, :, 2] = page
+        has[tris] = True
+        attributes.append(lightmap.attribute)
+    components = {image.shape[2] for image in textures}
+    if len(components) > 1:
+        raise UsageError(f"--channel {name}: its lightmaps have {sorted(components)} channels")
+    values = np.concatenate([image.reshape(-1, image.shape[2]) for image in textures])
+    values = values[np.isfinite(values).all(axis=1)]
+    return Channel(name=name, corner_values=corners, tri_has_value=has, components=min(components.pop(), 3),
+                   lo=float(values.min()) if len(values) else 0.0, hi=float(values.max()) if len(values) else 1.0,
+                   irradiance=name.startswith(IRRADIANCE_PREFIXES), attributes=attributes, messages=messages,
+                   textures=textures)
+
+
+def sample_textures(channel: Channel, uv_page: np.ndarray, covered: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float32 the channel's images sampled bilinearly (repeat wrap; texel centres at
+    ((x + 0.5) / W, (y + 0.5) / H)) at each pixel's interpolated (u, v, page), 0 where not ``covered``."""
+    out = np.zeros(uv_page.shape[:2] + (3,), np.float32)
+    pages = np.rint(uv_page[..., 2]).astype(np.int64)
+    for page, image in enumerate(channel.textures or []):
+        mask = covered & (pages == page)
+        if not mask.any():
+            continue
+        height, width, count = image.shape
+        x = uv_page[..., 0][mask] * width - 0.5
+        y = uv_page[..., 1][mask] * height - 0.5
+        x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+        def texel(xi, yi):
+            return image[np.mod(yi, height), np.mod(xi, width)]
+        value = ((1 - fx) * (1 - fy) * texel(x0, y0) + fx * (1 - fy) * texel(x0 + 1, y0)
+                 + (1 - fx) * fy * texel(x0, y0 + 1) + fx * fy * texel(x0 + 1, y0 + 1))
+        out[mask, :min(count, 3)] = value[:, :3]
+    return out
 
 
 def _read_instance_values(stage, scene: Scene, candidates, element, time, has: np.ndarray, messages):

@@ -14,6 +14,7 @@ shading + tone mapping (see ``color`` for the curve).
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass
 
@@ -27,7 +28,7 @@ from ..kernels.tracer import Tracer
 from ..stages.baked_data import open_stage, read_camera, read_probe_clouds, read_vector_grids
 from ..stages.extract import extract_scene
 from .camera import Camera, auto_camera
-from .channels import read_channel
+from .channels import read_channel, sample_textures
 from .images import compare_with, write_image
 from .legend import legend_width
 from .raycast import Frame, choose_auto_camera, trace_frame
@@ -252,6 +253,10 @@ def preview(stage, output: str, *, camera: str | None = None, channel: str | Non
         corner_values=data.corner_values if data is not None else None, wire=wire,
         spheres=spheres.centers if spheres is not None else None,
         sphere_radius=SPHERE_RADIUS_RELATIVE * max(scene.diagonal, 1e-9))
+    if data is not None and data.textures is not None:  # a lightmap: the traced values are UVs
+        covered = frame.hit_triangle >= 0
+        covered &= data.tri_has_value[np.where(covered, frame.hit_triangle, 0)]
+        frame = dataclasses.replace(frame, value=sample_textures(data, frame.value, covered))
     image = shade(
         frame, scene.tri_albedo, tri_has_value=data.tri_has_value if data is not None else None,
         channels=data.components if data is not None else 1, style=mode, value_range=(lo, hi),

@@ -87,10 +87,12 @@ def has_attribute(stage: Usd.Stage, prim_paths, names: list[str]) -> bool:
     return False
 
 
-def read_primvar(stage: Usd.Stage, path: str, names: list[str], time: float | None = None) -> PrimvarValues | None:
+def read_primvar(stage: Usd.Stage, path: str, names: list[str], time: float | None = None, *,
+                 widths: tuple[int, ...] = (1, 3)) -> PrimvarValues | None:
     """The first of the primvars ``names`` that the prim at ``path`` has; None when it has none.
 
-    Raises UsageError when the primvar is neither a float nor a 3-vector / colour type.
+    Raises UsageError when the primvar's values are not ``widths`` floats each (a float or a 3-vector / colour
+    type by default; (2,) for texture coordinates).
     """
     prim = stage.GetPrimAtPath(path)
     if not prim:
@@ -106,7 +108,7 @@ def read_primvar(stage: Usd.Stage, path: str, names: list[str], time: float | No
         raw = _flattened(primvar, time)
         if raw is None:
             return PrimvarValues(attribute, None, 0, interpolation, element_size, no_faces, no_faces)
-        values, components = _as_components(raw, primvar.GetTypeName(), attribute)
+        values, components = _as_components(raw, primvar.GetTypeName(), attribute, widths)
         counts = indices = no_faces
         if interpolation == UsdGeom.Tokens.faceVarying and prim.IsA(UsdGeom.Mesh):
             mesh = UsdGeom.Mesh(prim)
@@ -126,8 +128,9 @@ def _flattened(primvar: UsdGeom.Primvar, time: float | None):
     return value
 
 
-def _as_components(values, type_name: Sdf.ValueTypeName, attribute: str) -> tuple[np.ndarray, int]:
-    """(N, C) float64 values, C = 1 or 3."""
+def _as_components(values, type_name: Sdf.ValueTypeName, attribute: str,
+                   widths: tuple[int, ...] = (1, 3)) -> tuple[np.ndarray, int]:
+    """(N, C) float64 values, C one of ``widths``."""
     scalar = type_name.scalarType
     dims = tuple(scalar.dimensions) if hasattr(scalar, "dimensions") else ()
     refused = UsageError(f"{attribute}: type {type_name} cannot be previewed (need a float or a 3-vector/colour, "
@@ -138,12 +141,54 @@ def _as_components(values, type_name: Sdf.ValueTypeName, attribute: str) -> tupl
         raise refused from None
     if not type_name.isArray:  # one value (a constant primvar authored as a scalar): one row
         array = array.reshape(1, -1)
-    if array.ndim == 1:
+    if array.ndim == 1 and 1 in widths:
         return array[:, None], 1
-    if array.ndim == 2 and array.shape[1] in (1, 3):
+    if array.ndim == 2 and array.shape[1] in widths:
         return array, int(array.shape[1])
     raise UsageError(f"{attribute}: type {type_name} cannot be previewed (need a float or a 3-vector/colour, "
                      f"got shape {array.shape[1:] or dims})")
+
+
+@dataclass(frozen=True)
+class StageLightmap:
+    """One lightmap a mesh's ``LightmapAPI:<name>`` describes: its image and the UV primvar it is laid out on."""
+
+    attribute: str
+    """``prim path.bake:lightmap:<name>:file``."""
+    file: str
+    """The resolved image path."""
+    uvs: PrimvarValues
+
+
+def read_lightmap(stage: Usd.Stage, path: str, name: str, time: float | None = None) -> StageLightmap | None:
+    """The lightmap ``name`` of the prim at ``path``, or None when it has none. UsageError naming the attribute
+    when its file does not resolve or its UV primvar is missing."""
+    prim = stage.GetPrimAtPath(path)
+    prefix = f"bake:lightmap:{name}"
+    if not prim or not prim.HasAttribute(f"{prefix}:file"):
+        return None
+    attribute = f"{path}.{prefix}:file"
+    asset = prim.GetAttribute(f"{prefix}:file").Get()
+    resolved = asset.resolvedPath if asset is not None else ""
+    if not resolved:
+        raise UsageError(f"{attribute}: {asset.path if asset is not None else 'no file'} does not resolve")
+    uv_name = prim.GetAttribute(f"{prefix}:uv").Get() if prim.HasAttribute(f"{prefix}:uv") else "st"
+    uvs = read_primvar(stage, path, [f"primvars:{uv_name}"], time, widths=(2,))
+    if uvs is None or uvs.values is None:
+        raise UsageError(f"{path}.{prefix}:uv: the mesh has no primvars:{uv_name} to lay the lightmap on")
+    return StageLightmap(attribute, resolved, uvs)
+
+
+def read_lightmap_image(file: str) -> np.ndarray:
+    """(H, W, C) float32 linear values of a lightmap file, row 0 at v = 0 (the file's bottom row).
+    UsageError naming the file when OpenImageIO cannot read it."""
+    import OpenImageIO as oiio
+
+    buffer = oiio.ImageBuf(file)
+    pixels = buffer.get_pixels(oiio.FLOAT) if not buffer.has_error else None
+    if pixels is None or buffer.has_error:
+        raise UsageError(f"{file}: cannot be read ({buffer.geterror()})")
+    return np.ascontiguousarray(np.asarray(pixels, np.float32)[::-1])
 
 
 # ---------------------------------------------------------------------------
