@@ -206,6 +206,41 @@ def cycles_bake(python: str, scene, layout, page, vertex_normals: np.ndarray, sa
         return data["ao"], float(data["bake_seconds"])
 
 
+def denoised_rows(tracer, scene, page, chosen: np.ndarray, reference: np.ndarray, raster_seconds: float
+                  ) -> list[dict]:
+    """The texture target with ``denoise`` (Intel Open Image Denoise through pyoidn) at a few ray counts: its time
+    includes the denoiser; rows are skipped without pyoidn."""
+    from usdbake.kernels.lightmap_bake import page_image
+
+    if importlib.util.find_spec("pyoidn") is None:
+        return []
+    rows = []
+    meshes = scene.tri_prim[page.triangle]
+    page_image(page, np.ones(len(page.texel)), 16, 1.0, denoise_meshes=meshes)  # load the denoiser's weights
+    for samples in (4, 16, 64):
+        values, seconds = texel_ao(tracer, page, samples, 0)
+        started = time.perf_counter()
+        image = page_image(page, values, 16, 1.0, denoise_meshes=meshes)[:, :, 0].reshape(-1)
+        seconds += time.perf_counter() - started
+        error = math.sqrt(np.mean((image[page.texel[chosen]] - reference) ** 2))
+        rows.append({"label": f"usdbake+oidn 1024 {samples}", "baker": "usdbake+oidn", "size": 1024,
+                     "samples": samples, "seconds": seconds + raster_seconds, "error": error,
+                     "texels": len(page.texel), "mtexels_per_s": len(page.texel) / (seconds + raster_seconds) / 1e6,
+                     "default": False})
+    return rows
+
+
+def error_at_equal_time(curve: list[dict], rows: list[dict]) -> float:
+    """The largest ratio of a row's error to ``curve``'s error at the same time (log-log interpolated), over the
+    rows whose time the curve brackets; nan when none is."""
+    seconds = np.log([row["seconds"] for row in curve])
+    errors = np.log([row["error"] for row in curve])
+    order = np.argsort(seconds)
+    ratios = [row["error"] / math.exp(np.interp(math.log(row["seconds"]), seconds[order], errors[order]))
+              for row in rows if seconds.min() <= math.log(row["seconds"]) <= seconds.max()]
+    return float(max(ratios)) if ratios else math.nan
+
+
 def equal_error_speedup(ours: list[dict], theirs: list[dict]) -> float:
     """Cycles' time / ours at Cycles' error, log-log interpolated on our curve, at the Cycles point whose error
     our curve brackets with the smallest ratio (the least favourable for us); nan when none is bracketed."""
@@ -288,18 +323,33 @@ def run(quick: bool = False) -> dict:
                          "seconds": seconds + size_raster, "error": error, "texels": len(size_page.texel),
                          "mtexels_per_s": len(size_page.texel) / (seconds + size_raster) / 1e6,
                          "default": samples == DEFAULT_SAMPLES and size == 1024})
+        if size == 1024:
+            rows += denoised_rows(tracer, scene, size_page, chosen_here, reference_here["ao"], size_raster)
         if python is not None:
             for samples in ([4, 16, 64] if size > 1024 else [4, 16, 64, 256]):
-                with tempfile.TemporaryDirectory() as folder:
-                    image, seconds = cycles_bake(python, scene, size_layout, size_page, normals, samples, Path(folder))
-                picked = image.reshape(-1)[reference_here["texel"]]
+                def bake(samples=samples):
+                    with tempfile.TemporaryDirectory() as folder:
+                        image, seconds = cycles_bake(python, scene, size_layout, size_page, normals, samples,
+                                                     Path(folder))
+                    return {"ao": image.reshape(-1)[reference_here["texel"]], "seconds": np.array(seconds)}
+                # Cycles' run is kept like a reference (its bake time included): a rerun of this bench on the
+                # same scene and machine reuses it
+                cycles = harness.cached_reference(f"lightmap_cycles_{size}_{samples}", {
+                    "size": size, "samples": samples, "cell": ROOM_CELL, "texels": len(size_page.texel),
+                    "version": 1}, bake)
+                picked, seconds = cycles["ao"], float(cycles["seconds"])
                 error = math.sqrt(np.mean((picked - reference_here["ao"]) ** 2))
                 cycles_rows.append({"label": f"cycles {size} {samples}", "baker": "cycles", "size": size,
                                     "samples": samples, "seconds": seconds, "error": error,
                                     "texels": len(size_page.texel),
                                     "mtexels_per_s": len(size_page.texel) / seconds / 1e6, "default": False})
             figures[f"speedup_vs_cycles_at_equal_error_{size}"] = round(equal_error_speedup(
-                [r for r in rows if r["size"] == size], [r for r in cycles_rows if r["size"] == size]), 3)
+                [r for r in rows if r["size"] == size and r["baker"] == "usdbake"],
+                [r for r in cycles_rows if r["size"] == size]), 3)
+    plain = [r for r in rows if r["baker"] == "usdbake" and r["size"] == 1024]
+    denoised = [r for r in rows if r["baker"] == "usdbake+oidn"]
+    if denoised and math.isfinite(error_at_equal_time(plain, denoised)):
+        figures["oidn_error_ratio"] = round(error_at_equal_time(plain, denoised), 3)
     figures.update(throughput())
     table = harness.markdown_table(rows + cycles_rows, ["baker", "size", "samples", "texels", "seconds", "error",
                                                         "mtexels_per_s"])

@@ -11,6 +11,7 @@ that ``python -m usdbake.cli.docs_tables`` writes into docs/.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -114,6 +115,14 @@ class TextureTargetParams(Params):
                                   "needs more gets fewer texels per metre, and the bake says so)", low=8, high=16384)
     margin: int = param(16, "texture target: texels each chart is dilated by into the empty space around it",
                         low=0, high=256)
+    denoise: bool = param(False, "texture target: denoise each lightmap with Intel Open Image Denoise, guided by "
+                          "normals and meshes (needs the pyoidn package: pip install 'usdbake[denoise]')")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.denoise and importlib.util.find_spec("pyoidn") is None:
+            raise ParamError("denoise=true needs the pyoidn package (Intel Open Image Denoise): "
+                             "pip install 'usdbake[denoise]'")
 
 
 TABLE_COLUMNS = ("param", "type", "default", "range", "meaning")

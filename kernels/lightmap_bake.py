@@ -102,16 +102,54 @@ def dilate(image: np.ndarray, filled: np.ndarray, margin: int) -> np.ndarray:
     return image
 
 
-def page_image(samples: TexelSamples, values: np.ndarray, margin: int, background: float = 0.0) -> np.ndarray:
+def page_image(samples: TexelSamples, values: np.ndarray, margin: int, background: float = 0.0, *,
+               denoise_meshes: np.ndarray | None = None, hdr: bool = False) -> np.ndarray:
     """(H, W, C) float32 page (row 0 is v = 0) holding ``values`` (N, C) at the samples' texels, gutters
-    dilated by ``margin``; texels beyond reach hold ``background``."""
+    dilated by ``margin``; texels beyond reach hold ``background``. With ``denoise_meshes`` ((N,) mesh of
+    each texel) the page is denoised first (``denoise_page``; ``hdr``: values above 1)."""
     values = np.asarray(values, np.float32).reshape(len(samples.texel), -1)
     image = np.full((samples.height * samples.width, values.shape[1]), background, np.float32)
     image[samples.texel] = values
     filled = np.zeros(samples.height * samples.width, bool)
     filled[samples.texel] = True
-    return dilate(image.reshape(samples.height, samples.width, -1), filled.reshape(samples.height, samples.width),
-                  margin)
+    shape = (samples.height, samples.width)
+    image = dilate(image.reshape(*shape, -1), filled.reshape(shape), max(margin, DENOISE_APRON if
+                                                                        denoise_meshes is not None else 0))
+    if denoise_meshes is None:
+        return image
+    clean = denoise_page(image, samples, denoise_meshes, hdr=hdr).reshape(-1, values.shape[1])
+    image = np.full((samples.height * samples.width, values.shape[1]), background, np.float32)
+    image[samples.texel] = clean[samples.texel]
+    return dilate(image.reshape(*shape, -1), filled.reshape(shape), margin)
+
+
+DENOISE_APRON = 4
+"""Texels the gutters are filled to before denoising, at least: the filter then never sees the background
+next to a chart (what darkens the seams of denoised bakes)."""
+
+
+def denoise_page(image: np.ndarray, samples: TexelSamples, meshes: np.ndarray, *, hdr: bool) -> np.ndarray:
+    """``image`` (H, W, C) denoised by Intel Open Image Denoise (the ``pyoidn`` package; its RT filter) with two
+    noise-free guides that keep charts apart: the texels' shading normals, and an albedo that is a colour per
+    mesh (charts of different meshes packed side by side never blend; charts of one mesh meet at creases,
+    where the normals differ). Gutters must already be filled (``page_image``)."""
+    import pyoidn
+
+    height, width, channels = image.shape
+    normal = np.zeros((height * width, 3), np.float32)
+    normal[samples.texel] = samples.normals
+    albedo = np.full((height * width, 3), 0.5, np.float32)
+    codes = np.asarray(meshes, np.uint64) * np.uint64(2654435761)
+    albedo[samples.texel] = np.stack([(codes >> np.uint64(s)) % np.uint64(256) for s in (0, 8, 16)], axis=1) / 255.0
+    filled = np.zeros(height * width, bool)
+    filled[samples.texel] = True
+    grown = dilate(np.concatenate([normal, albedo], axis=1).reshape(height, width, 6), filled.reshape(height, width),
+                   DENOISE_APRON)
+    colour = image if channels == 3 else np.repeat(image[:, :, :1], 3, axis=2)
+    out = pyoidn.denoise(np.ascontiguousarray(colour, np.float32), np.ascontiguousarray(grown[:, :, 3:]),
+                         np.ascontiguousarray(grown[:, :, :3]), hdr=hdr, clean_aux=True)
+    out = np.asarray(out, np.float32)
+    return out if channels == 3 else out.mean(axis=2, keepdims=True)
 
 
 def image_file_pixels(image: np.ndarray, dtype=np.float16) -> np.ndarray:

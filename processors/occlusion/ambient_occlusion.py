@@ -313,7 +313,9 @@ class AmbientOcclusion(Processor):
                                                 / max(total, 1)),
                 samples=p.samples, max_distance=p.max_distance, seed=p.seed) if len(page.texel) else np.zeros(0)
             first += len(page.texel)
-            texture = texture_record(f"ao_lightmap_{page.page}", page_image(page, values, p.margin, 1.0),
+            meshes = scene.tri_prim[page.triangle] if p.denoise else None
+            texture = texture_record(f"ao_lightmap_{page.page}",
+                                     page_image(page, values, p.margin, 1.0, denoise_meshes=meshes),
                                      eight_bit_range=True)
             result.outputs.append(texture)
             files.append(texture.path)

@@ -528,7 +528,9 @@ class Radiosity(Processor):
             for page in pages:
                 values = solved[key][first:first + len(page.texel)]
                 first += len(page.texel)
-                texture = texture_record(f"{channel}_lightmap_{page.page}", page_image(page, values, p.margin),
+                meshes = scene.tri_prim[page.triangle] if p.denoise else None
+                texture = texture_record(f"{channel}_lightmap_{page.page}",
+                                         page_image(page, values, p.margin, denoise_meshes=meshes, hdr=True),
                                          eight_bit_range=False)
                 result.outputs.append(texture)
                 files.append(texture.path)

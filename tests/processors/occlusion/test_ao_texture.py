@@ -149,3 +149,29 @@ def test_texture_and_vertex_targets_agree_where_vertices_are_dense(tmp_path):
     noise = 0.5 / np.sqrt(1024)  # one i.i.d. estimate's bound; stratified rays have less
     assert abs(difference.mean()) < 4 * np.sqrt(2) * noise / np.sqrt(away.sum()) + 0.005
     assert np.sqrt(np.mean(difference ** 2)) < np.sqrt(2) * noise + 0.01
+
+
+def test_denoise_without_pyoidn_is_refused_before_compute(tmp_path, monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "pyoidn" else real(name, *a))
+    with pytest.raises(ParamError, match=r"denoise=true needs the pyoidn package"):
+        usdbake.bake(wall_and_floor_stage(tmp_path), "ambient_occlusion", {"ambient_occlusion": {"denoise": True}})
+
+
+def test_denoised_lightmap_is_closer_to_the_analytic_value_without_shifting_it(tmp_path):
+    pytest.importorskip("pyoidn")
+    stage = wall_and_floor_stage(tmp_path)
+    errors, means = {}, {}
+    for denoise in (False, True):
+        layer_dir = tmp_path / str(denoise)
+        layer_dir.mkdir()
+        usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 16, "denoise": denoise}},
+                     target="texture", texture_dir=str(layer_dir))
+        image = read_image(stage.GetPrimAtPath("/World/Floor").GetAttribute("bake:lightmap:ao:file").Get()
+                           .resolvedPath)[:, :, 0]
+        errors[denoise] = float(np.sqrt(np.mean((image - 0.5) ** 2)))
+        means[denoise] = float(image.mean())
+    assert errors[True] < 0.8 * errors[False], errors
+    assert abs(means[True] - means[False]) < 0.002, means
