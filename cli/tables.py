@@ -76,6 +76,10 @@ def cmd_inspect(args, console: Console) -> int:
               f"from {report['provenance'].get('source', '?')}", highlight=False)
     for sidecar in report["provenance"].get("sidecars", []):
         out.print(f"sidecar file: {sidecar}", highlight=False)
+    for lightmap in report["lightmaps"]:
+        size = lightmap.get("error") or (f"{lightmap['width']} x {lightmap['height']}, {lightmap['channels']} "
+                                         f"channel(s), {lightmap['format']}")
+        out.print(f"lightmap: {lightmap['path']} -> {lightmap['file']} ({size})", highlight=False)
     table = Table()
     table.add_column("property", overflow="fold", ratio=1)  # long prim paths wrap instead of being cut
     for column in ("type", "interpolation", "elementSize", "values", "time samples"):

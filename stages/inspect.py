@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from pxr import Sdf, Tf
@@ -12,7 +13,9 @@ from .inputs import usd_reason
 
 
 def inspect_layer(path: str) -> dict:
-    """{'provenance': {...}, 'properties': [{path, type, interpolation, element_size, values, time_samples}]}."""
+    """{'provenance': {...}, 'properties': [{path, type, interpolation, element_size, values, time_samples}],
+    'lightmaps': [{path, file, width, height, channels, format}] (the texture target's images, read with
+    OpenImageIO; ``error`` instead of the size when one cannot be read)}."""
     if not Path(path).exists():
         raise UsageError(f"{path}: no such file")
     if Path(path).is_dir():
@@ -45,8 +48,27 @@ def inspect_layer(path: str) -> dict:
 
     layer.Traverse(Sdf.Path.absoluteRootPath, visit)
     properties.sort(key=lambda row: row["path"])
+    lightmaps = [_lightmap(layer, row["path"]) for row in properties
+                 if row["type"] == "asset" and re.fullmatch(r".*\.bake:lightmap:[^:]+:file", row["path"])]
     return {"provenance": _plain(provenance_of(layer)), "properties": properties,
-            "sublayers": list(layer.subLayerPaths)}
+            "sublayers": list(layer.subLayerPaths), "lightmaps": lightmaps}
+
+
+def _lightmap(layer: Sdf.Layer, path: str) -> dict:
+    """One lightmap file named by the layer: its size, channels and pixel format as OpenImageIO reads them."""
+    import OpenImageIO as oiio
+
+    asset = layer.GetAttributeAtPath(path).default
+    file = layer.ComputeAbsolutePath(asset.path) if asset is not None and asset.path else ""
+    row = {"path": path, "file": asset.path if asset is not None else ""}
+    image = oiio.ImageInput.open(file) if file else None
+    if image is None:
+        row["error"] = f"cannot be read ({oiio.geterror() or 'no file'})"
+        return row
+    spec = image.spec()
+    image.close()
+    row.update({"width": spec.width, "height": spec.height, "channels": spec.nchannels, "format": str(spec.format)})
+    return row
 
 
 def _plain(value):

@@ -175,3 +175,20 @@ def test_denoised_lightmap_is_closer_to_the_analytic_value_without_shifting_it(t
         means[denoise] = float(image.mean())
     assert errors[True] < 0.8 * errors[False], errors
     assert abs(means[True] - means[False]) < 0.002, means
+
+
+def test_command_bakes_lightmaps_and_inspect_lists_them(tmp_path, capsys):
+    import json
+
+    from usdbake.cli.main import main
+
+    wall_and_floor_stage(tmp_path)  # writes wall.usda
+    out = tmp_path / "wall.baked.usda"
+    assert main(["bake", str(tmp_path / "wall.usda"), "-o", str(out), "--target", "texture", "--set",
+                 "ambient_occlusion.samples=16", "--cache", str(tmp_path / "cache")]) == 0
+    capsys.readouterr()
+    assert main(["inspect", str(out), "--json"]) == 0
+    lightmaps = {row["path"]: row for row in json.loads(capsys.readouterr().out)["lightmaps"]}
+    floor = lightmaps["/World/Floor.bake:lightmap:ao:file"]
+    assert (floor["width"], floor["height"], floor["channels"], floor["format"]) == (32, 32, 1, "uint16")
+    assert "/World/Tile.bake:lightmap:ao:file" in lightmaps and "/World/Wall.bake:lightmap:ao:file" not in lightmaps
