@@ -10,8 +10,8 @@ from . import registry
 from .errors import OutputError, StageError, UsageError
 from .params import ParamError, Params, TextureTargetParams, param
 from .processor import Context, Processor, Result
-from .records import Attribute, Block, File, Output, Prim, Primvar, RefinedMesh, Texture
+from .records import Attribute, Block, File, Output, Prim, Primvar, RefinedMesh, Relationship, Texture
 from .scene import Scene
 
 __all__ = ["Attribute", "Block", "Context", "File", "Output", "OutputError", "ParamError", "Params", "Prim", "Primvar", "Processor",
-           "RefinedMesh", "Result", "Scene", "StageError", "Texture", "TextureTargetParams", "UsageError", "param", "registry"]
+           "RefinedMesh", "Relationship", "Result", "Scene", "StageError", "Texture", "TextureTargetParams", "UsageError", "param", "registry"]

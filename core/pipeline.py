@@ -25,7 +25,7 @@ from .errors import UsageError
 from .params import ParamError, Params
 from .processor import Context, Processor, Result
 from .products import RefinedScene
-from .records import Attribute, Prim, Primvar
+from .records import Attribute, Prim, Primvar, Relationship
 from .registry import get as get_processor
 from .registry import registry as all_processors
 from .runtime import Runtime
@@ -373,12 +373,12 @@ class Pipeline:
             outputs = step.result.outputs if step.result else []
             defined = {record.path for record in outputs if isinstance(record, Prim) and record.type_name}
             for record in outputs:
-                if isinstance(record, (Primvar, Attribute)):
+                if isinstance(record, (Primvar, Attribute, Relationship)):
                     if not declared(step, record, defined):
                         raise ProcessorFailed(step.name, TypeError(
                             f"it wrote {record.prim}.{record.name}, which its `writes` does not declare"))
                     name = f"primvars:{record.name}" if isinstance(record, Primvar) else record.name
-                    key = (record.prim, name, record.time)
+                    key = (record.prim, name, getattr(record, "time", None))
                     if name in SHARED_WRITES and key in shared_values:
                         if np.array_equal(shared_values[key], record.values):
                             continue

@@ -51,6 +51,18 @@ class Prim:
     api_schemas: tuple[str, ...] = ()
     instanceable: bool | None = None
     """Set the prim's instanceable metadata (False: de-instance it); None leaves it alone."""
+    references: tuple[str, ...] = ()
+    """Prim paths of this stage the prim references (internal references: a variant of an authored prim)."""
+
+
+@dataclass(frozen=True)
+class Relationship:
+    """A relationship ``name`` on ``prim`` targeting ``targets`` (prim or property paths), e.g. a
+    ``material:binding`` that binds a mesh to a variant of its material."""
+
+    prim: str
+    name: str
+    targets: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -104,4 +116,4 @@ class Block:
     (e.g. the ``:indices`` of a primvar a processor replaces with unindexed values)."""
 
 
-Output = Primvar | Attribute | Prim | Texture | File | RefinedMesh
+Output = Primvar | Attribute | Prim | Relationship | Texture | File | RefinedMesh

@@ -26,7 +26,7 @@ import numpy as np
 from pxr import Sdf, Tf, Vt
 
 from ..core.errors import OutputError, UsageError
-from ..core.records import Attribute, Block, Prim, Primvar, RefinedMesh
+from ..core.records import Attribute, Block, Prim, Primvar, RefinedMesh, Relationship
 from .provenance import PROVENANCE_KEY, is_bake_layer
 from .sidecars import (StagedFiles, assign_sidecars, owned_by_file, owned_sidecars, remove_sidecars,
                        remove_stale_temps, temp_path)
@@ -85,6 +85,8 @@ def author(layer: Sdf.Layer, outputs: list, provenance: dict, *, texture_dir: st
             for record in outputs:
                 if isinstance(record, Prim):
                     _author_prim(layer, record)
+                elif isinstance(record, Relationship):
+                    _author_relationship(layer, record)
             for record, value in prepared:
                 if isinstance(record, Primvar):
                     _author_primvar(layer, record, value)
@@ -252,6 +254,14 @@ def _author_prim(layer: Sdf.Layer, record: Prim) -> None:
         spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=schemas))
     if record.instanceable is not None:
         spec.instanceable = record.instanceable
+    for path in record.references:
+        spec.referenceList.Prepend(Sdf.Reference(primPath=Sdf.Path(path)))
+
+
+def _author_relationship(layer: Sdf.Layer, record: Relationship) -> None:
+    prim = Sdf.CreatePrimInLayer(layer, record.prim)
+    spec = prim.relationships.get(record.name) or Sdf.RelationshipSpec(prim, record.name, custom=False)
+    spec.targetPathList.explicitItems = [Sdf.Path(target) for target in record.targets]
 
 
 def _attribute_spec(layer: Sdf.Layer, prim_path: str, name: str, type_name: str, *,

@@ -30,8 +30,8 @@ per lightmap texel at the texel's point of its triangle, on the mesh's lightmap 
 faceVarying ``primvars:bake:lightmapST``), one 16-bit PNG per page (linear, row 0 at the top) with gutters
 dilated by ``margin``; ``LightmapAPI:ao`` on each mesh names the file, the UV primvar, the channel (r) and the
 units; each bound UsdPreviewSurface gets ``inputs:occlusion`` from a UsdUVTexture of the page read through a
-UsdPrimvarReader_float2 of those UVs (unless meshes on different pages share the material: the bake says so).
-No mesh is changed.
+UsdPrimvarReader_float2 of those UVs; a material bound to meshes on different pages gets a variant per page
+(a sibling that references it) and those meshes are bound to theirs. No mesh's geometry is changed.
 
 Instanced receivers (``instances``; ``processors/occlusion/instances.py``): USD holds no per-vertex data on an
 instance, so with ``mean`` (the default) each instance gets the area-weighted mean AO of its
@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ...core import Attribute, Context, Prim, Primvar, Processor, Result, TextureTargetParams, param
+from ...core import Attribute, Context, Prim, Primvar, Processor, Relationship, Result, TextureTargetParams, param
 from .products import AmbientOcclusionProduct
 from ...core.scene import Scene
 from .instances import instanced_receivers, per_instance_means
@@ -223,7 +223,7 @@ class AmbientOcclusion(Processor):
     facets = ("geometry", "uvs")
     follows_refinement = True
     writes = ("primvars:bake:ao", "primvars:bake:aoFace", "inputs:occlusion", "bake:lightmap:ao:",
-              "primvars:bake:lightmapST")
+              "primvars:bake:lightmapST", "material:binding")
     provides = (AmbientOcclusionProduct,)
 
     @dataclass(frozen=True)
@@ -373,39 +373,53 @@ def occlusion_network(scene: Scene, receivers: np.ndarray) -> list:
 
 
 def occlusion_texture_network(scene: Scene, layout, files: list[str]) -> tuple[list, list[str]]:
-    """Records for a UsdUVTexture of each mesh's AO page, read through a UsdPrimvarReader_float2 of its
-    lightmap UVs, into each bound UsdPreviewSurface's inputs:occlusion; and a line for each material its
-    meshes cannot share (meshes on different pages or UV sets bound to one material: their lightmaps stay
-    described by ``bake:lightmap:ao:file`` on each mesh)."""
+    """Records wiring each mesh's AO page into its bound UsdPreviewSurface's inputs:occlusion (a UsdUVTexture
+    read through a UsdPrimvarReader_float2 of its lightmap UVs), and a line per material they vary.
+
+    A material whose meshes all share one page and UV set is wired where it is. One bound to meshes on
+    several pages (or UV sets) gets a variant per page, a sibling ``<material>_bakeAo<k>`` that references it
+    (so it is the same material but for the occlusion input), and those meshes are bound to their variant
+    in the bake layer. Bindings of GeomSubsets are left alone."""
     records: list = []
     notes: list[str] = []
-    by_surface: dict[str, set] = {}
+    by_surface: dict[str, dict[tuple[str, str], list[int]]] = {}
     for mesh in layout.meshes:
         surface = scene.prim_surface[mesh.prim]
         if surface:
-            by_surface.setdefault(surface, set()).add((files[mesh.page], mesh.uv_name))
+            by_surface.setdefault(surface, {}).setdefault((files[mesh.page], mesh.uv_name), []).append(mesh.prim)
     for surface, uses in sorted(by_surface.items()):
-        if len(uses) > 1:
-            notes.append(f"{surface}: bound to meshes on {len(uses)} AO lightmaps, so inputs:occlusion is not "
-                         f"wired; each mesh's bake:lightmap:ao:file names its own")
+        material, shader = surface.rsplit("/", 1)
+        if len(uses) == 1:
+            (file, uv_name), = uses
+            records += _occlusion_shaders(material, f"{material}/{shader}", file, uv_name)
             continue
-        (file, uv_name), = uses
-        material = surface.rsplit("/", 1)[0]
-        reader, texture = f"{material}/bakeLightmapUV", f"{material}/bakeAoTexture"
-        records += [
-            Prim(reader, "Shader"),
-            Attribute(reader, "info:id", "UsdPrimvarReader_float2", "token", uniform=True),
-            Attribute(reader, "inputs:varname", uv_name, "string"),
-            Attribute(reader, "outputs:result", None, "float2"),
-            Prim(texture, "Shader"),
-            Attribute(texture, "info:id", "UsdUVTexture", "token", uniform=True),
-            Attribute(texture, "inputs:file", file, "asset"),
-            Attribute(texture, "inputs:sourceColorSpace", "raw", "token"),
-            Attribute(texture, "inputs:wrapS", "repeat", "token"),
-            Attribute(texture, "inputs:wrapT", "repeat", "token"),
-            Attribute(texture, "inputs:fallback", (1.0, 1.0, 1.0, 1.0), "float4"),
-            Attribute(texture, "inputs:st", None, "float2", connect_to=f"{reader}.outputs:result"),
-            Attribute(texture, "outputs:r", None, "float"),
-            Attribute(surface, "inputs:occlusion", None, "float", connect_to=f"{texture}.outputs:r"),
-        ]
+        for k, ((file, uv_name), prims) in enumerate(sorted(uses.items())):
+            variant = f"{material}_bakeAo{k}"
+            records.append(Prim(variant, "Material", references=(material,)))
+            records += _occlusion_shaders(variant, f"{variant}/{shader}", file, uv_name)
+            records += [Relationship(scene.prim_paths[prim], "material:binding", (variant,)) for prim in prims]
+        notes.append(f"{material}: bound to meshes on {len(uses)} AO lightmaps: one variant each "
+                     f"({material}_bakeAo0..{len(uses) - 1}, referencing it), those meshes bound to theirs")
     return records, notes
+
+
+def _occlusion_shaders(material: str, surface: str, file: str, uv_name: str) -> list:
+    """A UsdPrimvarReader_float2 of ``uv_name`` and a UsdUVTexture of ``file`` in ``material``, its red channel
+    connected to ``surface``'s inputs:occlusion."""
+    reader, texture = f"{material}/bakeLightmapUV", f"{material}/bakeAoTexture"
+    return [
+        Prim(reader, "Shader"),
+        Attribute(reader, "info:id", "UsdPrimvarReader_float2", "token", uniform=True),
+        Attribute(reader, "inputs:varname", uv_name, "string"),
+        Attribute(reader, "outputs:result", None, "float2"),
+        Prim(texture, "Shader"),
+        Attribute(texture, "info:id", "UsdUVTexture", "token", uniform=True),
+        Attribute(texture, "inputs:file", file, "asset"),
+        Attribute(texture, "inputs:sourceColorSpace", "raw", "token"),
+        Attribute(texture, "inputs:wrapS", "repeat", "token"),
+        Attribute(texture, "inputs:wrapT", "repeat", "token"),
+        Attribute(texture, "inputs:fallback", (1.0, 1.0, 1.0, 1.0), "float4"),
+        Attribute(texture, "inputs:st", None, "float2", connect_to=f"{reader}.outputs:result"),
+        Attribute(texture, "outputs:r", None, "float"),
+        Attribute(surface, "inputs:occlusion", None, "float", connect_to=f"{texture}.outputs:r"),
+    ]

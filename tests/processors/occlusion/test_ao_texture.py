@@ -192,3 +192,33 @@ def test_command_bakes_lightmaps_and_inspect_lists_them(tmp_path, capsys):
     floor = lightmaps["/World/Floor.bake:lightmap:ao:file"]
     assert (floor["width"], floor["height"], floor["channels"], floor["format"]) == (32, 32, 1, "uint16")
     assert "/World/Tile.bake:lightmap:ao:file" in lightmaps and "/World/Wall.bake:lightmap:ao:file" not in lightmaps
+
+
+def test_a_material_shared_by_meshes_on_different_pages_gets_a_variant_each(tmp_path):
+    stage = new_stage(up_axis="Y", meters_per_unit=1.0)
+    look = add_preview_material(stage, "/World/Looks/Oak", diffuse=(0.5, 0.35, 0.2))
+    for name, x in (("Left", 0.0), ("Right", 2.0)):
+        mesh = add_mesh(stage, f"/World/{name}", [(x, 0, 0), (x, 0, 1), (x + 1, 0, 1), (x + 1, 0, 0)], [4],
+                        [0, 1, 2, 3])
+        UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                UsdGeom.Tokens.faceVarying).Set([(0, 0), (0, 1), (1, 1), (1, 0)])
+        bind(mesh.GetPrim(), look)
+    path = tmp_path / "shared.usda"
+    stage.GetRootLayer().Export(str(path))
+    stage = Usd.Stage.Open(str(path))
+    usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 4}}, target="texture",
+                 texture_dir=str(tmp_path))
+    files = set()
+    for name in ("Left", "Right"):
+        prim = stage.GetPrimAtPath(f"/World/{name}")
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+        assert str(material.GetPath()).startswith("/World/Looks/Oak_bakeAo")
+        surface = material.ComputeSurfaceSource()[0]
+        assert surface.GetInput("diffuseColor").Get() == (0.5, 0.35, 0.2)  # the variant is the material
+        texture = surface.GetInput("occlusion").GetConnectedSources()[0][0].source.GetPrim()
+        file = texture.GetAttribute("inputs:file").Get().resolvedPath
+        assert file == prim.GetAttribute("bake:lightmap:ao:file").Get().resolvedPath
+        files.add(file)
+    assert len(files) == 2
+    original = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Oak/Surface"))
+    assert not original.GetInput("occlusion")  # the authored material is left as it was
