@@ -217,7 +217,8 @@ def _generate(scene: Scene, prims: list[tuple[int, str]], density: float, max_si
         page = first_page + vertex_atlas[out_tris[:, 0]].astype(np.int32)
         tri_uv[tris], tri_page[tris] = uvs, page
         faces = np.unique(scene.tri_face[tris][split])
-        values[prim] = _slot_values(slot_uv, used, int(scene.prim_corner_count[prim]))
+        slot_count = max(int(scene.prim_corner_count[prim]), int(used.max()) + 1 if len(used) else 0)
+        values[prim] = _slot_values(slot_uv, used, slot_count)
         world_area = float(scene.tri_areas[tris].astype(np.float64).sum()) * scene.meters_per_unit ** 2
         width, height = pages[int(page[0])] if len(page) else (MIN_PAGE, MIN_PAGE)
         achieved = math.sqrt(float(_uv_areas(uvs).sum()) * width * height / world_area) if world_area > 0 else math.nan

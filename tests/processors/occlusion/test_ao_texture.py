@@ -222,3 +222,64 @@ def test_a_material_shared_by_meshes_on_different_pages_gets_a_variant_each(tmp_
     assert len(files) == 2
     original = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Oak/Surface"))
     assert not original.GetInput("occlusion")  # the authored material is left as it was
+
+
+def test_texels_on_either_side_of_a_uv_seam_agree_within_noise():
+    """A smooth sphere resting on a floor, charted by xatlas: texel pairs of different charts that sit at one
+    world point with one normal differ by no more than two independent estimates do."""
+    from scipy.spatial import cKDTree
+
+    from usdbake.core.scene import Scene
+    from usdbake.geometry.mesh import vertex_normals
+    from usdbake.kernels.lightmap_bake import texel_samples
+    from usdbake.kernels.lightmap_layout import lightmap_layout
+    from usdbake.kernels.tracer import Tracer
+    from usdbake.processors.occlusion.ambient_occlusion import texel_ao_chunk
+
+    rings, segments = 24, 48
+    theta, phi = np.meshgrid(np.linspace(0, np.pi, rings + 1), np.linspace(0, 2 * np.pi, segments, endpoint=False),
+                             indexing="ij")
+    sphere = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta) + 1.0], -1)
+    points = sphere.reshape(-1, 3)
+    index = np.arange(len(points)).reshape(rings + 1, segments)
+    a, b = index[:-1], np.roll(index[:-1], -1, axis=1)
+    c, d = index[1:], np.roll(index[1:], -1, axis=1)
+    tris = np.concatenate([np.stack([a, c, d], -1).reshape(-1, 3), np.stack([a, d, b], -1).reshape(-1, 3)])
+    floor = np.array([[-3, -3, 0], [3, -3, 0], [3, 3, 0], [-3, 3, 0]], np.float64)
+    tris = np.concatenate([tris, np.array([[0, 1, 2], [0, 2, 3]]) + len(points)]).astype(np.int32)
+    points = np.concatenate([points, floor]).astype(np.float32)
+    corners = points[tris].astype(np.float64)
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    areas = 0.5 * np.linalg.norm(cross, axis=1)
+    keep = areas > 1e-9  # the poles' collapsed triangles
+    tris, cross, areas = tris[keep], cross[keep], areas[keep]
+    n = len(tris)
+    prim = (tris[:, 0] >= len(points) - 4).astype(np.int32)
+    scene = Scene(points=points, tri_vertices=tris, tri_normals=(cross / (2 * areas[:, None])).astype(np.float32),
+                  tri_areas=areas.astype(np.float32), tri_albedo=np.full((n, 3), 0.5, np.float32),
+                  tri_emission=np.zeros((n, 3), np.float32), tri_prim=prim, tri_face=np.arange(n, dtype=np.int32),
+                  tri_instance=np.full(n, -1, np.int32), tri_double_sided=np.zeros(n, bool),
+                  point_prim=(np.arange(len(points)) >= len(points) - 4).astype(np.int32),
+                  prim_paths=("/World/Sphere", "/World/Floor"), prim_point_start=np.array([0, len(points) - 4,
+                                                                                             len(points)]),
+                  prim_face_count=np.array([n - 2, 2], np.int32), prim_writable=np.ones(2, bool),
+                  prim_skip=np.array([False, True]), prim_surface=("", ""))
+    density = 24.0
+    layout = lightmap_layout(scene, np.array([0]), density=density, max_size=1024)
+    assert layout.meshes[0].source == "generated"
+    (page,) = texel_samples(scene, layout, vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals,
+                                                          scene.tri_areas))
+    tracer = Tracer.from_scene(scene)
+    first = texel_ao_chunk(tracer, 0, page.points, page.normals, page.corners, samples=1024, max_distance=np.inf,
+                           seed=0)
+    second = texel_ao_chunk(tracer, 0, page.points, page.normals, page.corners, samples=1024, max_distance=np.inf,
+                            seed=1)
+    pairs = cKDTree(page.points.astype(np.float64)).query_pairs(0.25 / density, output_type="ndarray")
+    apart = np.hypot(*(np.stack([page.texel % page.width, page.texel // page.width])[:, pairs[:, 0]]
+                       - np.stack([page.texel % page.width, page.texel // page.width])[:, pairs[:, 1]]))
+    same_normal = (page.normals[pairs[:, 0]] * page.normals[pairs[:, 1]]).sum(axis=1) > 0.99
+    seams = pairs[(apart > 2.5) & same_normal]
+    assert len(seams) > 50  # xatlas cut the sphere into charts
+    difference = first[seams[:, 0]] - first[seams[:, 1]]
+    noise = np.sqrt(np.mean((first[seams] - second[seams]) ** 2) / 2)
+    assert np.sqrt(np.mean(difference ** 2)) < 1.5 * np.sqrt(2) * noise + 0.002
