@@ -40,6 +40,8 @@ class Attribute:
     time: float | None = None
     connect_to: str | None = None
     """Path of an attribute this one connects to (shading networks)."""
+    custom: bool = False
+    """Author it as a custom attribute (``userProperties:``, which DCCs import as custom properties)."""
 
 
 @dataclass(frozen=True)

@@ -285,7 +285,8 @@ def _author_primvar(layer: Sdf.Layer, record: Primvar, value) -> None:
 
 
 def _author_attribute(layer: Sdf.Layer, record: Attribute, value) -> None:
-    spec = _attribute_spec(layer, record.prim, record.name, record.type_name, uniform=record.uniform)
+    spec = _attribute_spec(layer, record.prim, record.name, record.type_name, uniform=record.uniform,
+                           custom=record.custom)
     if record.connect_to:
         spec.connectionPathList.explicitItems = [Sdf.Path(record.connect_to)]
     if value is not None:

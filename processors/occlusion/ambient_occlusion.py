@@ -36,7 +36,8 @@ UsdPrimvarReader_float2 of those UVs; a material bound to meshes on different pa
 Instanced receivers (``instances``; ``processors/occlusion/instances.py``): USD holds no per-vertex data on an
 instance, so with ``mean`` (the default) each instance gets the area-weighted mean AO of its
 surface: ``primvars:bake:ao`` (constant) on a native instance's root prim, which its meshes
-inherit, and ``primvars:bake:ao`` (vertex: one value per instance, 1 for masked rows) on a
+inherit, with the same value as the scalar ``userProperties:bake:ao`` (Blender 5's USD import drops inherited
+constant primvars but makes this the instance's custom property ``bake:ao``), and ``primvars:bake:ao`` (vertex: one value per instance, 1 for masked rows) on a
 PointInstancer; ``skip`` leaves instances out. The bake's messages say which was done. For
 per-vertex AO on native instances, bake with ``--deinstance`` (``usdbake.bake(deinstance=True)``):
 their meshes are then ordinary receivers of every processor, de-instanced in the bake layer.
@@ -223,7 +224,7 @@ class AmbientOcclusion(Processor):
     facets = ("geometry", "uvs")
     follows_refinement = True
     writes = ("primvars:bake:ao", "primvars:bake:aoFace", "inputs:occlusion", "bake:lightmap:ao:",
-              "primvars:bake:lightmapST", "material:binding")
+              "primvars:bake:lightmapST", "material:binding", "userProperties:bake:ao")
     provides = (AmbientOcclusionProduct,)
 
     @dataclass(frozen=True)
@@ -332,11 +333,15 @@ class AmbientOcclusion(Processor):
         means = per_instance_means(scene, ao_points, instanced, fill=1.0)
         for root, value in means.native.items():
             result.outputs.append(Primvar(root, "bake:ao", np.array([value], np.float32), "float", "constant"))
+            # a scalar user property too: DCCs that drop inherited constant primvars import it (Blender 5: the
+            # instance empty's custom property "bake:ao", read per instance by an Instancer attribute node)
+            result.outputs.append(Attribute(root, "userProperties:bake:ao", float(value), "float", custom=True))
         for instancer, values in means.instancers.items():
             result.outputs.append(Primvar(instancer, "bake:ao", values, "float", "vertex"))
         if means.native:
             result.messages.append(f"{len(means.native)} native instances: per-instance mean AO as constant "
-                                   f"primvars:bake:ao on their roots (--deinstance for per-vertex AO)")
+                                   f"primvars:bake:ao and float userProperties:bake:ao on their roots "
+                                   f"(--deinstance for per-vertex AO)")
         for instancer, values in means.instancers.items():
             result.messages.append(f"{instancer}: per-instance mean AO of its {len(values)} instances as "
                                    f"primvars:bake:ao (one value per instance)")

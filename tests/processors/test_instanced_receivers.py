@@ -62,6 +62,8 @@ def test_native_instances_and_point_instancer_rows_get_their_mean(tmp_path):
         primvar = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath(root)).GetPrimvar("bake:ao")
         assert primvar.GetInterpolation() == "constant"
         assert abs(float(primvar.Get()[0]) - expected[root]) < INSTANCE_MEAN_AO
+        user = stage.GetPrimAtPath(root).GetAttribute("userProperties:bake:ao")  # what Blender 5 imports
+        assert user.IsCustom() and user.Get() == float(primvar.Get()[0])
     row = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Row")).GetPrimvar("bake:ao")
     assert row.GetInterpolation() == "vertex" and len(row.Get()) == 4  # one per instance
     np.testing.assert_allclose(row.Get(), [expected[f"/World/Row/Pawn_{k}"] for k in range(4)],
