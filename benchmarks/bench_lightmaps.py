@@ -347,9 +347,10 @@ def run(quick: bool = False) -> dict:
                 [r for r in rows if r["size"] == size and r["baker"] == "usdbake"],
                 [r for r in cycles_rows if r["size"] == size]), 3)
     plain = [r for r in rows if r["baker"] == "usdbake" and r["size"] == 1024]
-    denoised = [r for r in rows if r["baker"] == "usdbake+oidn"]
-    if denoised and math.isfinite(error_at_equal_time(plain, denoised)):
-        figures["oidn_error_ratio"] = round(error_at_equal_time(plain, denoised), 3)
+    for row in (r for r in rows if r["baker"] == "usdbake+oidn"):
+        ratio = error_at_equal_time(plain, [row])
+        if math.isfinite(ratio):
+            figures[f"oidn_error_ratio_{row['samples']}"] = round(ratio, 3)
     figures.update(throughput())
     table = harness.markdown_table(rows + cycles_rows, ["baker", "size", "samples", "texels", "seconds", "error",
                                                         "mtexels_per_s"])
