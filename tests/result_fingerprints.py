@@ -39,10 +39,17 @@ def _digest_value(digest, value) -> None:
         digest.update(repr(value).encode())
 
 
+LATER_FIELDS = {"custom": False, "references": ()}
+"""Record fields added after the fingerprints were first recorded (Attribute.custom, Prim.references), with
+their defaults: hashed only where a record sets them, so records that do not keep their digests."""
+
+
 def record_digest(record) -> tuple[str, str]:
     """(a readable key naming the record, sha256 of every field of it)."""
     digest = hashlib.sha256(type(record).__name__.encode())
     for f in dataclasses.fields(record):
+        if f.name in LATER_FIELDS and getattr(record, f.name) == LATER_FIELDS[f.name]:
+            continue
         digest.update(f.name.encode())
         _digest_value(digest, getattr(record, f.name))
     where = getattr(record, "prim", None) or getattr(record, "path", "")

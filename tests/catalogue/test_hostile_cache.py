@@ -105,7 +105,7 @@ def cached(tmp_path):
 def record_of(content: dict, prim: str, interpolation: str) -> dict:
     """The tree node of the output record of ``prim`` with ``interpolation``."""
     (node,) = [r for r in content["tree"]["fields"]["outputs"]
-               if r["fields"]["prim"] == prim and r["fields"]["interpolation"] == interpolation]
+               if r["fields"]["prim"] == prim and r["fields"].get("interpolation") == interpolation]
     return node["fields"]
 
 

@@ -95,8 +95,8 @@ def test_processor_messages_and_the_deinstancing_note_are_printed(capsys, tmp_pa
     source = instanced_stage(tmp_path / "chairs.usda")
     code, _, err = run(capsys, "bake", source, "-o", tmp_path / "kept.usda", "--cache", cache, *FAST)
     assert code == 0, err
-    assert ("ambient_occlusion: 2 native instances: per-instance mean AO as constant primvars:bake:ao on their "
-            "roots (--deinstance for per-vertex AO)") in err.splitlines()
+    assert ("ambient_occlusion: 2 native instances: per-instance mean AO as constant primvars:bake:ao and float "
+            "userProperties:bake:ao on their roots (--deinstance for per-vertex AO)") in err.splitlines()
     assert "de-instanced" not in err
     code, _, err = run(capsys, "bake", source, "-o", tmp_path / "flat.usda", "--cache", cache, "--deinstance", *FAST)
     assert code == 0, err

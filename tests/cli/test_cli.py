@@ -135,7 +135,7 @@ def test_list_json_has_each_param_with_default_and_doc(capsys):
     assert ao["provides"] == ["AmbientOcclusionProduct"] and ao["summary"]
     params = {p["name"]: p for p in ao["params"]}
     assert set(params) == {"samples", "max_distance", "per_face", "connect_occlusion", "seed", "instances", "target",
-                           "texel_density", "max_texture_size", "margin"}
+                           "texel_density", "max_texture_size", "margin", "denoise"}
     assert params["samples"]["default"] == 256
     assert params["per_face"]["default"] is False
     assert all(p["doc"] for p in params.values())

@@ -305,7 +305,7 @@ def test_params_bounds_checked_at_construction():
 def test_params_describe_rows_have_default_and_doc():
     rows = {row["name"]: row for row in AmbientOcclusion.Params.describe()}
     assert set(rows) == {"samples", "max_distance", "per_face", "connect_occlusion", "seed", "instances", "target",
-                         "texel_density", "max_texture_size", "margin"}
+                         "texel_density", "max_texture_size", "margin", "denoise"}
     assert rows["samples"]["default"] == 256 and rows["samples"]["low"] == 1
     assert all(row["doc"] for row in rows.values())
 

@@ -9,11 +9,11 @@ import typing
 
 import numpy as np
 import pytest
-from usdbake.core.records import Attribute, Block, File, Output, Prim, Primvar, RefinedMesh, Texture
+from usdbake.core.records import Attribute, Block, File, Output, Prim, Primvar, RefinedMesh, Relationship, Texture
 
 
-def test_output_is_exactly_the_six_record_kinds():
-    assert set(typing.get_args(Output)) == {Primvar, Attribute, Prim, Texture, File, RefinedMesh}
+def test_output_is_exactly_the_seven_record_kinds():
+    assert set(typing.get_args(Output)) == {Primvar, Attribute, Prim, Relationship, Texture, File, RefinedMesh}
     for kind in typing.get_args(Output):
         assert dataclasses.is_dataclass(kind) and kind.__dataclass_params__.frozen, kind.__name__
     assert isinstance(Prim("/World/A"), Output)

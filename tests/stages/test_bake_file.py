@@ -171,7 +171,8 @@ def test_instances_are_reported_as_messages_or_counted_when_deinstanced(tmp_path
     kept = bake_file(source, str(tmp_path / "kept.usda"), pipeline(cache))
     assert kept.deinstanced == 0
     assert kept.messages == ["ambient_occlusion: 2 native instances: per-instance mean AO as constant "
-                             "primvars:bake:ao on their roots (--deinstance for per-vertex AO)"]
+                             "primvars:bake:ao and float userProperties:bake:ao on their roots "
+                             "(--deinstance for per-vertex AO)"]
     flat = bake_file(source, str(tmp_path / "flat.usda"), pipeline(cache), deinstance=True)
     assert flat.deinstanced == 2 and flat.messages == []
     baked = Usd.Stage.Open(str(tmp_path / "flat.usda"))

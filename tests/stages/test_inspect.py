@@ -95,7 +95,8 @@ def test_a_bake_layer_with_no_attributes_has_no_rows(tmp_path):
     layer = Sdf.Layer.CreateNew(str(path))
     layer.customLayerData = {PROVENANCE_KEY: {"version": "1"}}
     layer.Save()
-    assert inspect_layer(str(path)) == {"provenance": {"version": "1"}, "properties": [], "sublayers": []}
+    assert inspect_layer(str(path)) == {"provenance": {"version": "1"}, "properties": [], "sublayers": [],
+                                        "lightmaps": []}
 
 
 def test_refusals_name_the_path_and_the_problem(tmp_path):
