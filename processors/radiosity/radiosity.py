@@ -60,6 +60,7 @@ Parameters: ``usdbake list radiosity`` or docs/radiosity.md, both generated from
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -354,6 +355,7 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
     ``apply_operator(E0) -> E_ind`` replaces the relight (run: an OperatorRelighter for the step's memory budget; benchmarks: the dense operator).
     ``texels``: (points, unit normals) of lightmap texels (the texture target), lit by the same transfer as the
     vertices (``texel_direct``, ``texel_indirect`` in the result).
+    ``transfer_seconds`` in the result: the time of the vertices' transfer (the gather or the blend).
     """
     patches, op = product.patches, product.operator
     points, fragment = _patch_points(patches, p.patch_points, p.seed)
@@ -380,13 +382,13 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
         first_patch = final_gather(tracer, scene, patches, e0_patch, zero, zero, points, point_normals,
                                    rays=max(1, p.gather_rays // p.patch_points), near=0.0, sky_samples=1,
                                    seed=p.seed + 3).reshape(patches.count, p.patch_points, 3).mean(axis=1)
-    e0_vertex, e_ind_vertex = _light_at(tracer, scene, patches, p, e0_patch, e_ind_patch, first_patch, positions,
-                                        normals, seed=p.seed)
+    e0_vertex, e_ind_vertex, transfer_seconds = _light_at(tracer, scene, patches, p, e0_patch, e_ind_patch,
+                                                          first_patch, positions, normals, seed=p.seed)
     progress(0.6)
     solved = {"patch_direct": e0_patch.astype(np.float32), "patch_indirect": e_ind_patch,
-              "vertex_direct": e0_vertex, "vertex_indirect": e_ind_vertex}
+              "vertex_direct": e0_vertex, "vertex_indirect": e_ind_vertex, "transfer_seconds": transfer_seconds}
     if texels is not None:
-        solved["texel_direct"], solved["texel_indirect"] = _light_at(
+        solved["texel_direct"], solved["texel_indirect"], _ = _light_at(
             tracer, scene, patches, p, e0_patch, e_ind_patch, first_patch, *texels, seed=p.seed + 10)
     progress(0.9)
     return solved
@@ -394,11 +396,13 @@ def solve(tracer, scene: Scene, product, p, point_ids: np.ndarray, progress=lamb
 
 def _light_at(tracer, scene: Scene, patches, p, e0_patch: np.ndarray, e_ind_patch: np.ndarray,
               first_patch: np.ndarray | None, positions: np.ndarray, normals: np.ndarray, *,
-              seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(direct, indirect) (N, 3) float32 irradiance at points with unit normals (``solve``'s transfer)."""
+              seed: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """(direct, indirect) (N, 3) float32 irradiance at points with unit normals (``solve``'s transfer), and the
+    seconds the indirect transfer took."""
     direct = compute_direct_irradiance(tracer, scene, positions, normals, light_samples=p.light_samples,
                                        sky_samples=p.sky_samples, sky_training=p.sky_training, seed=seed + 2,
                                        emissive=p.emissive_lights)
+    started = time.perf_counter()
     if first_patch is not None:
         higher = np.maximum(e_ind_patch - first_patch, 0.0)
         indirect = final_gather(tracer, scene, patches, e0_patch, e_ind_patch, higher, positions, normals,
@@ -408,7 +412,7 @@ def _light_at(tracer, scene: Scene, patches, p, e0_patch: np.ndarray, e_ind_patc
         indirect = transfer_to_vertices(positions, normals, patches.patch_centroids, patches.patch_normals,
                                         e_ind_patch, neighbors=p.neighbors, normal_cos=p.normal_cos,
                                         smoothing=0.5 * patches.voxel_size)
-    return direct, np.maximum(indirect, 0.0).astype(np.float32)
+    return direct, np.maximum(indirect, 0.0).astype(np.float32), time.perf_counter() - started
 
 
 def relighter_for(tracer, op, p) -> OperatorRelighter:
