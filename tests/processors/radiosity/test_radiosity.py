@@ -138,19 +138,23 @@ def test_processor_end_to_end(lit_box):
     assert ((areas * indirect).sum(0) <= (areas * direct).sum(0) * 0.6 / 0.4).all()
 
 
-def test_vertex_indirect_agrees_with_a_path_tracer(lit_box):
+def test_vertex_and_texel_indirect_agree_with_a_path_tracer(lit_box):
+    """The vertices, and the same points given as texels (the texture target's path, its own seeds)."""
     from usdbake.benchmarks.references import path_traced_indirect
 
     scene, tracer, product = lit_box
     ids = np.arange(scene.num_points)
     params = rad.Radiosity.Params(light_samples=16, gather_rays=256)
-    solved = rad.solve(tracer, scene, product, params, ids)
     normals = vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals, scene.tri_areas)
     positions = rad.vertex_sample_positions(scene.points, scene.tri_vertices, scene.tri_areas)
+    solved = rad.solve(tracer, scene, product, params, ids, texels=(positions, normals))
     # The final gather reflects the patches' k-bounce light once more: k + 1 bounces at the vertices.
     reference = path_traced_indirect(tracer, scene, positions, normals, paths=2048, bounces=product.bounces + 1)
-    error = np.sqrt(np.mean((solved["vertex_indirect"] - reference) ** 2) / np.mean(reference ** 2))
-    assert error < RADIOSITY_PATH_TRACED, error
+    for key in ("vertex_indirect", "texel_indirect"):
+        error = np.sqrt(np.mean((solved[key] - reference) ** 2) / np.mean(reference ** 2))
+        assert error < RADIOSITY_PATH_TRACED, (key, error)
+    np.testing.assert_allclose(solved["texel_direct"], solved["vertex_direct"], rtol=DIRECT_TOLERANCE * 4,
+                               atol=DIRECT_TOLERANCE * float(solved["vertex_direct"].max()))
 
 
 def test_results_do_not_depend_on_thread_count(lit_box):
