@@ -39,6 +39,10 @@ GENERATED_UV = "bake:lightmapST"
 PACK_PADDING = 2
 """Texels between generated charts, so bilinear filtering of one chart never reads another."""
 MIN_PAGE = 8
+MAX_TEXELS = 1 << 26
+"""Most texels the pages of one bake may hold (four 4096 x 4096 pages): baking a texel holds ~250 bytes of
+temporaries (its point, normal, triangle, weights), so this bounds a bake to a few GB; more is refused before
+any ray, naming the pages and the parameters to lower."""
 
 
 class LightmapError(StageError):
@@ -106,6 +110,11 @@ def lightmap_layout(scene: Scene, receivers: np.ndarray, *, density: float, max_
                                    out_of_tile, degenerate, density=_page_density(uvs, size, world_area)))
         pages.append((size, size))
     generated = _generate(scene, to_generate, density, max_size, tri_uv, tri_page, pages, meshes)
+    total = sum(width * height for width, height in pages)
+    if total > MAX_TEXELS:
+        raise LightmapError(scene.source or "the stage", "", f"its lightmaps would hold {total:,} texels on "
+                            f"{len(pages)} pages (at most {MAX_TEXELS:,}); lower texel_density ({density:g}) or "
+                            f"max_texture_size ({max_size}), or bake fewer meshes")
     return LightmapLayout(tri_uv, tri_page, pages, meshes, generated)
 
 

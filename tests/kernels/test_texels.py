@@ -162,3 +162,9 @@ def test_layout_counts_degenerate_uv_triangles():
     uv[1] = [[0.2, 0.2], [0.3, 0.3], [0.4, 0.4]]
     layout = lightmap_layout(flat_scene(uv), np.array([0]), density=16.0, max_size=128)
     assert layout.meshes[0].source == "st" and layout.meshes[0].degenerate == 1
+
+
+def test_a_layout_beyond_the_texel_budget_is_refused_before_any_ray():
+    scene = flat_scene(squares_uv(3))
+    with pytest.raises(LightmapError, match=r"would hold 268,435,456 texels on 1 pages .* lower texel_density"):
+        lightmap_layout(scene, np.array([0]), density=1e5, max_size=16384)

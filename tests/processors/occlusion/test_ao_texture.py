@@ -283,3 +283,24 @@ def test_texels_on_either_side_of_a_uv_seam_agree_within_noise():
     difference = first[seams[:, 0]] - first[seams[:, 1]]
     noise = np.sqrt(np.mean((first[seams] - second[seams]) ** 2) / 2)
     assert np.sqrt(np.mean(difference ** 2)) < 1.5 * np.sqrt(2) * noise + 0.002
+
+
+def test_a_texture_bake_after_refinement_reads_the_carried_uvs(tmp_path):
+    """With sky_visibility (vertex target) refining the floor in the same run, AO bakes its lightmap on the
+    refined triangles, whose st is carried by barycentric weights: the same map over the floor, so the same
+    texel points as without refinement."""
+    images = {}
+    for processors in (["ambient_occlusion"], ["sky_visibility", "ambient_occlusion"]):
+        folder = tmp_path / str(len(processors))
+        folder.mkdir()
+        stage = wall_and_floor_stage(folder)
+        params = {"ambient_occlusion": {"samples": 64, "target": "texture"}}
+        if len(processors) == 2:
+            params["sky_visibility"] = {"patch_count": 32, "tolerance": 0.01, "max_level": 3}
+        usdbake.bake(stage, processors, params, texture_dir=str(folder))
+        floor = stage.GetPrimAtPath("/World/Floor")
+        if len(processors) == 2:
+            assert len(UsdGeom.Mesh(floor).GetFaceVertexCountsAttr().Get()) > 1  # refined
+        images[len(processors)] = read_image(floor.GetAttribute("bake:lightmap:ao:file").Get().resolvedPath)
+    assert images[1].shape == images[2].shape
+    assert np.abs(images[1] - images[2]).mean() < 0.01
