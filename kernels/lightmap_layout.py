@@ -96,8 +96,9 @@ def lightmap_layout(scene: Scene, receivers: np.ndarray, *, density: float, max_
     meshes: list[MeshLightmap] = []
     to_generate: list[tuple[int, str]] = []
     metres = scene.meters_per_unit
+    prim_triangles = triangles_by_prim(scene)
     for prim in (int(p) for p in receivers):
-        tris = np.flatnonzero(scene.tri_prim == prim)
+        tris = prim_triangles(prim)
         world_area = float(scene.tri_areas[tris].astype(np.float64).sum()) * metres * metres
         own = _own_uvs(scene, prim, tris, world_area, density, max_size, device)
         if isinstance(own, str):
@@ -109,13 +110,21 @@ def lightmap_layout(scene: Scene, receivers: np.ndarray, *, density: float, max_
         meshes.append(MeshLightmap(prim, source, name, _kept_reason(source, name, overlap), len(pages), overlap,
                                    out_of_tile, degenerate, density=_page_density(uvs, size, world_area)))
         pages.append((size, size))
-    generated = _generate(scene, to_generate, density, max_size, tri_uv, tri_page, pages, meshes)
+    generated = _generate(scene, to_generate, density, max_size, tri_uv, tri_page, pages, meshes, prim_triangles)
     total = sum(width * height for width, height in pages)
     if total > MAX_TEXELS:
         raise LightmapError(scene.source or "the stage", "", f"its lightmaps would hold {total:,} texels on "
                             f"{len(pages)} pages (at most {MAX_TEXELS:,}); lower texel_density ({density:g}) or "
                             f"max_texture_size ({max_size}), or bake fewer meshes")
     return LightmapLayout(tri_uv, tri_page, pages, meshes, generated)
+
+
+def triangles_by_prim(scene: Scene):
+    """A function prim -> its triangle indices (ascending), from one stable sort: a stage of thousands of prims
+    does not scan every triangle once per prim."""
+    order = np.argsort(scene.tri_prim, kind="stable")
+    bounds = np.searchsorted(scene.tri_prim[order], np.arange(len(scene.prim_paths) + 1))
+    return lambda prim: order[bounds[prim]:bounds[prim + 1]]
 
 
 def _own_uvs(scene: Scene, prim: int, tris: np.ndarray, world_area: float, density: float, max_size: int,
@@ -193,14 +202,14 @@ def _page_density(uvs: np.ndarray, size: int, world_area: float) -> float:
 
 
 def _generate(scene: Scene, prims: list[tuple[int, str]], density: float, max_size: int, tri_uv: np.ndarray,
-              tri_page: np.ndarray, pages: list, meshes: list) -> dict[int, np.ndarray]:
+              tri_page: np.ndarray, pages: list, meshes: list, prim_triangles) -> dict[int, np.ndarray]:
     """Chart and pack ``prims`` with xatlas into pages after ``pages``; fills tri_uv, tri_page, pages and
     meshes; returns each prim's faceVarying values."""
     if not prims:
         return {}
     inputs = []
     for prim, _ in prims:
-        tris = np.flatnonzero(scene.tri_prim == prim)
+        tris = prim_triangles(prim)
         slots = scene.tri_corner[tris]
         if (slots < 0).any():  # a Scene not read from USD: every corner its own slot
             slots = np.arange(3 * len(tris)).reshape(-1, 3)

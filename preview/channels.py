@@ -253,8 +253,10 @@ def _read_lightmaps(stage, scene: Scene, name: str, time: float | None) -> Chann
     textures: list[np.ndarray] = []
     files: dict[str, int] = {}
     attributes, messages = [], []
+    order = np.argsort(scene.tri_prim, kind="stable")
+    bounds = np.searchsorted(scene.tri_prim[order], np.arange(len(scene.prim_paths) + 1))
     for m, path in enumerate(scene.prim_paths):
-        tris = np.flatnonzero(scene.tri_prim == m)
+        tris = order[bounds[m]:bounds[m + 1]]
         lightmap = read_lightmap(stage, path, name, time) if len(tris) else None
         if lightmap is None:
             continue
