@@ -106,8 +106,9 @@ def build_steps(names: list[str] | tuple[str, ...] | None, params: dict[str, dic
     if target is not None:
         if target not in TARGETS:
             raise ParamError(f"target={target!r} is not one of {list(TARGETS)}")
-        params = {name: {"target": target, **params.get(name, {})} for name, cls in registry.items()
-                  if name in params or any(f.name == "target" for f in dataclasses.fields(cls.Params))}
+        with_target = {name for name, cls in registry.items()
+                       if any(f.name == "target" for f in dataclasses.fields(cls.Params))}
+        params = {**params, **{name: {"target": target, **params.get(name, {})} for name in with_target}}
     producers: dict[str, str] = {}
     for name, cls in registry.items():
         for product in (*cls.provides, *cls.requires):

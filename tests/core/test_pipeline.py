@@ -427,3 +427,14 @@ def test_an_asked_for_refiner_is_skipped_where_the_asker_needs_none():
     assert steps["sky_visibility"].action == "skip"
     assert "radiosity needs no refinement here: no DomeLight" in steps["sky_visibility"].reason
     assert steps["radiosity"].action == "run"
+
+
+def test_target_reaches_the_steps_with_a_target_param_and_leaves_the_other_params_alone():
+    steps = {step.name: step for step in build_steps(["radiosity"], {"form_factors": {"rays": 64}},
+                                                     target="texture")}
+    assert steps["radiosity"].params.target == "texture" and steps["form_factors"].params.rays == 64
+    own = {step.name: step for step in build_steps(["radiosity"], {"radiosity": {"target": "both"}},
+                                                   target="texture")}
+    assert own["radiosity"].params.target == "both"  # a processor's own target wins
+    with pytest.raises(core.ParamError, match="target='uv'"):
+        build_steps(["radiosity"], target="uv")
