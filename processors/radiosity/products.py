@@ -114,6 +114,6 @@ class RadiosityProduct:
     patch_radiosity: np.ndarray
     """(n, 3) float32 outgoing radiosity B = rho (E0 + E_ind) + pi L_e."""
     vertex_irradiance_direct: np.ndarray
-    """(P, 3) float32 per Scene point."""
+    """(P, 3) float32 per Scene point; 0 where not baked (every point with ``target=texture``)."""
     vertex_irradiance_indirect: np.ndarray
-    """(P, 3) float32 per Scene point."""
+    """(P, 3) float32 per Scene point; 0 where not baked (every point with ``target=texture``)."""

@@ -479,7 +479,9 @@ class Radiosity(Processor):
         scene, p = ctx.scene, ctx.params
         rays_before = ctx.tracer.rays_cast
         receivers = receiver_prims(scene)
-        point_ids = np.flatnonzero(np.isin(scene.point_prim, receivers))
+        # the texture target alone lights no vertex: the product's vertex arrays stay 0
+        point_ids = np.flatnonzero(np.isin(scene.point_prim, receivers)) if p.target != "texture" \
+            else np.zeros(0, np.int64)
         relighter = relighter_for(ctx.tracer, ctx.products[FormFactorProduct].operator, p)
         layout = pages = None
         texels = None
