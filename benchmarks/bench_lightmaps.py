@@ -196,6 +196,63 @@ def blender_python() -> str | None:
     return candidate if Path(candidate).exists() else None
 
 
+BLENDER_IMPORT = r"""
+import json, sys
+import bpy
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.wm.usd_import(filepath=sys.argv[1])
+floor = bpy.data.objects["Floor"]
+uv = floor.data.uv_layers.get("st")
+images = [node.image.filepath for mat in bpy.data.materials if mat.node_tree
+          for node in mat.node_tree.nodes if node.bl_idname == "ShaderNodeTexImage" and node.image]
+print("RESULT", json.dumps({"uvs": [list(loop.uv) for loop in uv.data] if uv else [], "images": images}))
+"""
+
+
+def blender_import(python: str) -> dict:
+    """Bake a floor beside a wall into an AO texture, import the output in Blender (its USD importer,
+    headless) and check what arrives: the floor's UVs as written (1/0), the AO texture in a material (1/0)."""
+    from pxr import Sdf, Usd, UsdGeom, UsdShade
+
+    from usdbake.cli.main import main
+
+    with tempfile.TemporaryDirectory() as folder:
+        stage = Usd.Stage.CreateNew(str(Path(folder) / "in.usda"))
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+        floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
+        floor.CreatePointsAttr([(0.25, 0, 0), (0.25, 0, 1), (1.25, 0, 1), (1.25, 0, 0)])
+        floor.CreateFaceVertexCountsAttr([4])
+        floor.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+        written = [(0, 0), (0, 1), (1, 1), (1, 0)]
+        UsdGeom.PrimvarsAPI(floor).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                 UsdGeom.Tokens.faceVarying).Set(written)
+        wall = UsdGeom.Mesh.Define(stage, "/World/Wall")
+        wall.CreatePointsAttr([(0, 0, -5), (0, 5, -5), (0, 5, 5), (0, 0, 5)])
+        wall.CreateFaceVertexCountsAttr([4])
+        wall.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+        material = UsdShade.Material.Define(stage, "/World/Looks/Floor")
+        surface = UsdShade.Shader.Define(stage, "/World/Looks/Floor/Surface")
+        surface.CreateIdAttr("UsdPreviewSurface")
+        material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+        UsdShade.MaterialBindingAPI.Apply(floor.GetPrim()).Bind(material)
+        stage.Save()
+        out = Path(folder) / "out.usda"
+        main(["bake", str(Path(folder) / "in.usda"), "-o", str(out), "--target", "texture", "--set",
+              "ambient_occlusion.samples=16", "--cache", str(Path(folder) / "cache")])
+        baked = Usd.Stage.Open(str(out))
+        ao_file = baked.GetPrimAtPath("/World/Floor").GetAttribute("bake:lightmap:ao:file").Get().resolvedPath
+        run = subprocess.run([python, "-c", BLENDER_IMPORT, str(out)], capture_output=True, text=True)
+    line = next((text for text in run.stdout.splitlines() if text.startswith("RESULT ")), None)
+    if line is None:
+        return {}
+    found = json.loads(line[len("RESULT "):])
+    uvs_as_written = sorted(map(tuple, np.round(found["uvs"], 5).tolist())) == sorted(map(tuple, np.asarray(
+        written, float).tolist())) and len(found["uvs"]) == 4
+    connected = any(Path(image).name == Path(ao_file).name for image in found["images"])
+    return {"blender_uvs_as_written": int(uvs_as_written), "blender_ao_texture_connected": int(connected)}
+
+
 def cycles_bake(python: str, scene, layout, page, vertex_normals: np.ndarray, samples: int,
                 folder: Path) -> tuple[np.ndarray, float]:
     """Cycles' AO of the page's triangles (cycles_ao.py in Blender's venv): (H, W) values, bake seconds."""
@@ -313,6 +370,8 @@ def run(quick: bool = False) -> dict:
         figures["meshes_identical"] = int(meshes_unchanged(stage, Path(folder)))
     figures.update(city_accuracy())
     python = blender_python()
+    if python is not None:
+        figures.update(blender_import(python))
     for size in (1024, 4096):
         density = 32.0 * size / max(layout.page_sizes[page.page])
         size_layout, size_pages, _, size_raster = prepared(scene, density, max_size=size)
