@@ -40,6 +40,8 @@ class TexelSamples:
     """(N, 3) float32 unit shading normals."""
     corners: np.ndarray
     """(N, 3, 3) float32 the owning triangle's corners (for the ray-origin rule)."""
+    weights: np.ndarray
+    """(N, 3) float32 barycentric coordinates of each point in its triangle."""
 
 
 def texel_samples(scene: Scene, layout: LightmapLayout, vertex_normals: np.ndarray,
@@ -61,7 +63,7 @@ def texel_samples(scene: Scene, layout: LightmapLayout, vertex_normals: np.ndarr
         usable = (length[:, 0] > 1e-6) & (np.einsum("nd,nd->n", blended, face) > 0.0)
         normals = np.where(usable[:, None], blended / np.maximum(length, 1e-30), face)
         samples.append(TexelSamples(page, width, height, covered.texel, triangle, points.astype(np.float32),
-                                    normals.astype(np.float32), corners.astype(np.float32)))
+                                    normals.astype(np.float32), corners.astype(np.float32), covered.weights))
     return samples
 
 
@@ -156,7 +158,7 @@ def denoise_page(image: np.ndarray, samples: TexelSamples, meshes: np.ndarray, *
 
 def image_file_pixels(image: np.ndarray, dtype=np.float16) -> np.ndarray:
     """A page (row 0 is v = 0) as file pixels (row 0 at the top, as image files and UsdUVTexture's st
-    convention want): float16 for EXR, uint16 (values in [0, 1]) for PNG."""
+    convention want): float16 or float32 for EXR, uint16 (values in [0, 1]) for PNG."""
     flipped = np.ascontiguousarray(image[::-1])
     if dtype == np.uint16:
         return np.round(np.clip(flipped, 0.0, 1.0) * 65535.0).astype(np.uint16)
@@ -164,17 +166,22 @@ def image_file_pixels(image: np.ndarray, dtype=np.float16) -> np.ndarray:
 
 
 def lightmap_records(scene: Scene, layout: LightmapLayout, channel: str, files: list[str], *, channels: str,
-                     units: str, with_uvs: bool = True) -> list:
+                     units: str, with_uvs: bool = True, time: float | None = None) -> list:
     """Records describing lightmap ``channel`` on every mesh of ``layout`` (``LightmapAPI:<channel>``: the
     page's file, the UV primvar, the image channels and the units), plus each generated UV set
-    (``with_uvs``: a processor writing several channels writes them once)."""
+    (``with_uvs``: a processor writing several channels writes them once). With ``time`` (a time code) the
+    file is that time's sample, so a channel holds an image per time; the rest is written at time code 0 only."""
     records: list = []
     for mesh in layout.meshes:
         path = scene.prim_paths[mesh.prim]
         prefix = f"bake:lightmap:{channel}"
+        file = Attribute(path, f"{prefix}:file", files[mesh.page], "asset", time=time)
+        if time:
+            records.append(file)
+            continue
         records += [
             Prim(path, api_schemas=(f"{LIGHTMAP_API}:{channel}",)),
-            Attribute(path, f"{prefix}:file", files[mesh.page], "asset"),
+            file,
             Attribute(path, f"{prefix}:uv", mesh.uv_name, "token", uniform=True),
             Attribute(path, f"{prefix}:channels", channels, "token", uniform=True),
             Attribute(path, f"{prefix}:units", units, "token", uniform=True),
@@ -201,8 +208,14 @@ def layout_messages(scene: Scene, layout: LightmapLayout, density: float) -> lis
     return lines
 
 
+HALF_LIMIT = 6.0e4
+"""Largest value a half-float lightmap holds (half's maximum is 65504): pages beyond it are written in float."""
+
+
 def texture_record(name: str, image: np.ndarray, *, eight_bit_range: bool) -> Texture:
-    """The Texture record of a page: 16-bit PNG for values in [0, 1] (``eight_bit_range``), else half EXR."""
+    """The Texture record of a page: 16-bit PNG for values in [0, 1] (``eight_bit_range``), else half EXR
+    (float EXR when a value is beyond half's range, e.g. illuminance in lux)."""
     if eight_bit_range:
         return Texture(f"{name}.png", image_file_pixels(image, np.uint16))
-    return Texture(f"{name}.exr", image_file_pixels(image, np.float16))
+    wide = image.size and float(np.nanmax(np.abs(image))) > HALF_LIMIT
+    return Texture(f"{name}.exr", image_file_pixels(image, np.float32 if wide else np.float16))

@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import json
 import time as _time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -65,6 +65,7 @@ from .interreflection import SUN_PATCHES, horizontal_cosines
 from .sky_matrix import perez_sky_matrix
 from ...kernels.solar import day_of_year, sun_position
 from .sun_visibility import sun_bin_hits, sun_bins, sun_levels
+from .texel_receivers import texel_lightmaps
 
 REPORT_PRIM = "/usdbake/AnnualDaylight"
 REPORT_FILE = "annual_daylight.json"
@@ -269,7 +270,9 @@ class AnnualDaylight(Processor):
     summary = "Climate-based annual daylight from a weather file (EPW / TMY3): DF, DA, sDA, UDI, ASE."
     facets = ("geometry",)
     writes = ("primvars:bake:daylightFactor", "primvars:bake:daylightAutonomy", "primvars:bake:usefulDaylight",
-              "primvars:bake:annualSunHours", "primvars:bake:meanIlluminance")
+              "primvars:bake:annualSunHours", "primvars:bake:meanIlluminance", "bake:lightmap:daylightFactor:",
+              "bake:lightmap:daylightAutonomy:", "bake:lightmap:usefulDaylight:", "bake:lightmap:annualSunHours:",
+              "bake:lightmap:meanIlluminance:")
     requires = (SkyVisibilityProduct, InterreflectionProduct)
     provides = (AnnualDaylightProduct,)
 
@@ -321,40 +324,58 @@ class AnnualDaylight(Processor):
         scene, p = ctx.scene, ctx.params
         product = ctx.products[SkyVisibilityProduct]
         weather = getattr(self, "weather", None) or read_weather(p.weather)
-        metrics, stats = compute_annual_daylight(
-            ctx.tracer, scene, product, weather, north=p.north, occupied=parse_hours(p.occupied),
-            threshold=p.threshold, udi=(p.udi_low, p.udi_high), ase_lux=p.ase_lux, sun=p.sun,
-            sun_samples=p.sun_samples, sun_subdivision=p.sun_bins, seed=p.seed,
-            interreflection=ctx.products[InterreflectionProduct], efficacy=p.efficacy, progress=ctx.progress)
-        sensors = sensor_faces(scene, product, p.sensors, p.sensor_prims)
-        areas = product.face_areas.astype(np.float64)
-        sda = spatial_share(metrics.autonomy >= p.sda_share, areas, sensors)
-        ase = spatial_share(metrics.sun_hours >= p.ase_hours, areas, sensors)
-        result = Result(products={AnnualDaylightProduct: AnnualDaylightProduct(
-            metrics.daylight_factor, metrics.autonomy, metrics.useful, metrics.sun_hours, metrics.mean_illuminance,
-            sensors, sda, ase)}, stats=stats)
         inter = ctx.products[InterreflectionProduct]
+        receivers = [(product, inter)] if product.mesh_written else []
+        if product.texels is not None:
+            receivers.append((product.texels.view, inter.texels))
+        computed = []
+        for index, (faces, bounced) in enumerate(receivers):  # the refined faces, the lightmap texels, or both
+            metrics, stats = compute_annual_daylight(
+                ctx.tracer, scene, faces, weather, north=p.north, occupied=parse_hours(p.occupied),
+                threshold=p.threshold, udi=(p.udi_low, p.udi_high), ase_lux=p.ase_lux, sun=p.sun,
+                sun_samples=p.sun_samples, sun_subdivision=p.sun_bins, seed=p.seed, interreflection=bounced,
+                efficacy=p.efficacy, progress=lambda f, index=index: ctx.progress((index + f) / len(receivers)))
+            sensors = sensor_faces(scene, faces, p.sensors, p.sensor_prims)
+            areas = faces.face_areas.astype(np.float64)
+            computed.append((AnnualDaylightProduct(
+                metrics.daylight_factor, metrics.autonomy, metrics.useful, metrics.sun_hours,
+                metrics.mean_illuminance, sensors, spatial_share(metrics.autonomy >= p.sda_share, areas, sensors),
+                spatial_share(metrics.sun_hours >= p.ase_hours, areas, sensors)), stats))
+        texel_metrics = computed[-1][0] if product.texels is not None else None
+        annual, stats = computed[0]
+        stats = dict(stats, rays=sum(figures.get("rays", 0.0) for _, figures in computed))
+        annual = replace(annual, texels=texel_metrics if product.mesh_written else None)
+        # sDA and ASE are taken over the refined faces, or over the texels (footprint-weighted) without them
+        sensor_set = product if product.mesh_written else product.texels.view
+        sensors, sda, ase = annual.sensors, annual.sda, annual.ase
+        areas = sensor_set.face_areas.astype(np.float64)
+        result = Result(products={AnnualDaylightProduct: annual}, stats=stats)
+        if texel_metrics is not None:
+            result.outputs += self._texel_outputs(scene, product.texels, texel_metrics)
+            result.stats["texels"] = float(product.texels.count)
         report = {"weather": weather.source, "bounces": inter.bounces, "ground_reflectance": inter.ground_reflectance,
                   "efficacy": p.efficacy, "latitude": weather.latitude, "longitude": weather.longitude,
                   "timezone": weather.timezone, "occupied": p.occupied, "sensor_faces": int(sensors.sum()),
                   "sensor_area": float(areas[sensors].sum()), "sDA": sda, "ASE": ase, "prims": {}}
         for prim in product.prims:
             path = scene.prim_paths[prim]
-            faces = np.flatnonzero(product.face_prim == prim)
-            result.outputs += [
-                Primvar(path, "bake:daylightFactor", metrics.daylight_factor[faces], "float", "uniform"),
-                Primvar(path, "bake:daylightAutonomy", metrics.autonomy[faces], "float", "uniform"),
-                Primvar(path, "bake:usefulDaylight", metrics.useful[faces].ravel(), "float", "uniform",
-                        element_size=3),
-                Primvar(path, "bake:annualSunHours", metrics.sun_hours[faces], "float", "uniform"),
-                Primvar(path, "bake:meanIlluminance", metrics.mean_illuminance[faces], "float", "uniform"),
-            ]
+            faces = np.flatnonzero(sensor_set.face_prim == prim)
             mine = sensors[faces]
             report["prims"][path] = {
-                "mean_daylight_factor": _area_mean(metrics.daylight_factor[faces], areas[faces]),
-                "mean_autonomy": _area_mean(metrics.autonomy[faces], areas[faces]),
-                "sDA": spatial_share(metrics.autonomy[faces] >= p.sda_share, areas[faces], mine),
-                "ASE": spatial_share(metrics.sun_hours[faces] >= p.ase_hours, areas[faces], mine)}
+                "mean_daylight_factor": _area_mean(annual.daylight_factor[faces], areas[faces]),
+                "mean_autonomy": _area_mean(annual.autonomy[faces], areas[faces]),
+                "sDA": spatial_share(annual.autonomy[faces] >= p.sda_share, areas[faces], mine),
+                "ASE": spatial_share(annual.sun_hours[faces] >= p.ase_hours, areas[faces], mine)}
+            if not product.mesh_written:
+                continue
+            result.outputs += [
+                Primvar(path, "bake:daylightFactor", annual.daylight_factor[faces], "float", "uniform"),
+                Primvar(path, "bake:daylightAutonomy", annual.autonomy[faces], "float", "uniform"),
+                Primvar(path, "bake:usefulDaylight", annual.useful[faces].ravel(), "float", "uniform",
+                        element_size=3),
+                Primvar(path, "bake:annualSunHours", annual.sun_hours[faces], "float", "uniform"),
+                Primvar(path, "bake:meanIlluminance", annual.mean_illuminance[faces], "float", "uniform"),
+            ]
         result.outputs += [
             Prim("/usdbake", "Scope"), Prim(REPORT_PRIM, "Scope"),
             Attribute(REPORT_PRIM, "bake:annual:sDA", float(sda), "float"),
@@ -371,9 +392,22 @@ class AnnualDaylight(Processor):
                                    f"sDA and ASE are 0")
         result.messages.append(f"sDA {100 * sda:.1f}% (DA >= {p.sda_share:g} at {p.threshold:g} lx), ASE "
                                f"{100 * ase:.1f}% ({p.ase_lux:g} lx for {p.ase_hours:g} h) over "
-                               f"{int(sensors.sum())} sensor faces; weather {weather.source}; {inter.bounces} bounces, "
+                               f"{int(sensors.sum())} sensor {'faces' if product.mesh_written else 'texels'}; weather {weather.source}; {inter.bounces} bounces, "
                                f"ground {inter.ground_reflectance:g}, efficacy {p.efficacy}")
         return result
+
+    @staticmethod
+    def _texel_outputs(scene: Scene, texels, metrics: AnnualDaylightProduct) -> list:
+        """The texture target: one lightmap per metric (``LightmapAPI:<metric>``, the primvars' names)."""
+        channels = (("daylightFactor", metrics.daylight_factor, "percent", False),
+                    ("daylightAutonomy", metrics.autonomy, "fraction", True),
+                    ("usefulDaylight", metrics.useful, "fraction", True),
+                    ("annualSunHours", metrics.sun_hours, "hours", False),
+                    ("meanIlluminance", metrics.mean_illuminance, "lux", False))
+        records = []
+        for channel, values, units, unit_range in channels:
+            records += texel_lightmaps(scene, texels, channel, values, units=units, unit_range=unit_range)
+        return records
 
 
 def _area_mean(values: np.ndarray, areas: np.ndarray) -> float:

@@ -44,7 +44,7 @@ Parameters: ``usdbake list daylight`` or docs/daylight.md, both generated from `
 from __future__ import annotations
 
 import time as _time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import warp as wp
@@ -59,6 +59,7 @@ from ...kernels.solar import SunPosition, day_of_year, horizontal_position, pars
 from .glazing import scene_glazing
 from .interreflection import ground_radiance, sun_patch_weights
 from .sun_visibility import SunFaces, sun_bin_hits, sun_levels
+from .texel_receivers import texel_lightmaps
 
 wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
@@ -337,6 +338,13 @@ class DaylightRelighter:
         return out
 
 
+def _no_faces(times: np.ndarray, p) -> DaylightProduct:
+    """The product of a run whose faces are not written (the texture target alone): no face rows."""
+    empty = np.zeros((len(times), 0, 3), np.float32)
+    position = sun_position(times, p.latitude, p.longitude, p.timezone)
+    return DaylightProduct(times, empty, position.zenith, position.azimuth, empty)
+
+
 def reinhard_tone_map(radiance: np.ndarray, exposure: float = 0.0) -> tuple[np.ndarray, float]:
     """Reinhard x / (1 + x) of radiance * k; k = exposure, or 1 / the 90th percentile of the luminance."""
     k = float(exposure)
@@ -353,7 +361,8 @@ class Daylight(Processor):
     version = "2"
     summary = "Sky (Preetham/Perez/CIE overcast/uniform) + sun relighting of the sky_visibility mesh, time-sampled."
     facets = ("geometry", "materials")
-    writes = ("primvars:bake:daylight", "primvars:bake:daylightIrradiance", "primvars:displayColor")
+    writes = ("primvars:bake:daylight", "primvars:bake:daylightIrradiance", "primvars:displayColor",
+              "bake:lightmap:daylightIrradiance:")
     requires = (SkyVisibilityProduct, InterreflectionProduct)
     provides = (DaylightProduct,)
 
@@ -397,19 +406,37 @@ class Daylight(Processor):
             times = parse_times(p.times)
         except ValueError as error:
             raise ParamError(f"times={p.times!r}: {error}") from None
-        daylight, stats = compute_daylight(
-            ctx.tracer, scene, product, times, latitude=p.latitude, longitude=p.longitude, timezone=p.timezone,
-            north=p.north, sky=p.sky, turbidity=p.turbidity, uniform_radiance=p.uniform_radiance,
-            direct_normal=p.direct_normal, diffuse_horizontal=p.diffuse_horizontal, sun=p.sun,
-            sun_samples=p.sun_samples, seed=p.seed, interreflection=ctx.products[InterreflectionProduct],
-            efficacy=p.efficacy, progress=ctx.progress)
+        inter = ctx.products[InterreflectionProduct]
+        receivers = [(product, inter)] if product.mesh_written else []
+        if product.texels is not None:
+            receivers.append((product.texels.view, inter.texels))
+        computed = []
+        for index, (faces, bounced) in enumerate(receivers):  # the refined faces, the lightmap texels, or both
+            computed.append(compute_daylight(
+                ctx.tracer, scene, faces, times, latitude=p.latitude, longitude=p.longitude, timezone=p.timezone,
+                north=p.north, sky=p.sky, turbidity=p.turbidity, uniform_radiance=p.uniform_radiance,
+                direct_normal=p.direct_normal, diffuse_horizontal=p.diffuse_horizontal, sun=p.sun,
+                sun_samples=p.sun_samples, seed=p.seed, interreflection=bounced, efficacy=p.efficacy,
+                progress=lambda f, index=index: ctx.progress((index + f) / len(receivers))))
+        texel_light, texel_stats = computed.pop() if product.texels is not None else (None, {})
+        daylight, stats = computed[0] if computed else (_no_faces(times, p), {})
+        if texel_light is not None:
+            stats = dict(stats, sun_rays=stats.get("sun_rays", 0.0) + texel_stats["sun_rays"])
+        daylight = replace(daylight, texels=texel_light)
         result = Result(products={DaylightProduct: daylight}, stats=stats)
+        if texel_light is not None:
+            result.stats["texels"] = float(product.texels.count)
+            for index in range(len(times)):
+                result.outputs += texel_lightmaps(scene, product.texels, "daylightIrradiance",
+                                                  texel_light.face_irradiance[index], units="W/m^2",
+                                                  name=f"daylightIrradiance_{index}",
+                                                  time=float(index) if len(times) > 1 else None)
         sampled = len(times) > 1
         mapped, k = (reinhard_tone_map(daylight.face_radiance.reshape(-1, 3), p.exposure) if p.display_color
                      else (None, 0))
         if mapped is not None:
             mapped = mapped.reshape(daylight.face_radiance.shape)
-        for prim in product.prims:
+        for prim in product.prims if product.mesh_written else ():
             path = scene.prim_paths[prim]
             faces = np.flatnonzero(product.face_prim == prim)
             for index in range(len(times)):

@@ -99,7 +99,7 @@ class GatherMatrix:
     """The traced gather of every face: G and the ground view."""
 
     matrix: sp.csr_matrix
-    """(F, F) float32: G[i, k] = sum of the transmittances of face i's rays that land on the front of face k,
+    """(F, F) (or (F, columns)) float32: G[i, k] = sum of the transmittances of face i's rays that land on the front of face k,
     over the rays per face."""
     ground_view: np.ndarray
     """(F,) float32 share of face i's cosine-weighted hemisphere that leaves the scene below the horizon
@@ -108,9 +108,11 @@ class GatherMatrix:
 
 
 def trace_gather(tracer, corners: np.ndarray, normals: np.ndarray, *, rays: int, up: np.ndarray,
-                 landing: np.ndarray, seed: int = 0, glazing=None, progress=lambda f: None) -> GatherMatrix:
+                 landing: np.ndarray, seed: int = 0, glazing=None, columns: int | None = None,
+                 progress=lambda f: None) -> GatherMatrix:
     """Trace ``rays`` gather rays from each of the (F, 3, 3) faces through ``tracer``, whose triangle t is face
-    ``landing[t]``, with the glass of ``glazing`` (``glazing.Glazing`` or None) attenuating them."""
+    ``landing[t]``, with the glass of ``glazing`` (``glazing.Glazing`` or None) attenuating them. The matrix is
+    (F, F), or (F, ``columns``) when the faces that gather are not the faces light lands on (lightmap texels)."""
     corners = np.ascontiguousarray(corners, np.float32).reshape(-1, 3)
     normals = np.ascontiguousarray(normals, np.float32).reshape(-1, 3)
     count = len(normals)
@@ -139,6 +141,7 @@ def trace_gather(tracer, corners: np.ndarray, normals: np.ndarray, *, rays: int,
         progress(hi / max(1, count))
     tracer.rays_cast += int((np.linalg.norm(normals, axis=1) >= 0.5).sum()) * rays  # degenerate faces cast none
     matrix = sp.csr_matrix((np.concatenate(weights).astype(np.float32) / np.float32(rays),
-                            (np.concatenate(rows), np.concatenate(cols))), shape=(count, count), dtype=np.float32)
+                            (np.concatenate(rows), np.concatenate(cols))), shape=(count, count if columns is None else int(columns)),
+                           dtype=np.float32)
     matrix.sum_duplicates()
     return GatherMatrix(matrix, (ground / rays).astype(np.float32), rays)

@@ -132,16 +132,19 @@ class BounceOperator:
         members = sp.csr_matrix((np.ones(count, np.float32), (np.arange(count), face_patch)), shape=(count, patches))
         return cls(gather, patch_of, members, (patch_of @ gather @ members).tocsr(), outputs)
 
-    def indirect(self, direct: np.ndarray, albedo: np.ndarray, bounces: int) -> np.ndarray:
+    def indirect(self, direct: np.ndarray, albedo: np.ndarray, bounces: int,
+                 rows: sp.csr_matrix | None = None) -> np.ndarray:
         """(F, C) float32 irradiance after 1..``bounces`` reflections of the (F + X, C) ``direct`` irradiance
-        off faces of reflectance ``albedo`` (F + X,): sum_{b=1..k} (G rho)^b E0, bounces 2..k on patches."""
+        off faces of reflectance ``albedo`` (F + X,): sum_{b=1..k} (G rho)^b E0, bounces 2..k on patches.
+        ``rows`` ((T, F + X) gather rows of other receivers, e.g. lightmap texels) gathers at those instead:
+        their last bounce face by face, as the outputs'."""
         direct = np.asarray(direct, np.float32)
-        out = np.zeros((self.outputs, direct.shape[1]), np.float32)
+        rows = self.gather[:self.outputs] if rows is None else rows
+        out = np.zeros((rows.shape[0], direct.shape[1]), np.float32)
         if bounces <= 0:
             return out
         rho = np.asarray(albedo, np.float32)
         radiosity = rho[:, None] * direct
-        rows = self.gather[:self.outputs]
         out += rows @ radiosity
         if bounces >= 2:
             patch_rho = self.patch_of @ rho
@@ -187,20 +190,38 @@ def compute_interreflection(tracer, scene: Scene, product: SkyVisibilityProduct,
     operator = BounceOperator.build(gather.matrix, cluster_patches(faces, patches), faces.areas, faces.outputs)
     direct = np.concatenate([product.visibility_float(), extra_v])
     direct = np.column_stack([direct, np.pi * gather.ground_view])  # the ground as one more patch
+    texels = product.texels.view if product.texels is not None else None
+    texel_gather = None
+    if texels is not None:  # the texels gather from the same faces, which carry the bounces
+        before = transport.rays_cast
+        texel_gather = trace_gather(transport, texels.face_points[texels.face_vertices], texels.face_normals,
+                                    rays=gather_rays, up=scene.up_vector, seed=seed + 1, glazing=glazing,
+                                    landing=opaque, columns=len(faces.corners),
+                                    progress=lambda f: progress(0.6 + 0.1 * f))
+        tracer.rays_cast += transport.rays_cast - before
     channels = [0] if grey(faces.albedo) else [0, 1, 2]
     sky_indirect = np.zeros((len(channels), faces.outputs, len(product.patches)), np.float32)
     ground_indirect = np.zeros((len(channels), faces.outputs), np.float32)
+    texel_count = texels.num_faces if texels is not None else 0
+    texel_sky = np.zeros((len(channels), texel_count, len(product.patches)), np.float32)
+    texel_ground = np.zeros((len(channels), texel_count), np.float32)
     for index, channel in enumerate(channels):
         values = operator.indirect(direct, faces.albedo[:, channel], bounces)
-        sky_indirect[index] = values[:, :-1]
-        ground_indirect[index] = values[:, -1]
+        sky_indirect[index], ground_indirect[index] = values[:, :-1], values[:, -1]
+        if texel_gather is not None:
+            values = operator.indirect(direct, faces.albedo[:, channel], bounces, texel_gather.matrix)
+            texel_sky[index], texel_ground[index] = values[:, :-1], values[:, -1]
         progress(0.7 + 0.3 * (index + 1) / len(channels))
-    stats = {"gather_rays": float(len(faces.corners) * gather_rays), "gather_s": gather_seconds,
+    stats = {"gather_rays": float((len(faces.corners) + texel_count) * gather_rays), "gather_s": gather_seconds,
              "transport_faces": float(len(faces.corners)), "patches": float(operator.patch_gather.shape[0]),
              "channels": float(len(channels)), "interreflection_s": time.perf_counter() - started}
+    texel_product = None
+    if texel_gather is not None:
+        texel_product = InterreflectionProduct(bounces, float(ground_reflectance), texel_sky,
+                                               (np.pi * texel_gather.ground_view).astype(np.float32), texel_ground)
     return InterreflectionProduct(bounces, float(ground_reflectance), sky_indirect,
                                   (np.pi * gather.ground_view[:faces.outputs]).astype(np.float32),
-                                  ground_indirect), stats
+                                  ground_indirect, texels=texel_product), stats
 
 
 def horizontal_cosines(patches: SkyPatches) -> np.ndarray:

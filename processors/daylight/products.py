@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...kernels.lightmap_bake import TexelSamples
+from ...kernels.lightmap_layout import LightmapLayout
 from ...kernels.sky import SkyPatches
 
 
@@ -50,6 +52,11 @@ class SkyVisibilityProduct:
     up_axis: str
     prims: np.ndarray
     """(R,) int32 receiver prims (faces of prim prims[r] are face_prim == prims[r], in order)."""
+    texels: "TexelReceivers | None" = None
+    """The texture target's lightmap texels and their own V (``texel_receivers``); None for the vertex target."""
+    mesh_written: bool = True
+    """The refined mesh and its per-face results are authored (target vertex or both); with the texture
+    target alone the refined faces only carry light between surfaces (interreflection's transport)."""
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     @property
@@ -96,6 +103,9 @@ class AnnualDaylightProduct:
     """(F,) bool faces the spatial metrics are taken over."""
     sda: float
     ase: float
+    texels: "AnnualDaylightProduct | None" = None
+    """The same at the texture target's texels (sDA and ASE over them, footprint-weighted) when the faces are
+    written too; with the texture target alone, this product is the texels' own."""
 
 
 @dataclass(frozen=True)
@@ -113,6 +123,8 @@ class DaylightProduct:
     face_irradiance: np.ndarray
     """(K, F, 3) float32 total irradiance (sky, sun, interreflected light, ground), visible-equivalent W/m^2
     (x 179 = lux)."""
+    texels: "DaylightProduct | None" = None
+    """The same at the texture target's texels (their faces are texels), else None."""
 
 
 @dataclass(frozen=True)
@@ -129,6 +141,31 @@ class InterreflectionProduct:
     ground_indirect: np.ndarray
     """(K, F) float32 the same ground's light after 1..bounces reflections, per unit ground radiance."""
 
+    texels: "InterreflectionProduct | None" = None
+    """The same coefficients for the texture target's texels (``SkyVisibilityProduct.texels``), else None."""
+
     def channel(self, c: int) -> int:
         """Index into the K axis for colour channel c."""
         return min(c, len(self.sky_indirect) - 1)
+
+
+@dataclass(frozen=True)
+class TexelReceivers:
+    """The lightmap texels of the receivers, in page order, and the daylight product computed at them."""
+
+    layout: LightmapLayout
+    pages: list[TexelSamples]
+    view: "SkyVisibilityProduct"
+    """``SkyVisibilityProduct`` whose face k is texel k (pages concatenated): its V, exposure, corners
+    (the inset faces), face normals, areas (footprints) and owning triangles."""
+    margin: int
+    denoise: bool
+
+    @property
+    def count(self) -> int:
+        return sum(len(page.texel) for page in self.pages)
+
+    def page_slices(self) -> list[slice]:
+        """Texel rows of each page in ``view``."""
+        bounds = np.cumsum([0] + [len(page.texel) for page in self.pages])
+        return [slice(int(lo), int(hi)) for lo, hi in zip(bounds[:-1], bounds[1:])]

@@ -63,19 +63,22 @@ Parameters: ``usdbake list sky_visibility`` or docs/daylight.md, both generated 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...core import Attribute, Context, Params, Prim, Primvar, Processor, Result, param
+from ...core import Attribute, Context, Prim, Primvar, Processor, Result, TextureTargetParams, param
 from ...core.chunks import SceneChunks
 from .glazing import GlassPanes, scene_glazing
 from ...core.products import RefinedScene
 from .products import SkyVisibilityProduct
 from ...core.scene import Scene
-from ...geometry.mesh import backdrop_prims, detail_diagonal, missing_receivers, receiver_prims
+from ...geometry.mesh import backdrop_prims, detail_diagonal, missing_receivers, receiver_prims, vertex_normals
+from ...kernels.lightmap_bake import layout_messages, texel_samples
+from ...kernels.lightmap_layout import lightmap_layout
 from ...kernels.sky import SkyPatches, enu_to_world, patch_layout
 from .patch_visibility import PAIRS_PER_BATCH, QUANT_LEVELS, traced_rays, visibility_pass_chunk
+from .texel_receivers import compute_texel_visibility, texel_lightmaps
 from .refine import refine, weld_points
 from .refined_scene import refine_scene
 
@@ -259,13 +262,14 @@ class SkyVisibility(Processor):
     name = "sky_visibility"
     version = "3"
     summary = "Per-face sky patch visibility with adaptive crack-free refinement (Bosch et al.)."
-    facets = ("geometry",)
+    facets = ("geometry", "uvs")
     writes = ("points", "faceVertexCounts", "faceVertexIndices", "orientation",
-              "primvars:bake:sourceFace", "primvars:bake:skyVisibility", "primvars:bake:skyExposure", "bake:sky:")
+              "primvars:bake:sourceFace", "primvars:bake:skyVisibility", "primvars:bake:skyExposure", "bake:sky:",
+              "bake:lightmap:skyExposure:", "primvars:bake:lightmapST")
     provides = (SkyVisibilityProduct, RefinedScene)
 
     @dataclass(frozen=True)
-    class Params(Params):
+    class Params(TextureTargetParams):
         patch_layout: str = param("uniform", "sky patches: uniform (equal solid angle), tregenza (145), "
                                   "reinhart (MF subdivision)", choices=("uniform", "tregenza", "reinhart"))
         patch_count: int = param(256, "number of patches of the uniform layout", low=1, high=65536)
@@ -310,11 +314,40 @@ class SkyVisibility(Processor):
             min_area=p.min_area, max_level=p.max_level, max_face_area=p.max_face_area, size_reference=p.size_reference,
             max_triangles=p.max_triangles, seed=p.seed,
             criterion=p.criterion, progress=ctx.progress, chunks=ctx.chunks)
+        texels = None
+        if p.target in ("texture", "both"):
+            layout = lightmap_layout(scene, product.prims, density=p.texel_density, max_size=p.max_texture_size,
+                                     device=ctx.device)
+            pages = texel_samples(scene, layout, vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals,
+                                                                scene.tri_areas), ctx.device)
+            texels = compute_texel_visibility(ctx.tracer, scene, product, layout, pages, samples=p.samples,
+                                              seed=p.seed, margin=p.margin, denoise=p.denoise, chunks=ctx.chunks)
+            stats["texels"] = float(texels.count)
+            stats["rays"] += float(traced_rays(texels.view.face_normals, patches, product.to_world, p.samples))
+        product = replace(product, texels=texels, mesh_written=p.target != "texture")
+        result = Result(products={SkyVisibilityProduct: product}, stats=stats)
+        if texels is not None:
+            result.outputs += texel_lightmaps(scene, texels, "skyExposure", texels.view.exposure, units="fraction",
+                                              unit_range=True, with_uvs=True)
+            result.messages += layout_messages(scene, texels.layout, p.texel_density)
+        if product.mesh_written:
+            self._mesh_outputs(scene, product, result)
+        ctx.progress(1.0)
+        skipped = int((~scene.prim_writable).sum())
+        if skipped:
+            result.messages.append(f"{skipped} instanced prims occlude but are not refined (read-only in USD)")
+        if stats["triangles_out"] >= p.max_triangles:
+            result.messages.append(f"refinement stopped at max_triangles={p.max_triangles}")
+        return result
+
+    @staticmethod
+    def _mesh_outputs(scene: Scene, product: SkyVisibilityProduct, result: Result) -> None:
+        """The vertex target: the refined meshes (the RefinedScene product) and their per-face V and exposure."""
         refined, meshes = refine_scene(scene, product.face_points, product.point_source, product.face_vertices,
                                        product.face_source, product.face_corner_weights)
-        result = Result(products={SkyVisibilityProduct: product,
-                                  RefinedScene: RefinedScene(refined, product.prims.astype(np.int32))},
-                        stats=stats, outputs=list(meshes))
+        result.products[RefinedScene] = RefinedScene(refined, product.prims.astype(np.int32))
+        result.outputs += list(meshes)
+        patches = product.patches
         directions = (patches.patch_directions @ product.to_world.T).astype(np.float32)
         n_patch = len(patches)
         for prim in product.prims:
@@ -335,10 +368,3 @@ class SkyVisibility(Processor):
                           "float[]"),
                 Attribute(path, "bake:sky:upAxis", scene.up_axis, "token"),
             ]
-        ctx.progress(1.0)
-        skipped = int((~scene.prim_writable).sum())
-        if skipped:
-            result.messages.append(f"{skipped} instanced prims occlude but are not refined (read-only in USD)")
-        if stats["triangles_out"] >= p.max_triangles:
-            result.messages.append(f"refinement stopped at max_triangles={p.max_triangles}")
-        return result

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdShade
+from lightmap_checks import composed_meshes, read_image
 from stage_builders import add_mesh, add_preview_material, bind, new_stage
 
 import usdbake
@@ -33,22 +34,6 @@ def wall_and_floor_stage(tmp_path):
     path = tmp_path / "wall.usda"
     stage.GetRootLayer().Export(str(path))
     return Usd.Stage.Open(str(path))
-
-
-def composed_meshes(stage) -> dict:
-    return {(str(prim.GetPath()), attr.GetName()): np.asarray(attr.Get()).tobytes()
-            for prim in stage.Traverse() if prim.IsA(UsdGeom.Mesh)
-            for attr in prim.GetAttributes()
-            if attr.GetName() in ("points", "faceVertexCounts", "faceVertexIndices", "primvars:st", "normals")
-            and attr.HasValue()}
-
-
-def read_image(path: str) -> np.ndarray:
-    import OpenImageIO as oiio
-
-    buffer = oiio.ImageBuf(path)
-    assert not buffer.has_error, buffer.geterror()
-    return buffer.get_pixels(oiio.FLOAT)
 
 
 @pytest.fixture(scope="module")
