@@ -108,10 +108,11 @@ def comparison_noise(noise: float, reference: np.ndarray) -> float:
 
 
 def embree_ao(scene, points: np.ndarray, normals: np.ndarray, face_normals: np.ndarray, rays: int,
-              seed: int) -> np.ndarray:
+              seed: int, up: np.ndarray | None = None) -> np.ndarray:
     """AO at points: the share of ``rays`` float64 cosine-weighted directions about each normal that Embree
     finds unoccluded (origin: point + 1e-5 diagonal * face normal). Independent of usdbake's ray core and
-    sampling."""
+    sampling. With ``up``, only unoccluded directions above the horizon count: the sky exposure
+    (1/pi) integral over the sky of V cos, as sky_visibility defines it."""
     from .bench_tracer import embree_scene
 
     embree = embree_scene(scene.points, scene.tri_vertices)
@@ -129,7 +130,10 @@ def embree_ao(scene, points: np.ndarray, normals: np.ndarray, face_normals: np.n
         directions = local[:, :1] * t1 + local[:, 1:2] * t2 + local[:, 2:] * normal
         origins = np.repeat((point + offset * face)[None], rays, axis=0)
         hit = embree.run(origins.astype(np.float32), directions.astype(np.float32), query="OCCLUDED")
-        out[i] = float((hit == -1).mean())
+        escaped = hit == -1
+        if up is not None:
+            escaped &= directions @ np.asarray(up, np.float64) > 0.0
+        out[i] = float(escaped.mean())
     return out
 
 
@@ -169,22 +173,24 @@ def uncovered_inside(layout, page) -> int:
     return missing
 
 
-def meshes_unchanged(stage, folder: Path) -> bool:
-    """Bake the texture target through the hook and compare every mesh's composed geometry before/after."""
+def composed_meshes(stage) -> dict:
+    """{(prim, attribute): bytes} of every mesh's composed topology, points, st and normals."""
     from pxr import UsdGeom
 
+    return {(str(prim.GetPath()), attr.GetName()): np.asarray(attr.Get()).tobytes()
+            for prim in stage.Traverse() if prim.IsA(UsdGeom.Mesh) for attr in prim.GetAttributes()
+            if attr.GetName() in ("points", "faceVertexCounts", "faceVertexIndices", "primvars:st", "normals")
+            and attr.HasValue()}
+
+
+def meshes_unchanged(stage, folder: Path) -> bool:
+    """Bake the texture target through the hook and compare every mesh's composed geometry before/after."""
     import usdbake
 
-    def meshes():
-        return {(str(prim.GetPath()), attr.GetName()): np.asarray(attr.Get()).tobytes()
-                for prim in stage.Traverse() if prim.IsA(UsdGeom.Mesh) for attr in prim.GetAttributes()
-                if attr.GetName() in ("points", "faceVertexCounts", "faceVertexIndices", "primvars:st", "normals")
-                and attr.HasValue()}
-
-    before = meshes()
+    before = composed_meshes(stage)
     usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 16}}, target="texture",
                  texture_dir=str(folder))
-    return meshes() == before
+    return composed_meshes(stage) == before
 
 
 def has_embree() -> bool:

@@ -184,6 +184,18 @@ TARGETS = [
      ">=", 1),
     ("Lightmaps: Blender 5 import, the AO texture connected in the imported material (1 = yes)", "lightmaps",
      "blender_ao_texture_connected", ">=", 1),
+    # Issue 31, the daylight family's texture target (bench_daylight_lightmaps)
+    ("Lightmaps (daylight): sky exposure texel RMS vs Embree (16384 rays) / the sampling noise, furnished room, 1000 texels",
+     "daylight_lightmaps", "room_exposure_rms_over_noise", "<=", 1.2),
+    ("Lightmaps (daylight): the same on the city (Y-up cm, 270k triangles, generated layout)", "daylight_lightmaps",
+     "city_exposure_rms_over_noise", "<=", 1.2),
+    ("Lightmaps (daylight): sky exposure of texel pairs across UV seams, RMS difference / their noise",
+     "daylight_lightmaps", "room_seam_rms_over_pair_noise", "<=", 1.2),
+    ("Lightmaps (daylight): composed meshes identical to the input's after target=texture (1 = yes)",
+     "daylight_lightmaps", "meshes_identical", ">=", 1),
+    ("Lightmaps (daylight): irradiance lightmap vs Radiance (-ab 6), median |relative error| at 150 points, glazed "
+     "room (report; the refined faces' of the same bake: room_faces_median_abs_error)", "daylight_lightmaps",
+     "room_texels_median_abs_error", ">=", 0.0),
     # Issue 28 (technique packages): checked by tests/test_import_rules.py and counted by hand so far
     ("largest library module (lines)", "plan", "largest_module_lines", "<=", 500),
     ("places where six or more lines of real logic repeat", "plan", "real_logic_repeats", "<=", 10),

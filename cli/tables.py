@@ -79,6 +79,8 @@ def cmd_inspect(args, console: Console) -> int:
     for lightmap in report["lightmaps"]:
         size = lightmap.get("error") or (f"{lightmap['width']} x {lightmap['height']}, {lightmap['channels']} "
                                          f"channel(s), {lightmap['format']}")
+        if lightmap.get("times"):
+            size += f"; one file per time code, {lightmap['times']} in all, the first shown"
         out.print(f"lightmap: {lightmap['path']} -> {lightmap['file']} ({size})", highlight=False)
     table = Table()
     table.add_column("property", overflow="fold", ratio=1)  # long prim paths wrap instead of being cut

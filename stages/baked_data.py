@@ -168,7 +168,9 @@ def read_lightmap(stage: Usd.Stage, path: str, name: str, time: float | None = N
     if not prim or not prim.HasAttribute(f"{prefix}:file"):
         return None
     attribute = f"{path}.{prefix}:file"
-    asset = prim.GetAttribute(f"{prefix}:file").Get()
+    # a file per time (daylight's lightmaps) is read at ``time``, or at its first sample without one
+    asset = prim.GetAttribute(f"{prefix}:file").Get(Usd.TimeCode(time) if time is not None
+                                                     else Usd.TimeCode.EarliestTime())
     resolved = asset.resolvedPath if asset is not None else ""
     if not resolved:
         raise UsageError(f"{attribute}: {asset.path if asset is not None else 'no file'} does not resolve")

@@ -55,12 +55,16 @@ def inspect_layer(path: str) -> dict:
 
 
 def _lightmap(layer: Sdf.Layer, path: str) -> dict:
-    """One lightmap file named by the layer: its size, channels and pixel format as OpenImageIO reads them."""
+    """One lightmap file named by the layer: its size, channels and pixel format as OpenImageIO reads them. A
+    file per time (daylight's) is described by its first sample, with ``times`` the number of samples."""
     import OpenImageIO as oiio
 
     asset = layer.GetAttributeAtPath(path).default
+    times = layer.ListTimeSamplesForPath(path)
+    if asset is None and times:
+        asset = layer.QueryTimeSample(path, times[0])
     file = layer.ComputeAbsolutePath(asset.path) if asset is not None and asset.path else ""
-    row = {"path": path, "file": asset.path if asset is not None else ""}
+    row = {"path": path, "file": asset.path if asset is not None else "", "times": len(times)}
     image = oiio.ImageInput.open(file) if file else None
     if image is None:
         row["error"] = f"cannot be read ({oiio.geterror() or 'no file'})"

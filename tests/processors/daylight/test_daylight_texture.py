@@ -163,3 +163,21 @@ def face_areas(prim: Usd.Prim) -> np.ndarray:
     indices = np.asarray(prim.GetAttribute("faceVertexIndices").Get()).reshape(-1, 3)
     corners = points[indices]
     return 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+
+
+def test_a_daylight_per_time_is_listed_and_read_at_its_time(tmp_path):
+    from usdbake.cli.main import main
+    from usdbake.stages.baked_data import read_lightmap
+    from usdbake.stages.inspect import inspect_layer
+
+    floor_and_wall(tmp_path, 1.0, 0.5, 0.5)
+    out = tmp_path / "floor.baked.usda"
+    assert main(["bake", str(tmp_path / "floor.usda"), "-o", str(out), "-p", "daylight", "--target", "texture",
+                 "--set", "daylight.times=2026-06-21T09:00,2026-06-21T15:00"]) == 0
+    rows = {row["path"]: row for row in inspect_layer(str(out))["lightmaps"]}
+    row = rows["/World/Floor.bake:lightmap:daylightIrradiance:file"]
+    assert row["times"] == 2 and (row["width"], row["height"], row["channels"]) == (32, 32, 3)
+    stage = Usd.Stage.Open(str(out))
+    morning, afternoon = (read_lightmap(stage, "/World/Floor", "daylightIrradiance", time) for time in (0.0, 1.0))
+    assert morning.file != afternoon.file  # the sun moved: another page
+    assert read_lightmap(stage, "/World/Floor", "daylightIrradiance").file == morning.file  # no time: the first
