@@ -78,7 +78,7 @@ from ...kernels.lightmap_bake import layout_messages, texel_samples
 from ...kernels.lightmap_layout import lightmap_layout
 from ...kernels.sky import SkyPatches, enu_to_world, patch_layout
 from .patch_visibility import PAIRS_PER_BATCH, QUANT_LEVELS, traced_rays, visibility_pass_chunk
-from .texel_receivers import compute_texel_visibility, texel_lightmaps
+from .texel_receivers import check_texel_memory, compute_texel_visibility, texel_lightmaps
 from .refine import refine, weld_points
 from .refined_scene import refine_scene
 
@@ -320,6 +320,7 @@ class SkyVisibility(Processor):
                                      device=ctx.device)
             pages = texel_samples(scene, layout, vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals,
                                                                 scene.tri_areas), ctx.device)
+            check_texel_memory(scene, pages, len(patches), density=p.texel_density, max_size=p.max_texture_size)
             texels = compute_texel_visibility(ctx.tracer, scene, product, layout, pages, samples=p.samples,
                                               seed=p.seed, margin=p.margin, denoise=p.denoise, chunks=ctx.chunks)
             stats["texels"] = float(texels.count)

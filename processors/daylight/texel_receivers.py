@@ -18,13 +18,16 @@ triangles too small to own a texel).
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from ...core.chunks import SceneChunks
 from ...core.scene import Scene
 from ...kernels.lightmap_bake import TEXEL_INSET, TexelSamples, lightmap_records, page_image, texture_record
-from ...kernels.lightmap_layout import LightmapLayout
+from ...kernels.lightmap_layout import LightmapError, LightmapLayout
 from .glazing import GlassPanes
+from .interreflection import grey
 from .patch_visibility import PAIRS_PER_BATCH, visibility_pass_chunk
 from .products import SkyVisibilityProduct, TexelReceivers
 
@@ -64,6 +67,39 @@ def texel_lightmaps(scene: Scene, receivers: TexelReceivers, channel: str, value
     colours = {1: "r", 3: "rgb"}.get(values.shape[1], "r")
     return records + lightmap_records(scene, receivers.layout, channel, files, channels=colours, units=units,
                                       with_uvs=with_uvs, time=time)
+
+
+def daylight_texel_bytes(texels: int, patches: int, channels: int) -> int:
+    """Bytes the daylight chain holds per bake for ``texels`` texels: per texel and patch, V (one byte, and a
+    float copy while daylight relights) and the indirect coefficients (a float per colour channel)."""
+    return int(texels) * int(patches) * (1 + 4 + 4 * int(channels))
+
+
+def memory_budget() -> int:
+    """Bytes the texels' coefficients may take: half the machine's physical memory."""
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2
+
+
+def check_texel_memory(scene: Scene, pages: list[TexelSamples], patches: int, *, density: float, max_size: int,
+                       budget: int | None = None) -> None:
+    """Refuse, before any ray, a texture target whose texels' daylight coefficients would not fit
+    ``budget`` (default ``memory_budget``): a LightmapError naming the meshes with the most texels (a ground
+    plane of 200 m at 32 texels/m is a 4096^2 page: 17M texels, tens of GB of coefficients) and what to change."""
+    budget = memory_budget() if budget is None else budget
+    owners = np.concatenate([scene.tri_prim[page.triangle] for page in pages]) if pages else np.zeros(0, np.int64)
+    channels = 1 if grey(scene.tri_albedo) else 3
+    needed = daylight_texel_bytes(len(owners), patches, channels)
+    if needed <= budget:
+        return
+    counts = np.bincount(owners, minlength=len(scene.prim_paths))
+    largest = ", ".join(f"{scene.prim_paths[prim]} {counts[prim]:,}" for prim in np.argsort(-counts)[:3]
+                        if counts[prim])
+    raise LightmapError(scene.source or "the stage", "", (
+        f"the daylight texture target's {len(owners):,} texels would hold {needed / 2**30:.1f} GB of daylight "
+        f"coefficients ({patches} patches, {channels} colour channel{'s' * (channels > 1)}), more than half "
+        f"this machine's memory ({budget / 2**30:.1f} GB); the most texels: {largest}. Mark backdrops such as a "
+        f"ground plane bake:skip, or lower sky_visibility.texel_density ({density:g}) or max_texture_size "
+        f"({max_size})"))
 
 
 def compute_texel_visibility(tracer, scene: Scene, product: SkyVisibilityProduct, layout: LightmapLayout,

@@ -181,3 +181,21 @@ def test_a_daylight_per_time_is_listed_and_read_at_its_time(tmp_path):
     morning, afternoon = (read_lightmap(stage, "/World/Floor", "daylightIrradiance", time) for time in (0.0, 1.0))
     assert morning.file != afternoon.file  # the sun moved: another page
     assert read_lightmap(stage, "/World/Floor", "daylightIrradiance").file == morning.file  # no time: the first
+
+
+def test_texels_beyond_the_memory_budget_are_refused_before_any_ray(tmp_path):
+    from usdbake.geometry.mesh import receiver_prims, vertex_normals
+    from usdbake.kernels.lightmap_bake import texel_samples
+    from usdbake.kernels.lightmap_layout import LightmapError, lightmap_layout
+    from usdbake.processors.daylight.texel_receivers import check_texel_memory, daylight_texel_bytes
+    from usdbake.stages.extract import extract_scene
+
+    scene = extract_scene(floor_and_wall(tmp_path, 1.0, 0.5, 0.5))
+    layout = lightmap_layout(scene, receiver_prims(scene), density=32.0, max_size=4096)
+    pages = texel_samples(scene, layout, vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals,
+                                                        scene.tri_areas))
+    needed = daylight_texel_bytes(32 * 32, 256, 1)  # the grey floor's 1024 texels
+    check_texel_memory(scene, pages, 256, density=32.0, max_size=4096, budget=needed)
+    with pytest.raises(LightmapError, match=r"1,024 texels would hold .* /World/Floor 1,024.*bake:skip.*"
+                                            r"texel_density \(32\)"):
+        check_texel_memory(scene, pages, 256, density=32.0, max_size=4096, budget=needed - 1)
