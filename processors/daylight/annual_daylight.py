@@ -65,7 +65,7 @@ from .interreflection import SUN_PATCHES, horizontal_cosines
 from .sky_matrix import perez_sky_matrix
 from ...kernels.solar import day_of_year, sun_position
 from .sun_visibility import sun_bin_hits, sun_bins, sun_levels
-from .texel_receivers import texel_lightmaps
+from .texel_receivers import receiver_sets, texel_lightmaps
 
 REPORT_PRIM = "/usdbake/AnnualDaylight"
 REPORT_FILE = "annual_daylight.json"
@@ -325,9 +325,7 @@ class AnnualDaylight(Processor):
         product = ctx.products[SkyVisibilityProduct]
         weather = getattr(self, "weather", None) or read_weather(p.weather)
         inter = ctx.products[InterreflectionProduct]
-        receivers = [(product, inter)] if product.mesh_written else []
-        if product.texels is not None:
-            receivers.append((product.texels.view, inter.texels))
+        receivers = receiver_sets(product, inter)
         computed = []
         for index, (faces, bounced) in enumerate(receivers):  # the refined faces, the lightmap texels, or both
             metrics, stats = compute_annual_daylight(

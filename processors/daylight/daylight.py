@@ -59,7 +59,7 @@ from ...kernels.solar import SunPosition, day_of_year, horizontal_position, pars
 from .glazing import scene_glazing
 from .interreflection import ground_radiance, sun_patch_weights
 from .sun_visibility import SunFaces, sun_bin_hits, sun_levels
-from .texel_receivers import texel_lightmaps
+from .texel_receivers import receiver_sets, texel_lightmaps
 
 wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
@@ -407,9 +407,7 @@ class Daylight(Processor):
         except ValueError as error:
             raise ParamError(f"times={p.times!r}: {error}") from None
         inter = ctx.products[InterreflectionProduct]
-        receivers = [(product, inter)] if product.mesh_written else []
-        if product.texels is not None:
-            receivers.append((product.texels.view, inter.texels))
+        receivers = receiver_sets(product, inter)
         computed = []
         for index, (faces, bounced) in enumerate(receivers):  # the refined faces, the lightmap texels, or both
             computed.append(compute_daylight(

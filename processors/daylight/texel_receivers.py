@@ -32,6 +32,15 @@ from .patch_visibility import PAIRS_PER_BATCH, visibility_pass_chunk
 from .products import SkyVisibilityProduct, TexelReceivers
 
 
+def receiver_sets(product: SkyVisibilityProduct, interreflection) -> list[tuple]:
+    """[(faces, their interreflection product)] the relighting processors evaluate: the refined faces when they
+    are written (target vertex or both), then the lightmap texels when there are any (texture or both)."""
+    sets = [(product, interreflection)] if product.mesh_written else []
+    if product.texels is not None:
+        sets.append((product.texels.view, interreflection.texels))
+    return sets
+
+
 def texel_faces(scene: Scene, layout: LightmapLayout, pages: list[TexelSamples]
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The texels of ``pages`` as faces (module docstring): (T, 3, 3) float64 inset corners, (T, 3) float32
