@@ -26,8 +26,10 @@ _REVERSED = np.array([2, 1, 0])
 
 
 def refine_scene(scene: Scene, points: np.ndarray, point_source: np.ndarray, triangles: np.ndarray,
-                 source: np.ndarray, weights: np.ndarray) -> tuple[Scene, list[RefinedMesh]]:
-    """The refined Scene and one RefinedMesh record per prim that has refined faces.
+                 source: np.ndarray, weights: np.ndarray, *, with_sources: bool = False) -> tuple:
+    """The refined Scene and one RefinedMesh record per prim that has refined faces; ``with_sources``: also
+    the Scene triangle each refined Scene triangle lies in ((T',) int64) and its corners' barycentric
+    coordinates there ((T', 3, 3) float64), to carry what was laid out on the refined Scene back to the input's.
 
     Parameters
     ----------
@@ -101,6 +103,9 @@ def refine_scene(scene: Scene, points: np.ndarray, point_source: np.ndarray, tri
         prim_corner_count=np.array(corner_count, np.int64),
         lights=_stored_lights(scene.lights),
     )
+    if with_sources:
+        corner_weights = np.concatenate(parts["weights"]) if parts["weights"] else np.zeros((0, 3, 3))
+        return refined, records, all_source, np.asarray(corner_weights, np.float64)
     return refined, records
 
 

@@ -314,25 +314,32 @@ class SkyVisibility(Processor):
             min_area=p.min_area, max_level=p.max_level, max_face_area=p.max_face_area, size_reference=p.size_reference,
             max_triangles=p.max_triangles, seed=p.seed,
             criterion=p.criterion, progress=ctx.progress, chunks=ctx.chunks)
+        result = Result(stats=stats)
+        refined = None
+        if p.target in ("vertex", "both"):
+            refined = refine_scene(scene, product.face_points, product.point_source, product.face_vertices,
+                                   product.face_source, product.face_corner_weights, with_sources=True)
+            self._mesh_outputs(scene, product, refined[0], refined[1], result)
         texels = None
-        if p.target in ("texture", "both"):
-            layout = lightmap_layout(scene, product.prims, density=p.texel_density, max_size=p.max_texture_size,
-                                     device=ctx.device)
-            pages = texel_samples(scene, layout, vertex_normals(scene.points, scene.tri_vertices, scene.tri_normals,
-                                                                scene.tri_areas), ctx.device)
-            check_texel_memory(scene, pages, len(patches), density=p.texel_density, max_size=p.max_texture_size)
-            texels = compute_texel_visibility(ctx.tracer, scene, product, layout, pages, samples=p.samples,
-                                              seed=p.seed, margin=p.margin, denoise=p.denoise, chunks=ctx.chunks)
+        if p.target in ("texture", "both"):  # with both, on the refined meshes: their UVs fit the meshes written
+            laid_out_on = refined[0] if refined is not None else scene
+            layout = lightmap_layout(laid_out_on, product.prims, density=p.texel_density,
+                                     max_size=p.max_texture_size, device=ctx.device)
+            pages = texel_samples(laid_out_on, layout, vertex_normals(
+                laid_out_on.points, laid_out_on.tri_vertices, laid_out_on.tri_normals, laid_out_on.tri_areas),
+                ctx.device)
+            check_texel_memory(laid_out_on, pages, len(patches), density=p.texel_density,
+                               max_size=p.max_texture_size)
+            texels = compute_texel_visibility(
+                ctx.tracer, scene, product, layout, pages, samples=p.samples, seed=p.seed, margin=p.margin,
+                denoise=p.denoise, chunks=ctx.chunks,
+                refined=(refined[0], refined[2], refined[3]) if refined is not None else None)
             stats["texels"] = float(texels.count)
             stats["rays"] += float(traced_rays(texels.view.face_normals, patches, product.to_world, p.samples))
-        product = replace(product, texels=texels, mesh_written=p.target != "texture")
-        result = Result(products={SkyVisibilityProduct: product}, stats=stats)
-        if texels is not None:
             result.outputs += texel_lightmaps(scene, texels, "skyExposure", texels.view.exposure, units="fraction",
                                               unit_range=True, with_uvs=True)
             result.messages += layout_messages(scene, texels.layout, p.texel_density)
-        if product.mesh_written:
-            self._mesh_outputs(scene, product, result)
+        result.products[SkyVisibilityProduct] = replace(product, texels=texels, mesh_written=refined is not None)
         ctx.progress(1.0)
         skipped = int((~scene.prim_writable).sum())
         if skipped:
@@ -342,10 +349,9 @@ class SkyVisibility(Processor):
         return result
 
     @staticmethod
-    def _mesh_outputs(scene: Scene, product: SkyVisibilityProduct, result: Result) -> None:
+    def _mesh_outputs(scene: Scene, product: SkyVisibilityProduct, refined: Scene, meshes: list,
+                      result: Result) -> None:
         """The vertex target: the refined meshes (the RefinedScene product) and their per-face V and exposure."""
-        refined, meshes = refine_scene(scene, product.face_points, product.point_source, product.face_vertices,
-                                       product.face_source, product.face_corner_weights)
         result.products[RefinedScene] = RefinedScene(refined, product.prims.astype(np.int32))
         result.outputs += list(meshes)
         patches = product.patches

@@ -6,9 +6,10 @@ its point x of its owning triangle abc. The daylight chain works on faces (V_ij 
 from random points of it), so a texel enters it as a face: the owning triangle shrunk about x by
 ``TEXEL_INSET``, x + s (abc - x). Every point of that face lies within s of x, inside the owning triangle and
 towards its interior (as radiosity's texel points are inset), so each visibility factor, gather ray and sun ray
-of the texel starts at x to within 1e-3 of the triangle's size, with the owning triangle's ray-origin rule
-(``triangle_origin``: near its edges, off them towards its centroid) and its face normal, as the per-face
-path has. The texels then run through the same kernels and relighting as the refined faces: a
+of the texel starts at x to within 1e-3 of the triangle's size, along its face normal as the per-face path's.
+The face is that small, so ``triangle_origin`` always takes its careful branch (``surface_origin`` with the
+tangent towards the triangle's centroid): near the owning triangle's edges that is the rule its own points
+follow, and elsewhere it adds only a tangential step of the tracer's epsilon. The texels then run through the same kernels and relighting as the refined faces: a
 ``SkyVisibilityProduct`` whose faces are texels (``TexelReceivers.view``).
 
 Their area, the weight of a texel in area-weighted metrics (sDA, ASE), is its share of the surface: its owning
@@ -68,7 +69,7 @@ def texel_lightmaps(scene: Scene, receivers: TexelReceivers, channel: str, value
     values = np.asarray(values, np.float32).reshape(receivers.count, -1)
     records, files = [], []
     for page, rows in zip(receivers.pages, receivers.page_slices()):
-        meshes = scene.tri_prim[page.triangle] if receivers.denoise else None
+        meshes = receivers.view.face_prim[rows] if receivers.denoise else None
         image = page_image(page, values[rows], receivers.margin, denoise_meshes=meshes, hdr=not unit_range)
         texture = texture_record(f"{name or channel}_lightmap_{page.page}", image, eight_bit_range=unit_range)
         records.append(texture)
@@ -113,12 +114,21 @@ def check_texel_memory(scene: Scene, pages: list[TexelSamples], patches: int, *,
 
 def compute_texel_visibility(tracer, scene: Scene, product: SkyVisibilityProduct, layout: LightmapLayout,
                              pages: list[TexelSamples], *, samples: int, seed: int, margin: int, denoise: bool,
-                             chunks=None, progress=lambda f: None) -> TexelReceivers:
+                             refined: tuple | None = None, chunks=None, progress=lambda f: None) -> TexelReceivers:
     """Sky visibility factors V_ij and exposure of every texel of ``pages`` (Bosch, Besuievsky & Martin,
     Sec. 4.1, as ``sky_visibility`` computes them per face: ``visibility_pass_chunk`` on the texels' inset
-    faces), for ``product``'s patch layout, as the receivers the rest of the daylight chain relights."""
+    faces), for ``product``'s patch layout, as the receivers the rest of the daylight chain relights.
+
+    ``refined``: (refined Scene, source triangle and corner weights of each of its triangles) when the layout
+    was made on the refined meshes (target both: the lightmap UVs must fit the meshes as written); the
+    texels' triangles and weights are then carried back to ``scene``'s, which the rest of the chain reads."""
     chunks = chunks if chunks is not None else SceneChunks(tracer)
-    corners, normals, areas, triangle, weights = texel_faces(scene, layout, pages)
+    laid_out_on = refined[0] if refined is not None else scene
+    corners, normals, areas, triangle, weights = texel_faces(laid_out_on, layout, pages)
+    if refined is not None:
+        _, tri_source, tri_weights = refined
+        weights = np.einsum("tik,tkj->tij", weights, tri_weights[triangle])
+        triangle = tri_source[triangle]
     count, n_patch = len(triangle), len(product.patches)
     quantized = np.zeros((count, n_patch), np.uint8)
     exposure = np.zeros(count, np.float64)

@@ -199,3 +199,20 @@ def test_texels_beyond_the_memory_budget_are_refused_before_any_ray(tmp_path):
     with pytest.raises(LightmapError, match=r"1,024 texels would hold .* /World/Floor 1,024.*bake:skip.*"
                                             r"texel_density \(32\)"):
         check_texel_memory(scene, pages, 256, density=32.0, max_size=4096, budget=needed - 1)
+
+
+def test_both_targets_lay_generated_uvs_on_the_refined_mesh(tmp_path):
+    """A mesh without UVs that sky_visibility refines: its generated lightmap UVs are laid out on the refined
+    faces it writes (one per refined face corner), and the texels still bake the open sky."""
+    stage = new_stage(up_axis="Z", meters_per_unit=1.0)
+    add_mesh(stage, "/World/Plane", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [4], [0, 1, 2, 3])
+    path = tmp_path / "plane.usda"
+    stage.GetRootLayer().Export(str(path))
+    stage = Usd.Stage.Open(str(path))
+    usdbake.bake(stage, "sky_visibility", target="both", texture_dir=str(tmp_path))
+    plane = stage.GetPrimAtPath("/World/Plane")
+    faces = len(plane.GetAttribute("faceVertexCounts").Get())
+    assert faces > 2  # refined (large faces are split before tracing)
+    uvs = plane.GetAttribute("primvars:bake:lightmapST")
+    assert uvs.GetMetadata("interpolation") == "faceVarying" and len(uvs.Get()) == 3 * faces
+    np.testing.assert_allclose(lightmap(stage, "/World/Plane", "skyExposure")[:, :, 0], 1.0, atol=0.01)
