@@ -193,7 +193,7 @@ TARGETS = [
      "daylight_lightmaps", "room_seam_rms_over_pair_noise", "<=", 1.2),
     ("Lightmaps (daylight): composed meshes identical to the input's after target=texture (1 = yes)",
      "daylight_lightmaps", "meshes_identical", ">=", 1),
-    ("Lightmaps (daylight): irradiance lightmap vs Radiance (-ab 6), median |relative error| at 150 points, glazed "
+    ("Lightmaps (daylight): irradiance lightmap vs Radiance (-ab 6), median absolute relative error at 150 points, glazed "
      "room (report; the refined faces' of the same bake: room_faces_median_abs_error)", "daylight_lightmaps",
      "room_texels_median_abs_error", ">=", 0.0),
     # Issue 28 (technique packages): checked by tests/test_import_rules.py and counted by hand so far
