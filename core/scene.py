@@ -198,6 +198,9 @@ class Scene:
     finite; 0 where it has none (the default)."""
     prim_lightmap_uv: tuple[str, ...] | None = None
     """Per prim: the primvar ``tri_lightmap_uv`` was read from ('st1', ...), '' when none."""
+    prim_subset_surfaces: tuple[tuple[tuple[str, str], ...], ...] | None = None
+    """Per prim: (GeomSubset path, its bound UsdPreviewSurface shader path) of each material-bound GeomSubset
+    whose material has one; None for a Scene not read from USD (the default)."""
     prim_corner_count: np.ndarray | None = None
     """(prims,) int64 face-vertex slots of each prim (len(faceVertexIndices)): the length of its faceVarying
     primvars; by default one past the largest slot its triangles use."""
@@ -269,7 +272,7 @@ FACETS: dict[str, tuple[str, ...]] = {
         "point_prim", "prim_paths", "prim_point_start", "prim_writable", "prim_skip", "prim_instance_roots",
         "origin", "up_axis", "meters_per_unit", "prim_to_world", "probe_volumes",
     ),
-    "materials": ("tri_albedo", "tri_emission", "tri_transmittance", "prim_surface"),
+    "materials": ("tri_albedo", "tri_emission", "tri_transmittance", "prim_surface", "prim_subset_surfaces"),
     "lights": (
         "lights.light_paths", "lights.light_kind", "lights.light_radiance",
         "lights.light_position", "lights.light_direction", "lights.light_size", "lights.dome_texture",

@@ -129,6 +129,7 @@ def _assemble(stage, builder: SceneBuilder, light_prims, volume_prims, instances
         prim_skip=np.array([m.skip for m in meshes], bool),
         prim_instance_roots=tuple(builder.instance_roots),
         prim_surface=tuple(m.surface for m in meshes),
+        prim_subset_surfaces=tuple(m.subset_surfaces for m in meshes),
         tri_st=cat(st_parts, (0, 3, 2), np.float32), prim_st=tuple(m.st_name for m in meshes),
         tri_lightmap_uv=cat(lightmap_parts, (0, 3, 2), np.float32),
         prim_lightmap_uv=tuple(m.lightmap_uv_name for m in meshes),

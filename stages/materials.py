@@ -75,6 +75,17 @@ class MaterialReader:
                 surface = path
         return np.clip(albedo, 0.0, 1.0), np.maximum(emission, 0.0), surface
 
+    def subset_surfaces(self, prim: Usd.Prim) -> tuple[tuple[str, str], ...]:
+        """(GeomSubset path, its bound UsdPreviewSurface shader path) of each material-bound GeomSubset of the
+        prim whose material has one: where a texture the bake wires into the prim's surface must also go."""
+        out = []
+        for subset in UsdShade.MaterialBindingAPI.GetMaterialBindSubsets(UsdShade.MaterialBindingAPI(prim)):
+            material, _ = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()
+            surface = self._shading(material)[2] if material else ""
+            if surface:
+                out.append((str(subset.GetPath()), surface))
+        return tuple(out)
+
     def _bindings(self, prim: Usd.Prim, face_count: int):
         """(material, faces) of the prim's own binding (faces: a slice of all) then of each GeomSubset bound to
         a material (faces: its valid indices), in the order a later one overrides an earlier one."""

@@ -34,6 +34,7 @@ class LocalMesh:
     double_sided: bool
     skip: bool
     surface: str
+    subset_surfaces: tuple = ()  # ((GeomSubset path, its UsdPreviewSurface path), ...) of material-bound subsets
     st_name: str = ""           # the main UV set's primvar (stages.uv_sets.ST_NAMES), "" when none
     tri_st: np.ndarray | None = None  # (T, 3, 2) float32 its UV per triangle corner
     lightmap_uv_name: str = ""  # a dedicated lightmap UV set (stages.uv_sets.LIGHTMAP_NAMES), "" when none
@@ -96,7 +97,8 @@ def read_mesh(prim: Usd.Prim, timecode: Usd.TimeCode, materials: "MaterialReader
         tri_albedo=albedo[tri_face], tri_emission=emission[tri_face], tri_transmittance=transmittance[tri_face],
         left_handed=mesh.GetOrientationAttr().Get(timecode) == UsdGeom.Tokens.leftHanded,
         double_sided=bool(mesh.GetDoubleSidedAttr().Get(timecode)),
-        skip=bool(skip_attr and skip_attr.Get(timecode)), surface=surface, st_name=st_name, tri_st=tri_st,
+        skip=bool(skip_attr and skip_attr.Get(timecode)), surface=surface,
+        subset_surfaces=materials.subset_surfaces(prim), st_name=st_name, tri_st=tri_st,
         lightmap_uv_name=lightmap_uv_name, tri_lightmap_uv=tri_lightmap_uv,
     )
 

@@ -363,7 +363,7 @@ class AmbientOcclusion(Processor):
 def occlusion_network(scene: Scene, receivers: np.ndarray) -> list:
     """Records for a UsdPrimvarReader_float reading bake:ao into each bound surface's inputs:occlusion."""
     records: list = []
-    surfaces = sorted({scene.prim_surface[prim] for prim in receivers} - {""})
+    surfaces = sorted({surface for prim in receivers for _, surface in bound_surfaces(scene, prim)})
     for surface in surfaces:
         reader = surface.rsplit("/", 1)[0] + "/bakeAoReader"
         records += [
@@ -384,28 +384,36 @@ def occlusion_texture_network(scene: Scene, layout, files: list[str]) -> tuple[l
     A material whose meshes all share one page and UV set is wired where it is. One bound to meshes on
     several pages (or UV sets) gets a variant per page, a sibling ``<material>_bakeAo<k>`` that references it
     (so it is the same material but for the occlusion input), and those meshes are bound to their variant
-    in the bake layer. Bindings of GeomSubsets are left alone."""
+    in the bake layer. Materials bound to a mesh's GeomSubsets are wired alike (a variant is then bound to
+    the subset)."""
     records: list = []
     notes: list[str] = []
-    by_surface: dict[str, dict[tuple[str, str], list[int]]] = {}
+    by_surface: dict[str, dict[tuple[str, str], list[str]]] = {}
     for mesh in layout.meshes:
-        surface = scene.prim_surface[mesh.prim]
-        if surface:
-            by_surface.setdefault(surface, {}).setdefault((files[mesh.page], mesh.uv_name), []).append(mesh.prim)
+        for target, surface in bound_surfaces(scene, mesh.prim):
+            by_surface.setdefault(surface, {}).setdefault((files[mesh.page], mesh.uv_name), []).append(target)
     for surface, uses in sorted(by_surface.items()):
         material, shader = surface.rsplit("/", 1)
         if len(uses) == 1:
             (file, uv_name), = uses
             records += _occlusion_shaders(material, f"{material}/{shader}", file, uv_name)
             continue
-        for k, ((file, uv_name), prims) in enumerate(sorted(uses.items())):
+        for k, ((file, uv_name), targets) in enumerate(sorted(uses.items())):
             variant = f"{material}_bakeAo{k}"
             records.append(Prim(variant, "Material", references=(material,)))
             records += _occlusion_shaders(variant, f"{variant}/{shader}", file, uv_name)
-            records += [Relationship(scene.prim_paths[prim], "material:binding", (variant,)) for prim in prims]
+            records += [Relationship(target, "material:binding", (variant,)) for target in sorted(set(targets))]
         notes.append(f"{material}: bound to meshes on {len(uses)} AO lightmaps: one variant each "
-                     f"({material}_bakeAo0..{len(uses) - 1}, referencing it), those meshes bound to theirs")
+                     f"({material}_bakeAo0..{len(uses) - 1}, referencing it), those meshes (or subsets) bound to "
+                     f"theirs")
     return records, notes
+
+
+def bound_surfaces(scene: Scene, prim: int) -> list[tuple[str, str]]:
+    """(binding prim, UsdPreviewSurface path) of each material bound to the mesh: its own binding, then its
+    material-bound GeomSubsets'."""
+    out = [(scene.prim_paths[prim], scene.prim_surface[prim])] if scene.prim_surface[prim] else []
+    return out + list(scene.prim_subset_surfaces[prim] if scene.prim_subset_surfaces is not None else ())
 
 
 def _occlusion_shaders(material: str, surface: str, file: str, uv_name: str) -> list:

@@ -209,6 +209,45 @@ def test_a_material_shared_by_meshes_on_different_pages_gets_a_variant_each(tmp_
     assert not original.GetInput("occlusion")  # the authored material is left as it was
 
 
+def test_materials_bound_to_geom_subsets_are_wired_too(tmp_path):
+    """A slab of two faces on its own st, each face a GeomSubset bound to its own material (Oak, Paint), and a
+    tile without UVs (a generated page) bound to Oak: Paint is wired in place, Oak gets a variant per page, and
+    the Left subset is bound to the slab's."""
+    stage = new_stage(up_axis="Y", meters_per_unit=1.0)
+    oak = add_preview_material(stage, "/World/Looks/Oak", diffuse=(0.5, 0.35, 0.2))
+    paint = add_preview_material(stage, "/World/Looks/Paint", diffuse=(0.8, 0.8, 0.8))
+    slab = add_mesh(stage, "/World/Slab", [(0, 0, 0), (0, 0, 1), (1, 0, 1), (1, 0, 0), (2, 0, 1), (2, 0, 0)],
+                    [4, 4], [0, 1, 2, 3, 3, 2, 4, 5])
+    UsdGeom.PrimvarsAPI(slab).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying).Set(
+        [(0, 0), (0, 1), (0.5, 1), (0.5, 0), (0.5, 0), (0.5, 1), (1, 1), (1, 0)])
+    binding = UsdShade.MaterialBindingAPI.Apply(slab.GetPrim())
+    for name, face, look in (("Left", 0, oak), ("Right", 1, paint)):
+        subset = binding.CreateMaterialBindSubset(name, [face], UsdGeom.Tokens.face)
+        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(look)
+    tile = add_mesh(stage, "/World/Tile", [(3, 0, 0), (3, 0, 1), (4, 0, 1), (4, 0, 0)], [4], [0, 1, 2, 3])
+    bind(tile.GetPrim(), oak)
+    path = tmp_path / "subsets.usda"
+    stage.GetRootLayer().Export(str(path))
+    stage = Usd.Stage.Open(str(path))
+    usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 4}}, target="texture",
+                 texture_dir=str(tmp_path))
+
+    def occlusion_file(material):
+        surface = material.ComputeSurfaceSource()[0]
+        texture = surface.GetInput("occlusion").GetConnectedSources()[0][0].source.GetPrim()
+        return texture.GetAttribute("inputs:file").Get().resolvedPath
+
+    slab_file = stage.GetPrimAtPath("/World/Slab").GetAttribute("bake:lightmap:ao:file").Get().resolvedPath
+    tile_file = stage.GetPrimAtPath("/World/Tile").GetAttribute("bake:lightmap:ao:file").Get().resolvedPath
+    assert slab_file != tile_file
+    left, _ = UsdShade.MaterialBindingAPI(stage.GetPrimAtPath("/World/Slab/Left")).ComputeBoundMaterial()
+    assert str(left.GetPath()).startswith("/World/Looks/Oak_bakeAo") and occlusion_file(left) == slab_file
+    right, _ = UsdShade.MaterialBindingAPI(stage.GetPrimAtPath("/World/Slab/Right")).ComputeBoundMaterial()
+    assert str(right.GetPath()) == "/World/Looks/Paint" and occlusion_file(right) == slab_file
+    on_tile, _ = UsdShade.MaterialBindingAPI(stage.GetPrimAtPath("/World/Tile")).ComputeBoundMaterial()
+    assert on_tile.GetPath() != left.GetPath() and occlusion_file(on_tile) == tile_file
+
+
 def test_texels_on_either_side_of_a_uv_seam_agree_within_noise():
     """A smooth sphere resting on a floor, charted by xatlas: texel pairs of different charts that sit at one
     world point with one normal differ by no more than two independent estimates do."""
