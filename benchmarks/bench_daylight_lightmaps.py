@@ -16,7 +16,11 @@ Figures:
   ``target=both``: the irradiance lightmap read back from the files (bilinear, through the
   mesh's lightmap UVs) at the 150 random surface points of Radiance's cached rtrace -ab 6 reference, its median
   |relative error| beside the refined faces' of the same bake; the composed meshes of a ``target=texture`` bake
-  byte-identical to the input's; the bake times of both targets and the texel count.
+  byte-identical to the input's; the bake times of both targets and the texel count;
+- the LM-83 office (bench_daylight_bounces' stage) baked by ``annual_daylight`` with ``target=both``: mean
+  occupied illuminance and daylight factor read from its lightmaps at the 170 floor sensors against Radiance's
+  cached two-phase reference (rcontrib -ab 6), and sDA over the sensors, beside the refined faces' of the same
+  bake.
 Quick mode (the smoke run): the room's exposure at 8 texels/m with a 1024-ray reference when Embree is there.
 """
 
@@ -67,29 +71,33 @@ def texel_exposure(scene, density: float, seeds=(0, 1)):
 
 
 def exposure_accuracy(label: str, scene, density: float, rays: int, seed: int) -> dict:
-    """Sky exposure at interior texels against Embree (module docstring)."""
+    """Sky exposure at interior texels against Embree, and across seams (module docstring); without Embree (a
+    bench extra, ".[bench]") the texel count, time, noise and seams only."""
     page, (ours, other), seconds = texel_exposure(scene, density)
     candidates = interior(page)
     chosen = np.random.default_rng(seed).choice(candidates, min(TEXELS_CHECKED, len(candidates)), replace=False)
-    faces = scene.tri_normals[page.triangle[chosen]]
-    reference = harness.cached_reference(
-        f"daylight_lightmap_exposure_{label}", {"rays": rays, "texels": len(chosen), "density": density,
-                                                 "seed": seed, "triangles": scene.num_triangles, "version": 1},
-        lambda: {"exposure": embree_ao(scene, page.points[chosen], faces, faces, rays, seed=seed + 1,
-                                       up=scene.up_vector)})["exposure"]
     noise = math.sqrt(np.mean((ours[chosen] - other[chosen]) ** 2) / 2)
-    rms = math.sqrt(np.mean((ours[chosen] - reference) ** 2))
-    allowed = math.sqrt(noise ** 2 + float(np.mean(reference * (1 - reference))) / rays)
     figures = {f"{label}_texels": int(len(page.texel)), f"{label}_exposure_seconds": round(seconds, 2),
-               f"{label}_exposure_rms": round(rms, 5), f"{label}_exposure_noise": round(noise, 5),
-               f"{label}_exposure_bias": round(float(np.mean(ours[chosen] - reference)), 5),
-               f"{label}_exposure_rms_over_noise": round(rms / allowed, 3)}
+               f"{label}_exposure_noise": round(noise, 5)}
     pairs = seam_pairs(page, density)
     if len(pairs):
         difference = math.sqrt(np.mean((ours[pairs[:, 0]] - ours[pairs[:, 1]]) ** 2))
         pair_noise = math.sqrt(np.mean((ours[pairs].ravel() - other[pairs].ravel()) ** 2) / 2)
         figures[f"{label}_seam_pairs"] = int(len(pairs))
         figures[f"{label}_seam_rms_over_pair_noise"] = round(difference / (math.sqrt(2) * pair_noise), 3)
+    if not has_embree():
+        return figures
+    faces = scene.tri_normals[page.triangle[chosen]]
+    reference = harness.cached_reference(
+        f"daylight_lightmap_exposure_{label}", {"rays": rays, "texels": len(chosen), "density": density,
+                                                 "seed": seed, "triangles": scene.num_triangles, "version": 1},
+        lambda: {"exposure": embree_ao(scene, page.points[chosen], faces, faces, rays, seed=seed + 1,
+                                       up=scene.up_vector)})["exposure"]
+    rms = math.sqrt(np.mean((ours[chosen] - reference) ** 2))
+    allowed = math.sqrt(noise ** 2 + float(np.mean(reference * (1 - reference))) / rays)
+    figures.update({f"{label}_exposure_rms": round(rms, 5),
+                    f"{label}_exposure_bias": round(float(np.mean(ours[chosen] - reference)), 5),
+                    f"{label}_exposure_rms_over_noise": round(rms / allowed, 3)})
     return figures
 
 
@@ -144,6 +152,48 @@ def radiance_figures() -> dict:
     return figures
 
 
+def office_annual_figures() -> dict:
+    """The LM-83 office's annual metrics from its lightmaps against Radiance's two-phase reference at the 170
+    floor sensors, beside the refined faces' of the same ``target=both`` bake (Greensboro TMY3, occupied 8-18 h)."""
+    import usdbake
+
+    from .bench_annual_daylight import tmy3
+    from .daylight_references import office_reference
+    from .daylight_scenes import lm83_office
+    from .radiance_sky import cie_overcast_sky
+    from .stage_readback import sample_baked, sample_lightmap
+
+    scene = lm83_office()
+    reference = office_reference(scene)
+    hours = reference["times"]
+    hour = (hours - hours.astype("datetime64[D]")).astype(np.float64) / 60.0
+    hourly = reference["illuminance"][(hour >= 8.0) & (hour < 18.0)]
+    overcast, horizontal = cie_overcast_sky(4, ground_reflectance=0.2)
+    theirs = {"meanIlluminance": hourly.mean(axis=0),
+              "daylightFactor": 100.0 * np.einsum("spc,p->sc", reference["dc"], overcast) @ RGB_LUMINANCE
+              / horizontal}
+    figures = {"office_sda_radiance": round(float(((hourly >= 300).mean(axis=0) >= 0.5).mean()), 4)}
+    with tempfile.TemporaryDirectory() as folder:
+        started = time.perf_counter()
+        usdbake.bake(scene.stage, processors=["annual_daylight"], target="both", texture_dir=folder,
+                     params={"annual_daylight": {"weather": str(tmy3()), "sensor_prims": "Floor"}})
+        figures["office_both_seconds"] = round(time.perf_counter() - started, 2)
+        prims = list(scene.sensor_prims)
+        for name in ("meanIlluminance", "daylightFactor", "daylightAutonomy"):
+            at = {"faces": sample_baked(scene.stage, f"bake:{name}", scene.sensor_points, scene.sensor_normals)[:, 0],
+                  "texels": sample_lightmap(scene.stage, name, scene.sensor_points, scene.sensor_normals,
+                                            prims=prims)[:, 0]}
+            for label, ours in at.items():
+                if name == "daylightAutonomy":
+                    figures[f"office_{label}_sda"] = round(float((ours >= 0.5).mean()), 4)
+                    continue
+                error = (ours - theirs[name]) / np.maximum(theirs[name], 1e-9)
+                short = "mean_illuminance" if name == "meanIlluminance" else "df"
+                figures[f"office_{label}_{short}_median_abs_error"] = round(float(np.nanmedian(np.abs(error))), 4)
+                figures[f"office_{label}_{short}_bias"] = round(float(np.nanmedian(error)), 4)
+    return figures
+
+
 def texture_only_figures() -> dict:
     """A ``target=texture`` bake of the glazed room: untouched meshes, time and texels beside ``target=vertex``."""
     import usdbake
@@ -173,23 +223,20 @@ def texture_only_figures() -> dict:
 
 def run(quick: bool = False) -> dict:
     figures: dict = {}
-    rows: list[dict] = []
-    if not has_embree():  # the independent reference is a bench extra (".[bench]")
-        return harness.result(NAME, description=DESCRIPTION, settings={"embree": False}, points=rows,
-                              figures=figures, knob="defaults")
     _, room = room_scene(ROOM_CELL)
     figures.update(exposure_accuracy("room", room, 8.0 if quick else 32.0, 1024 if quick else REFERENCE_RAYS,
                                      seed=41))
-    rows.append({"label": "room exposure", "seconds": figures["room_exposure_seconds"],
-                 "error": figures["room_exposure_rms"], "default": True})
+    rows = [{"label": "room exposure", "seconds": figures["room_exposure_seconds"],
+             "error": figures["room_exposure_rms"], "default": True}] if "room_exposure_rms" in figures else []
     if quick:
-        return harness.result(NAME, description=DESCRIPTION, settings={"quick": True}, points=rows,
-                              figures=figures, knob="defaults", error_label="sky exposure RMS vs Embree")
+        return harness.result(NAME, description=DESCRIPTION, settings={"quick": True, "embree": has_embree()},
+                              points=rows, figures=figures, knob="defaults", error_label="sky exposure RMS vs Embree")
     figures.update(exposure_accuracy("city", city_scene(), 1.0, REFERENCE_RAYS, seed=43))
     from . import radiance_binaries
 
     if radiance_binaries.radiance_available():
         figures.update(radiance_figures())
+        figures.update(office_annual_figures())
     figures.update(texture_only_figures())
     table = harness.markdown_table([figures], [c for c in (
         "room_texels", "room_exposure_rms", "room_exposure_noise", "room_exposure_bias",
@@ -198,6 +245,10 @@ def run(quick: bool = False) -> dict:
     table += "\n\n" + harness.markdown_table([figures], [c for c in (
         "room_faces_median_abs_error", "room_texels_median_abs_error", "room_faces_bias", "room_texels_bias",
         "room_both_seconds", "room_vertex_seconds", "room_texture_seconds", "meshes_identical") if c in figures])
+    table += "\n\n" + harness.markdown_table([figures], [c for c in (
+        "office_faces_mean_illuminance_median_abs_error", "office_texels_mean_illuminance_median_abs_error",
+        "office_faces_df_median_abs_error", "office_texels_df_median_abs_error", "office_faces_sda",
+        "office_texels_sda", "office_sda_radiance", "office_both_seconds") if c in figures])
     return harness.result(NAME, description=DESCRIPTION, settings={"reference_rays": REFERENCE_RAYS,
                                                                    "texels_checked": TEXELS_CHECKED},
                           points=rows, figures=figures, table=table, knob="defaults",
