@@ -179,6 +179,16 @@ def test_command_bakes_lightmaps_and_inspect_lists_them(tmp_path, capsys):
     assert "/World/Tile.bake:lightmap:ao:file" in lightmaps and "/World/Wall.bake:lightmap:ao:file" not in lightmaps
 
 
+def baked_with_few_rays(stage, path):
+    """The in-memory ``stage`` saved to ``path``, opened and baked with AO's texture target at 4 rays a texel
+    (the lightmaps next to it)."""
+    stage.GetRootLayer().Export(str(path))
+    stage = Usd.Stage.Open(str(path))
+    usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 4}}, target="texture",
+                 texture_dir=str(path.parent))
+    return stage
+
+
 def test_a_material_shared_by_meshes_on_different_pages_gets_a_variant_each(tmp_path):
     stage = new_stage(up_axis="Y", meters_per_unit=1.0)
     look = add_preview_material(stage, "/World/Looks/Oak", diffuse=(0.5, 0.35, 0.2))
@@ -188,11 +198,7 @@ def test_a_material_shared_by_meshes_on_different_pages_gets_a_variant_each(tmp_
         UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
                                                 UsdGeom.Tokens.faceVarying).Set([(0, 0), (0, 1), (1, 1), (1, 0)])
         bind(mesh.GetPrim(), look)
-    path = tmp_path / "shared.usda"
-    stage.GetRootLayer().Export(str(path))
-    stage = Usd.Stage.Open(str(path))
-    usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 4}}, target="texture",
-                 texture_dir=str(tmp_path))
+    stage = baked_with_few_rays(stage, tmp_path / "shared.usda")
     files = set()
     for name in ("Left", "Right"):
         prim = stage.GetPrimAtPath(f"/World/{name}")
@@ -226,11 +232,7 @@ def test_materials_bound_to_geom_subsets_are_wired_too(tmp_path):
         UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(look)
     tile = add_mesh(stage, "/World/Tile", [(3, 0, 0), (3, 0, 1), (4, 0, 1), (4, 0, 0)], [4], [0, 1, 2, 3])
     bind(tile.GetPrim(), oak)
-    path = tmp_path / "subsets.usda"
-    stage.GetRootLayer().Export(str(path))
-    stage = Usd.Stage.Open(str(path))
-    usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 4}}, target="texture",
-                 texture_dir=str(tmp_path))
+    stage = baked_with_few_rays(stage, tmp_path / "subsets.usda")
 
     def occlusion_file(material):
         surface = material.ComputeSurfaceSource()[0]
