@@ -16,7 +16,8 @@ Figures:
   ``target=both``: the irradiance lightmap read back from the files (bilinear, through the
   mesh's lightmap UVs) at the 150 random surface points of Radiance's cached rtrace -ab 6 reference, its median
   |relative error| beside the refined faces' of the same bake; the composed meshes of a ``target=texture`` bake
-  byte-identical to the input's; the bake times of both targets and the texel count;
+  byte-identical to the input's; the bake times, layer sizes and peak memory (each bake in a child process,
+  VmHWM) of the vertex and texture targets;
 - the LM-83 office (bench_daylight_bounces' stage) baked by ``annual_daylight`` with ``target=both``: mean
   occupied illuminance and daylight factor read from its lightmaps at the 170 floor sensors against Radiance's
   cached two-phase reference (rcontrib -ab 6), and sDA over the sensors, beside the refined faces' of the same
@@ -26,7 +27,10 @@ Quick mode (the smoke run): the room's exposure at 8 texels/m with a 1024-ray re
 
 from __future__ import annotations
 
+import json
 import math
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -194,30 +198,43 @@ def office_annual_figures() -> dict:
     return figures
 
 
-def texture_only_figures() -> dict:
-    """A ``target=texture`` bake of the glazed room: untouched meshes, time and texels beside ``target=vertex``."""
+def target_bake(target: str) -> dict:
+    """The glazed room's daylight bake (uniform sky) at ``target``, in this process: seconds, bake layer size,
+    whether the composed meshes stayed identical, and the process's peak resident memory (VmHWM, MB)."""
     import usdbake
     from pxr import Usd
 
     from .furnished_daylight_room import room_stage
 
+    stage = room_stage(cell=ROOM_CELL)
+    skip_backdrops(stage)
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "room.usda"
+        stage.GetRootLayer().Export(str(path))
+        stage = Usd.Stage.Open(str(path))
+        before = composed_meshes(stage)
+        started = time.perf_counter()
+        layer = usdbake.bake(stage, processors=["daylight"], params={"daylight": {"sky": "uniform", "sun": False}},
+                             target=target, texture_dir=folder)
+        seconds = time.perf_counter() - started
+        status = Path("/proc/self/status").read_text()
+        peak = int(status.split("VmHWM:")[1].split()[0]) / 1024
+        return {"seconds": round(seconds, 2), "layer_kb": round(len(layer.ExportToString()) / 1024, 1),
+                "meshes_identical": int(composed_meshes(stage) == before), "peak_mb": round(peak, 1)}
+
+
+def texture_only_figures() -> dict:
+    """``target_bake`` for the vertex and the texture target, each in a child process (its own peak memory)."""
     figures = {}
     for target in ("vertex", "texture"):
-        stage = room_stage(cell=ROOM_CELL)
-        skip_backdrops(stage)
-        with tempfile.TemporaryDirectory() as folder:
-            path = Path(folder) / "room.usda"
-            stage.GetRootLayer().Export(str(path))
-            stage = Usd.Stage.Open(str(path))
-            before = composed_meshes(stage)
-            started = time.perf_counter()
-            layer = usdbake.bake(stage, processors=["daylight"], params={"daylight": {"sky": "uniform",
-                                                                                      "sun": False}},
-                                 target=target, texture_dir=folder)
-            figures[f"room_{target}_seconds"] = round(time.perf_counter() - started, 2)
-            if target == "texture":
-                figures["meshes_identical"] = int(composed_meshes(stage) == before)
-            figures[f"room_{target}_layer_kb"] = round(len(layer.ExportToString()) / 1024, 1)
+        code = ("import json\nfrom usdbake.benchmarks.bench_daylight_lightmaps import target_bake\n"
+                f"print(json.dumps(target_bake({target!r})))\n")
+        output = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
+        data = json.loads(output.strip().splitlines()[-1])
+        figures.update({f"room_{target}_seconds": data["seconds"], f"room_{target}_layer_kb": data["layer_kb"],
+                        f"room_{target}_peak_mb": data["peak_mb"]})
+        if target == "texture":
+            figures["meshes_identical"] = data["meshes_identical"]
     return figures
 
 
@@ -244,7 +261,8 @@ def run(quick: bool = False) -> dict:
         "city_exposure_rms_over_noise", "city_seam_rms_over_pair_noise") if c in figures])
     table += "\n\n" + harness.markdown_table([figures], [c for c in (
         "room_faces_median_abs_error", "room_texels_median_abs_error", "room_faces_bias", "room_texels_bias",
-        "room_both_seconds", "room_vertex_seconds", "room_texture_seconds", "meshes_identical") if c in figures])
+        "room_both_seconds", "room_vertex_seconds", "room_texture_seconds", "room_vertex_peak_mb",
+        "room_texture_peak_mb", "meshes_identical") if c in figures])
     table += "\n\n" + harness.markdown_table([figures], [c for c in (
         "office_faces_mean_illuminance_median_abs_error", "office_texels_mean_illuminance_median_abs_error",
         "office_faces_df_median_abs_error", "office_texels_df_median_abs_error", "office_faces_sda",
