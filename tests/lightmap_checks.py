@@ -22,3 +22,15 @@ def read_image(path: str) -> np.ndarray:
     buffer = oiio.ImageBuf(path)
     assert not buffer.has_error, buffer.geterror()
     return buffer.get_pixels(oiio.FLOAT)
+
+
+def saved_and_baked(stage, path, processor: str, params: dict, target: str):
+    """The in-memory ``stage`` saved to ``path``, opened again and baked through the hook with ``target``
+    (lightmaps written next to it); returns the opened stage, which holds the bake layer."""
+    import usdbake
+    from pxr import Usd
+
+    stage.GetRootLayer().Export(str(path))
+    stage = Usd.Stage.Open(str(path))
+    usdbake.bake(stage, processor, params, target=target, texture_dir=str(path.parent))
+    return stage

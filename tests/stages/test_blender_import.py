@@ -171,10 +171,12 @@ def blender_python(tmp_path_factory) -> str:
     return sys.executable
 
 
-def _blender_import(python: str, usd: Path, folder: Path) -> dict:
-    """Import ``usd`` into an empty Blender scene; returns the script's JSON plus the console text."""
-    script = folder / "blender_import_probe.py"
-    script.write_text(BLENDER_SCRIPT)
+def _blender_import(python: str, usd: Path, folder: Path, probe: str = BLENDER_SCRIPT,
+                    name: str = "blender_import_probe.py") -> dict:
+    """Import ``usd`` into an empty Blender scene with the ``probe`` script; returns its JSON plus the console
+    text."""
+    script = folder / name
+    script.write_text(probe)
     out = folder / f"{usd.stem}.blender.json"
     try:
         done = subprocess.run([python, "-I", str(script), str(usd), str(out)], capture_output=True,
@@ -496,17 +498,7 @@ def _control_layer(baked: Path) -> Path:
 
 
 def _run_ao_script(python: str, usd: Path) -> dict:
-    script = usd.parent / "blender_ao_probe.py"
-    script.write_text(AO_BLENDER_SCRIPT)
-    out = usd.with_suffix(".blender.json")
-    done = subprocess.run([python, "-I", str(script), str(usd), str(out)], capture_output=True, text=True,
-                          timeout=BLENDER_TIMEOUT_S, cwd=usd.parent, env=_clean_env(usd.parent))
-    console = f"{done.stdout}\n{done.stderr}"
-    assert done.returncode == 0 and out.exists(), (
-        f"Blender failed to import {usd} (exit status {done.returncode}):\n{console[-4000:]}")
-    report = json.loads(out.read_text())
-    report["console"] = console
-    return report
+    return _blender_import(python, usd, usd.parent, AO_BLENDER_SCRIPT, "blender_ao_probe.py")
 
 
 @pytest.fixture(scope="module")

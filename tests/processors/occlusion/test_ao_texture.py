@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdShade
-from lightmap_checks import composed_meshes, read_image
+from lightmap_checks import composed_meshes, read_image, saved_and_baked
 from stage_builders import add_mesh, add_preview_material, bind, new_stage
 
 import usdbake
@@ -115,11 +115,8 @@ def test_texture_and_vertex_targets_agree_where_vertices_are_dense(tmp_path):
     faces = [(0, 1, 2, 3), (4, 7, 6, 5), (0, 4, 5, 1), (1, 5, 6, 2), (2, 6, 7, 3), (3, 7, 4, 0)]
     cube = add_mesh(stage, "/World/Box", box, [4] * 6, [k for f in faces for k in f])
     cube.GetPrim().CreateAttribute("bake:skip", Sdf.ValueTypeNames.Bool).Set(True)
-    path = tmp_path / "dense.usda"
-    stage.GetRootLayer().Export(str(path))
-    stage = Usd.Stage.Open(str(path))
-    usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 1024, "texel_density": 64.0}},
-                 target="both", texture_dir=str(tmp_path))
+    stage = saved_and_baked(stage, tmp_path / "dense.usda", "ambient_occlusion",
+                            {"ambient_occlusion": {"samples": 1024, "texel_density": 64.0}}, "both")
     prim = stage.GetPrimAtPath("/World/Floor")
     vertex_ao = np.asarray(UsdGeom.PrimvarsAPI(prim).GetPrimvar("bake:ao").Get())
     image = read_image(prim.GetAttribute("bake:lightmap:ao:file").Get().resolvedPath)[::-1, :, 0]  # row 0: v = 0
@@ -180,13 +177,8 @@ def test_command_bakes_lightmaps_and_inspect_lists_them(tmp_path, capsys):
 
 
 def baked_with_few_rays(stage, path):
-    """The in-memory ``stage`` saved to ``path``, opened and baked with AO's texture target at 4 rays a texel
-    (the lightmaps next to it)."""
-    stage.GetRootLayer().Export(str(path))
-    stage = Usd.Stage.Open(str(path))
-    usdbake.bake(stage, "ambient_occlusion", {"ambient_occlusion": {"samples": 4}}, target="texture",
-                 texture_dir=str(path.parent))
-    return stage
+    """``saved_and_baked`` with AO's texture target at 4 rays a texel."""
+    return saved_and_baked(stage, path, "ambient_occlusion", {"ambient_occlusion": {"samples": 4}}, "texture")
 
 
 def test_a_material_shared_by_meshes_on_different_pages_gets_a_variant_each(tmp_path):

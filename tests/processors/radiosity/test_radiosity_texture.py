@@ -5,20 +5,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+from pxr import Gf, Sdf, UsdGeom, UsdLux
+from lightmap_checks import read_image, saved_and_baked
 from stage_builders import add_mesh, new_stage
 from tolerances import DIRECT_TOLERANCE
 
-import usdbake
-
 RADIUS, RADIANCE = 0.1, 50.0
 CENTRE = np.array([1.5, 0.6, 0.5])  # off the floor's centre: a mirrored or flipped image reads other values
-
-
-def read_exr(path: str) -> np.ndarray:
-    import OpenImageIO as oiio
-
-    return oiio.ImageBuf(path).get_pixels(oiio.FLOAT)
 
 
 def test_texel_direct_irradiance_matches_the_sphere_light_closed_form(tmp_path):
@@ -33,14 +26,11 @@ def test_texel_direct_irradiance_matches_the_sphere_light_closed_form(tmp_path):
     lamp.CreateRadiusAttr(RADIUS)
     lamp.CreateIntensityAttr(RADIANCE)
     UsdGeom.Xformable(lamp).AddTranslateOp().Set(Gf.Vec3d(*CENTRE))
-    path = tmp_path / "lamp.usda"
-    stage.GetRootLayer().Export(str(path))
-    stage = Usd.Stage.Open(str(path))
-    usdbake.bake(stage, "radiosity", {"radiosity": {"light_samples": 256, "texel_density": 8.0}},
-                 target="texture", texture_dir=str(tmp_path))
+    stage = saved_and_baked(stage, tmp_path / "lamp.usda", "radiosity",
+                            {"radiosity": {"light_samples": 256, "texel_density": 8.0}}, "texture")
     prim = stage.GetPrimAtPath("/World/Floor")
     assert not prim.HasAttribute("primvars:bake:irradianceDirect")
-    image = read_exr(prim.GetAttribute("bake:lightmap:irradianceDirect:file").Get().resolvedPath)[::-1, :, 0]
+    image = read_image(prim.GetAttribute("bake:lightmap:irradianceDirect:file").Get().resolvedPath)[::-1, :, 0]
     height, width = image.shape
     assert (width, height) == (16, 16)  # 2 m at 8 texels per metre
     x = (np.arange(width) + 0.5) / width * 2.0
