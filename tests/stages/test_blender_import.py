@@ -203,13 +203,19 @@ def stages(tmp_path_factory) -> dict[str, Path]:
     """room_with_box written and baked with the CLI: {"unbaked": input .usda, "baked": output .usda}."""
     folder = tmp_path_factory.mktemp("blender_stages")
     source = production_assets.room_with_box(folder)
-    baked = folder / "room_with_box.baked.usda"
-    cmd = [*_usdbake_cli(), "bake", str(source), "-o", str(baked), "--cache", str(folder / "cache"), *BAKE_ARGS]
+    return {"unbaked": source, "baked": _cli_bake(source, folder / "room_with_box.baked.usda", BAKE_ARGS)}
+
+
+def _cli_bake(source: Path, baked: Path, args) -> Path:
+    """``usdbake bake source -o baked`` with ``args`` in a subprocess (a cache next to it); fails the test with the
+    command's output when it does not write the layer."""
+    folder = baked.parent
+    cmd = [*_usdbake_cli(), "bake", str(source), "-o", str(baked), "--cache", str(folder / "cache"), *args]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=BAKE_TIMEOUT_S, cwd=folder)
     assert done.returncode == 0 and baked.exists(), (
         f"usdbake bake failed (exit status {done.returncode}): {' '.join(cmd)}\n{done.stdout[-3000:]}\n"
         f"{done.stderr[-3000:]}")
-    return {"unbaked": source, "baked": baked}
+    return baked
 
 
 @pytest.fixture(scope="module")
@@ -507,12 +513,7 @@ def ao_bake(blender_python, tmp_path_factory) -> dict:
     and for the control layer."""
     folder = tmp_path_factory.mktemp("blender_ao")
     source = _ao_stage(folder)
-    baked = folder / "out.usda"
-    cmd = [*_usdbake_cli(), "bake", str(source), "-o", str(baked), "--cache", str(folder / "cache"), *AO_BAKE_ARGS]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=BAKE_TIMEOUT_S, cwd=folder)
-    assert done.returncode == 0 and baked.exists(), (
-        f"usdbake bake failed (exit status {done.returncode}): {' '.join(cmd)}\n{done.stdout[-3000:]}\n"
-        f"{done.stderr[-3000:]}")
+    baked = _cli_bake(source, folder / "out.usda", AO_BAKE_ARGS)
 
     stage = Usd.Stage.Open(str(baked))
     floor, wall = stage.GetPrimAtPath("/World/Floor"), stage.GetPrimAtPath("/World/Wall")
