@@ -132,7 +132,8 @@ def _exposure_error(product, sources: np.ndarray, bary: np.ndarray, reference: n
 def run(quick: bool = False) -> dict:
     from usdbake.kernels.sky import uniform_patches
     from usdbake.kernels.tracer import Tracer
-    from usdbake.processors.daylight.daylight import compute_daylight, relight_daylight
+    from usdbake.kernels.daylight_relight import relight_daylight
+    from usdbake.processors.daylight.daylight import compute_daylight
     from usdbake.processors.daylight.sky_visibility import SkyVisibility, compute_sky_visibility
 
     from .references import compute_point_sky_view

@@ -23,6 +23,7 @@ BUILTIN = (
     "usdbake.processors.daylight.interreflection:Interreflection",
     "usdbake.processors.daylight.daylight:Daylight",
     "usdbake.processors.daylight.annual_daylight:AnnualDaylight",
+    "usdbake.processors.daylight.daylight_stream:DaylightStream",
     "usdbake.processors.instancing.displacement_fields:DisplacementFields",
     "usdbake.processors.instancing.instance_ao:InstanceAO",
     "usdbake.processors.radiosity.form_factors:FormFactors",

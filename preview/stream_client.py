@@ -18,9 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..formats.daylight_stream import DaylightPrefix, decode_daylight_stream, geometry_end, received_source
 from ..formats.mesh_stream import MESH_HEADER, MeshPrefix, decode_mesh_stream
 from ..formats.streaming import HEADER, decode_stream, push_pull
+from ..kernels.daylight_relight import IndirectCoefficients, Receivers, Relighter, SunTable
 from ..kernels.direction24 import dequantize_vectors
+from ..kernels.sky import patch_layout
 
 
 @dataclass(frozen=True)
@@ -36,12 +39,53 @@ class GridPrefix:
     """(V,) bool."""
 
 
+class StreamedDaylight:
+    """The daylight stream as a client holds it, relit as the library relights (``kernels/daylight_relight``):
+    what the browser viewer must match. Faces not received yet show their nearest received ancestor's
+    coefficients (``formats/daylight_stream.received_source``)."""
+
+    def __init__(self, prefix: DaylightPrefix):
+        self.prefix = prefix
+        header = prefix.header
+        source = received_source(prefix.parent, prefix.received)
+        self.shown = source >= 0
+        """(F,) bool per stream position: has coefficients (its own or an ancestor's)."""
+        take = np.maximum(source, 0)
+        known = self.shown.astype(np.float32)
+        patches = patch_layout(header["patches"]["layout"], count=header["patches"]["count"],
+                               subdivision=header["patches"]["subdivision"])
+        visibility = np.ascontiguousarray((prefix.visibility[take] * known[:, None]).T)
+        table = header["sun_table"]
+        hits = np.ascontiguousarray(prefix.sun_hits[take].T) * self.shown.astype(np.uint8)[None, :]
+        sun = SunTable(np.asarray(table["declinations"]), np.asarray(table["hour_angles"]),
+                       np.asarray(table["node_row"], np.int64), hits, int(table["samples"]))
+        indirect = IndirectCoefficients(prefix.indirect[:, take] * known[None, :, None],
+                                        prefix.ground_direct[take] * known, prefix.ground_indirect[:, take] * known,
+                                        float(header["ground_reflectance"]))
+        site = header["site"]
+        self.relighter = Relighter(Receivers(visibility, patches, np.asarray(header["to_world"]), prefix.normals),
+                                   sun, latitude=site["latitude"], longitude=site["longitude"],
+                                   timezone=site["timezone"], north=site["north"], indirect=indirect)
+
+    def at(self, time, **sky) -> np.ndarray:
+        """(F, 3) float32 irradiance (W/m^2) per face in stream order at local standard ``time``, with
+        ``Relighter.at``'s sky keywords; faces without coefficients yet are 0."""
+        return self.relighter.at(np.datetime64(time), **sky)
+
+    def in_bake_order(self, values: np.ndarray) -> np.ndarray:
+        """Per-face ``values`` in stream order rearranged into the bake's face order."""
+        out = np.empty_like(values)
+        out[self.prefix.face_id.astype(np.int64)] = values
+        return out
+
+
 @dataclass(frozen=True)
 class StreamedScene:
     meshes: dict[str, MeshPrefix]
     """Prim path -> level of detail held."""
     grid: GridPrefix | None
     bytes_read: int
+    daylight: StreamedDaylight | None = None
 
 
 def _get(url: str, *, end: int | None = None, timeout: float = 30.0) -> bytes:
@@ -75,7 +119,14 @@ def fetch_scene(base_url: str, *, fraction: float = 1.0, smooth: bool = True, ti
                     timeout=timeout)
         read += len(data)
         grid = _grid_from(data, smooth)
-    return StreamedScene(meshes, grid, read)
+    daylight = None
+    if manifest.get("daylight"):
+        url, size = base + manifest["daylight"]["url"], manifest["daylight"]["bytes"]
+        least = geometry_end(lambda end: _get(url, end=min(end, size), timeout=timeout))
+        data = _get(url, end=_prefix_end(size, fraction, least), timeout=timeout)
+        read += len(data)
+        daylight = StreamedDaylight(decode_daylight_stream(data))
+    return StreamedScene(meshes, grid, read, daylight)
 
 
 def _grid_from(data: bytes, smooth: bool) -> GridPrefix:
@@ -105,7 +156,8 @@ def stream_scene(base_url: str, *, fractions=(0.1, 0.5, 1.0), chunk: int | None 
     with urllib.request.urlopen(url, timeout=timeout) as response:
         index, length, _ = STREAM_FRAME.unpack(response.read(STREAM_FRAME.size))
         manifest = json.loads(response.read(length))
-        sizes = [m["bytes"] for m in manifest["meshes"]] + ([manifest["grid"]["bytes"]] if manifest["grid"] else [])
+        sizes = [m["bytes"] for m in manifest["meshes"]] + [manifest[k]["bytes"] for k in ("grid", "daylight")
+                                                           if manifest.get(k)]
         buffers = [bytearray() for _ in sizes]
         total, received = max(1, sum(sizes)), 0
         while True:
@@ -130,6 +182,11 @@ def _scene_from(manifest: dict, buffers: list, smooth: bool, received: int) -> S
     for mesh, data in zip(manifest["meshes"], buffers):
         if len(data) >= MESH_HEADER.size and len(data) >= MESH_HEADER.size + MESH_HEADER.unpack_from(data)[4]:
             meshes[mesh["prim"]] = decode_mesh_stream(bytes(data))
-    grid_data = bytes(buffers[-1]) if manifest["grid"] else b""
+    grid_data = bytes(buffers[len(manifest["meshes"])]) if manifest["grid"] else b""
     grid = _grid_from(grid_data, smooth) if len(grid_data) >= HEADER.size else None
-    return StreamedScene(meshes, grid, received)
+    daylight = None
+    if manifest.get("daylight"):
+        data = bytes(buffers[-1])
+        if geometry_end(lambda end: data[:end]) <= len(data):
+            daylight = StreamedDaylight(decode_daylight_stream(data))
+    return StreamedScene(meshes, grid, received, daylight)

@@ -3,16 +3,19 @@
 Pacanowski et al. 2008 stream a scene to a remote viewer that shows it after
 the first packets and sharpens as the rest arrives. The bake writes the
 streams beside the layer (``bake:pmStreamFile`` per mesh, the irradiance
-grid's ``streamFile``); this server hands them out:
+grid's ``streamFile``, the daylight coefficients' ``streamFile`` on
+``/usdbake/DaylightStream``); this server hands them out:
 
 ==================== ======================================================
 route                what
 ==================== ======================================================
 ``GET /``            the viewer: a WebGL2 page (``viewer/``) that reads
                      ``/stream`` and draws the meshes lit by the grid as
-                     they arrive
-``GET /manifest``    JSON: the stage, each mesh stream (prim, url, bytes)
-                     and the grid stream; a client reads it first
+                     they arrive, or the daylight faces relit for any date,
+                     hour and sky
+``GET /manifest``    JSON: the stage, each mesh stream (prim, url, bytes),
+                     the grid stream and the daylight stream; a client
+                     reads it first
 ``GET /files/NAME``  one stream file: one HTTP range (a client takes a
                      prefix, then the rest), a strong ETag (the file's
                      SHA-256) and If-None-Match
@@ -97,6 +100,7 @@ from ..core.errors import UsageError
 from .sidecars import owned_sidecars
 
 GRID_PRIM = "/usdbake/IrradianceGrid"
+DAYLIGHT_PRIM = "/usdbake/DaylightStream"
 MESH_STREAM_ATTRIBUTE = "bake:pmStreamFile"
 FRAME = struct.Struct("<IIQ")
 """Frame header of ``/stream``: stream index (0: the manifest, 1.. the manifest's streams: meshes, then the
@@ -106,7 +110,10 @@ WRITE_PIECE = 64 * 1024
 """Largest single write, whatever ``chunk`` a client asks for: it bounds what a stalled client pins (module
 docstring)."""
 VIEWER = Path(__file__).with_name("viewer")
-"""The browser viewer (index.html, viewer.js: WebGL2, written here) served at / ."""
+"""The browser viewer (index.html and its scripts: WebGL2, written here) served at / ."""
+VIEWER_SCRIPTS = ("viewer.js", "sky.js", "daylight.js")
+"""The viewer's scripts, each served at /NAME: the stream reader and drawing, the sky models (the kernels'
+sky, sun and luminous efficacy, ported), the daylight relighting."""
 
 
 @dataclass(frozen=True)
@@ -231,6 +238,12 @@ class BakeStreams:
     folder: BakeFolder
     meshes: list[Stream]
     grid: Stream | None
+    daylight: Stream | None = None
+    """The daylight coefficients (formats/daylight_stream.py), when the bake ran daylight_stream."""
+
+    def ordered(self) -> list[Stream]:
+        """``/stream``'s numbering (1..): the meshes, the grid, the daylight stream."""
+        return self.meshes + [s for s in (self.grid, self.daylight) if s is not None]
 
 
 def stage_streams(path: str, *, log=print) -> BakeStreams:
@@ -270,10 +283,13 @@ def stage_streams(path: str, *, log=print) -> BakeStreams:
     meshes = [stream for stream in map(accepted, mesh_attributes) if stream]
     grid_attribute = authored(stage.GetPrimAtPath(GRID_PRIM), "streamFile")
     grid = accepted(grid_attribute) if grid_attribute else None
-    if not meshes and grid is None:
+    daylight_attribute = authored(stage.GetPrimAtPath(DAYLIGHT_PRIM), "streamFile")
+    daylight = accepted(daylight_attribute) if daylight_attribute else None
+    if not meshes and grid is None and daylight is None:
         files.close()
-        raise UsageError(f"{path}: no streams to serve: bake it with -p progressive_mesh and/or -p irradiance_grid")
-    return BakeStreams(Path(path).name, files, meshes, grid)
+        raise UsageError(f"{path}: no streams to serve: bake it with -p progressive_mesh, -p irradiance_grid "
+                         f"and/or -p daylight_stream")
+    return BakeStreams(Path(path).name, files, meshes, grid, daylight)
 
 
 class Slots:
@@ -372,23 +388,25 @@ def make_app(path: str, *, limits: Limits = Limits(), log=print) -> web.Applicat
     """The aiohttp application serving ``path``'s streams (module docstring). Its header timeout is the
     runner's: pass ``keepalive_timeout=limits.header_timeout`` to ``web.AppRunner`` or ``web.run_app``."""
     streams = stage_streams(path, log=log)
-    ordered = streams.meshes + ([streams.grid] if streams.grid else [])  # /stream's numbering
+    ordered = streams.ordered()
     by_name = {stream.name: stream for stream in ordered}
 
     def entry(stream: Stream) -> dict:
         return {"url": f"/files/{stream.name}", "bytes": len(stream.data)}
 
     manifest = {"stage": streams.stage, "meshes": [{"prim": m.prim, **entry(m)} for m in streams.meshes],
-                "grid": entry(streams.grid) if streams.grid else None}
+                "grid": entry(streams.grid) if streams.grid else None,
+                "daylight": entry(streams.daylight) if streams.daylight else None}
     header = json.dumps(manifest).encode()
-    page, script = (VIEWER / "index.html").read_text(), (VIEWER / "viewer.js").read_text()
+    page = (VIEWER / "index.html").read_text()
+    scripts = {name: (VIEWER / name).read_text() for name in VIEWER_SCRIPTS}
     slots = Slots(limits)
 
     async def index(request: web.Request) -> web.Response:
         return web.Response(content_type="text/html", text=page)
 
     async def viewer_script(request: web.Request) -> web.Response:
-        return web.Response(content_type="text/javascript", text=script)
+        return web.Response(content_type="text/javascript", text=scripts[request.path.lstrip("/")])
 
     async def manifest_route(request: web.Request) -> web.Response:
         response = web.Response(text=json.dumps(manifest), content_type="application/json")
@@ -431,7 +449,8 @@ def make_app(path: str, *, limits: Limits = Limits(), log=print) -> web.Applicat
 
     app = web.Application(middlewares=[written_in_time(limits.write_timeout)])
     app.router.add_get("/", index)
-    app.router.add_get("/viewer.js", viewer_script)
+    for name in VIEWER_SCRIPTS:
+        app.router.add_get(f"/{name}", viewer_script)
     app.router.add_get("/manifest", manifest_route)
     app.router.add_get("/files/{name}", file_route)
     app.router.add_get("/stream", stream_route)

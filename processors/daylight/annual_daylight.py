@@ -61,10 +61,10 @@ from ...kernels.lights import LUMINANCE
 from ...kernels.luminous_efficacy import perez_efficacy
 from ...kernels.sky import LUMINOUS_EFFICACY, enu_to_world, overcast_radiance, patch_samples
 from .glazing import scene_glazing
-from .interreflection import SUN_PATCHES, horizontal_cosines
 from .sky_matrix import perez_sky_matrix
 from ...kernels.solar import day_of_year, sun_position
-from .sun_visibility import sun_bin_hits, sun_bins, sun_levels
+from ...kernels.daylight_relight import SUN_PATCHES, horizontal_cosines, sun_levels
+from .sun_visibility import sun_bin_hits, sun_bins
 from .texel_receivers import receiver_sets, texel_lightmaps
 
 REPORT_PRIM = "/usdbake/AnnualDaylight"

@@ -52,98 +52,16 @@ import warp as wp
 from ...core import Context, ParamError, Params, Primvar, Processor, Result, param
 from .products import DaylightProduct, InterreflectionProduct, SkyVisibilityProduct
 from ...core.scene import Scene
+from ...kernels.daylight_relight import (MAX_DECLINATION, Receivers, Relighter, SunTable, ground_radiance,
+                                        relight_daylight, sky_weights, sun_normal, sun_patch_weights)
 from ...kernels.lights import LUMINANCE
-from ...kernels.luminous_efficacy import perez_efficacy
-from ...kernels.sky import LUMINOUS_EFFICACY, enu_to_world, patch_radiance, sun_normal_irradiance
+from ...kernels.sky import enu_to_world
 from ...kernels.solar import SunPosition, day_of_year, horizontal_position, parse_times, sun_position
 from .glazing import scene_glazing
-from .interreflection import ground_radiance, sun_patch_weights
-from .sun_visibility import SunFaces, sun_bin_hits, sun_levels
+from .sun_visibility import SunFaces, sun_bin_hits
 from .texel_receivers import receiver_sets, texel_lightmaps
 
 wp.set_module_options({"enable_backward": False, "fuse_fp": False})
-
-RELIGHT_CHUNK = 16384
-"""Rows per chunk when V is uint8: the float32 copy of a chunk (16 MB at 256 patches) stays small."""
-
-
-def relight_daylight(visibility: np.ndarray, sky_weights: np.ndarray, *, scale: float = 1.0,
-            albedo: np.ndarray | None = None, sun: np.ndarray | None = None, patch_major: bool = False,
-            chunk: int = RELIGHT_CHUNK) -> np.ndarray:
-    """Paper Eq. 1 as one matrix product: (F, 3) float32 radiance (or irradiance without ``albedo``).
-
-    Bosch, Besuievsky & Martin, Sec. 5, Eq. 1, L_i = rho_i / pi * (sum_j Lhat_j V_ij
-    dw_j + E_sun,i): irradiance in W/m^2, radiance in W/(m^2 sr) with ``albedo``
-    (the 1/pi of a Lambertian BRDF, which the paper's Eq. 1 leaves in rho).
-
-    Parameters
-    ----------
-    visibility : (F, N) float32 V_ij, or uint8 quantized V (then multiplied by ``scale``); with
-        ``patch_major`` the transpose, (N, F) float32 -- the fastest layout (one (3, N) x (N, F) BLAS
-        product streaming V once; see ``SkyVisibilityProduct.visibility_patch_major``)
-    sky_weights : (N, 3) Lhat_j * dw_j, RGB (W/m^2 per patch)
-    albedo : (F, 3), optional; the result is then albedo / pi * irradiance (Lambertian radiance)
-    sun : (F, 3), optional direct sun irradiance added before the albedo
-
-    Linear in ``sky_weights`` and ``sun``. uint8 V is converted in chunks of ``chunk`` rows.
-    """
-    weights = np.ascontiguousarray(sky_weights, np.float32).reshape(-1, 3) * np.float32(scale)
-    n_patch = visibility.shape[0] if patch_major else visibility.shape[-1]
-    if visibility.ndim != 2 or n_patch != len(weights):
-        raise ValueError(f"visibility {visibility.shape} does not match sky_weights {weights.shape}")
-    if patch_major:
-        out = np.ascontiguousarray((weights.T @ visibility).T)
-    elif visibility.dtype == np.float32:
-        out = visibility @ weights
-    else:
-        out = np.empty((len(visibility), 3), np.float32)
-        for lo in range(0, len(visibility), chunk):
-            out[lo:lo + chunk] = visibility[lo:lo + chunk].astype(np.float32) @ weights
-    if sun is not None:
-        out += np.asarray(sun, np.float32)
-    if albedo is not None:
-        out *= np.asarray(albedo, np.float32) * np.float32(1.0 / np.pi)
-    return out
-
-
-def sky_weights(product, model: str, sun_layout: np.ndarray, *, turbidity: float, radiance: float,
-                direct_normal: float = 0.0, diffuse_horizontal: float = 0.0, day_of_year: int = 172,
-                efficacy: str = "perez") -> np.ndarray:
-    """(N, 3) Lhat_j * dw_j for the product's patches; ``sun_layout`` is the sun in the layout's ENU frame.
-    The Perez sky (solar W/m^2 from the weather's DHI) is turned into visible-equivalent watts by
-    ``visible_factors``; the other models are visible already."""
-    values = patch_radiance(product.patches, model, sun_layout, turbidity=turbidity, radiance=radiance,
-                            direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal,
-                            day_of_year=day_of_year)
-    if model == "perez":
-        values = values * visible_factors(efficacy, direct_normal, diffuse_horizontal, sun_layout, day_of_year)[1]
-    return (values * product.patches.patch_solid_angles[:, None]).astype(np.float32)
-
-
-def visible_factors(efficacy: str, direct_normal: float, diffuse_horizontal: float, sun_enu: np.ndarray,
-                    day: int) -> tuple[float, float]:
-    """(beam, diffuse) factors from solar to visible-equivalent W/m^2 (lux / 179): the Perez et al. 1990
-    luminous efficacies over Radiance's 179 lm/W (``efficacy = perez``, as gendaymtx -O0), or 1 (``179``:
-    solar watts taken as visible, gendaymtx -O1)."""
-    if efficacy == "179":
-        return 1.0, 1.0
-    zenith = np.degrees(np.arccos(np.clip(sun_enu[2] / np.linalg.norm(sun_enu), -1.0, 1.0)))
-    beam, diffuse = perez_efficacy(np.array([direct_normal]), np.array([diffuse_horizontal]), np.array([zenith]),
-                                   np.array([day]))
-    return float(beam[0]) / LUMINOUS_EFFICACY, float(diffuse[0]) / LUMINOUS_EFFICACY
-
-
-def sun_normal(sky: str, sun_site: np.ndarray, *, turbidity: float, direct_normal: float,
-               day_of_year: int, diffuse_horizontal: float = 0.0, efficacy: str = "perez") -> np.ndarray | None:
-    """(3,) direct normal irradiance of the sun (visible-equivalent W/m^2) for the sky model, or None when the
-    model has no sun (overcast, uniform) or it is below the horizon (``sun_site``: unit ENU direction)."""
-    if sky not in ("preetham", "perez") or sun_site[2] <= 0:
-        return None
-    if sky == "preetham":
-        return sun_normal_irradiance(sun_site, turbidity, day_of_year)
-    beam, _ = visible_factors(efficacy, direct_normal, diffuse_horizontal, sun_site, day_of_year)
-    return np.full(3, float(direct_normal) * beam)
-
 
 def add_interreflection(irradiance: np.ndarray, interreflection: InterreflectionProduct | None, patches,
                         weights: np.ndarray, sun_layout: np.ndarray, e_normal: np.ndarray | None) -> np.ndarray:
@@ -189,7 +107,7 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
     for k, sun_site in enumerate(position.enu()):
         sun_layout = turn @ sun_site
         day = int(day_of_year(times[k])[0])
-        weights = sky_weights(product, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
+        weights = sky_weights(product.patches, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
                               direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day,
                               efficacy=efficacy)
         direct = None
@@ -211,45 +129,6 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
              "relight_ms": 1000.0 * float(np.median(relight_seconds)) if relight_seconds else 0.0,
              "sun_rays": float(sun_rays)}
     return DaylightProduct(times, out, position.zenith, position.azimuth, irradiance), stats
-
-
-MAX_DECLINATION = 23.45
-"""Degrees: the sun's declination stays within the obliquity of the ecliptic."""
-
-
-@dataclass(frozen=True)
-class SunTable:
-    """The sun's visibility S_i of every face on a grid of the sun's declination and hour angle at one
-    site -- the sun's path over any year -- bilinear in between: relighting any time there is a blend of
-    four table rows instead of shadow rays. Written here because a face's shadows move with the sun
-    along this grid, not along sky patches, so neighbouring nodes blend into the shadow in between."""
-
-    declinations: np.ndarray
-    """(K,) degrees, ascending, -MAX_DECLINATION..MAX_DECLINATION."""
-    hour_angles: np.ndarray
-    """(M,) degrees, -180 + m * 360 / M (periodic)."""
-    node_row: np.ndarray
-    """(K, M) int64 row of ``hits`` per node, -1 where the sun is below the horizon."""
-    hits: np.ndarray
-    """(R, F) uint8 share of the sun each face sees per node above the horizon, in steps of
-    1 / ``sun_levels(samples)`` (``sun_bin_hits``)."""
-    samples: int
-
-    def visibility(self, declination: float, hour_angle: float) -> np.ndarray:
-        """(F,) float32 S_i at the sun's declination and hour angle (degrees), bilinear over the nodes
-        (a node below the horizon counts 0)."""
-        k = float(np.clip(np.interp(declination, self.declinations, np.arange(len(self.declinations))), 0,
-                          len(self.declinations) - 1 - 1e-9))
-        step = 360.0 / len(self.hour_angles)
-        m = ((hour_angle + 180.0) % 360.0) / step
-        k0, m0 = int(k), int(m) % len(self.hour_angles)
-        out = np.zeros(self.hits.shape[1], np.float32)
-        for dk, wk in ((0, 1.0 - (k - k0)), (1, k - k0)):
-            for dm, wm in ((0, 1.0 - (m - int(m))), (1, m - int(m))):
-                row = self.node_row[min(k0 + dk, len(self.declinations) - 1), (m0 + dm) % len(self.hour_angles)]
-                if row >= 0 and wk * wm > 0:
-                    out += np.float32(wk * wm / sun_levels(self.samples)) * self.hits[row]
-        return out
 
 
 def sun_table(tracer, product, *, latitude: float, north: float = 0.0,
@@ -277,65 +156,18 @@ def sun_table(tracer, product, *, latitude: float, north: float = 0.0,
     return SunTable(declinations, hour_angles, node_row.reshape(dec.shape), hits, samples)
 
 
-class DaylightRelighter:
-    """Interactive relighting (Bosch, Besuievsky & Martin, Sec. 5, Eq. 1) of the refined faces for any time at
-    one site, no rays: the sky by one BLAS product over V (patch-major float32), the sun from a ``SunTable``,
-    and with an ``interreflection`` product the bounced light in the same product (V and the indirect
-    coefficients D stacked patch-major, ``add_interreflection``'s terms).
+class DaylightRelighter(Relighter):
+    """``Relighter`` (kernels/daylight_relight.py) of the sky visibility product's faces, with the
+    interreflection product's coefficients when given."""
 
-    ``at(time)`` returns (F, 3) float32 radiance (W/(m^2 sr), with ``albedo``) or irradiance (W/m^2)."""
-
-    def __init__(self, product, table: SunTable, *, latitude: float, longitude: float, timezone: float,
-                 north: float = 0.0, albedo: np.ndarray | None = None,
+    def __init__(self, product: SkyVisibilityProduct, table: SunTable, *, latitude: float, longitude: float,
+                 timezone: float, north: float = 0.0, albedo: np.ndarray | None = None,
                  interreflection: InterreflectionProduct | None = None):
         """``table`` from ``sun_table`` at the same latitude and north."""
-        self.product, self.table, self.albedo = product, table, albedo
-        self.interreflection = interreflection
-        self.site = (latitude, longitude, timezone)
-        self.turn = enu_to_world("Z", north)
-        self.visibility = product.visibility_patch_major()
-        if interreflection is not None:  # [V; D_1 ..; D_K], (N (1 + K), F): one pass over memory per time
-            self.visibility = np.concatenate([self.visibility] + [np.ascontiguousarray(d.T)
-                                                                  for d in interreflection.sky_indirect])
-
-    def at(self, time: np.datetime64, *, sky: str = "preetham", turbidity: float = 3.0,
-           uniform_radiance: float = 1000.0, direct_normal: float = 600.0, diffuse_horizontal: float = 150.0,
-           sun: bool = True, efficacy: str = "perez") -> np.ndarray:
-        """Eq. 1 at local standard ``time`` with the sky model's parameters (as ``compute_daylight``)."""
-        times = np.atleast_1d(np.datetime64(time))
-        position = sun_position(times, *self.site)
-        sun_site = position.enu()[0]
-        sun_layout = self.turn @ sun_site
-        day = int(day_of_year(times)[0])
-        patches = self.product.patches
-        weights = sky_weights(self.product, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
-                              direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day,
-                              efficacy=efficacy)
-        direct = None
-        e_normal = sun_normal(sky, sun_site, turbidity=turbidity, direct_normal=direct_normal, day_of_year=day,
-                              diffuse_horizontal=diffuse_horizontal, efficacy=efficacy) if sun else None
-        if e_normal is not None:
-            sun_world = (self.product.to_world @ sun_layout).astype(np.float32)
-            seen = self.table.visibility(float(position.declination[0]), float(position.hour_angle[0]))
-            cos_i = np.maximum(self.product.face_normals @ sun_world, 0.0) * seen
-            direct = cos_i[:, None] * e_normal.astype(np.float32)[None, :]
-        inter = self.interreflection
-        if inter is None:
-            return relight_daylight(self.visibility, weights, albedo=self.albedo, sun=direct, patch_major=True)
-        bounced = weights if e_normal is None else weights + sun_patch_weights(patches, sun_layout, e_normal)
-        stacked = [weights]
-        for k in range(len(inter.sky_indirect)):  # one block per set of coefficients (grey: all three channels)
-            block = bounced.copy() if len(inter.sky_indirect) == 1 else np.zeros_like(bounced)
-            if len(inter.sky_indirect) > 1:
-                block[:, k] = bounced[:, k]
-            stacked.append(block)
-        out = relight_daylight(self.visibility, np.concatenate(stacked), sun=direct, patch_major=True)
-        ground = ground_radiance(patches, weights, sun_layout, e_normal, inter.ground_reflectance)
-        for c in range(3):
-            out[:, c] += (inter.ground_direct + inter.ground_indirect[inter.channel(c)]) * ground[c]
-        if self.albedo is not None:
-            out *= np.asarray(self.albedo, np.float32) * np.float32(1.0 / np.pi)
-        return out
+        self.product = product
+        super().__init__(Receivers(product.visibility_patch_major(), product.patches, product.to_world,
+                                   product.face_normals), table, latitude=latitude, longitude=longitude,
+                         timezone=timezone, north=north, albedo=albedo, indirect=interreflection)
 
 
 def _no_faces(times: np.ndarray, p) -> DaylightProduct:

@@ -35,7 +35,6 @@ import scipy.sparse as sp
 
 from ...core import Context, Params, Processor, Result, param
 from ...core.scene import Scene
-from ...kernels.sky import SkyPatches, patch_samples
 from ...kernels.tracer import Tracer
 from .gather import trace_gather
 from .glazing import scene_glazing
@@ -44,8 +43,6 @@ from .products import InterreflectionProduct, SkyVisibilityProduct
 
 PATCH_GROWTH = 1.25
 """Voxel edge ratio between the steps of the patch-size search."""
-SUN_PATCHES = 4
-"""Patches the sun's reflected light is spread over (``gendaymtx``: the 4 nearest, weights 1 / (1.002 - cos))."""
 
 
 @dataclass(frozen=True)
@@ -222,34 +219,6 @@ def compute_interreflection(tracer, scene: Scene, product: SkyVisibilityProduct,
     return InterreflectionProduct(bounces, float(ground_reflectance), sky_indirect,
                                   (np.pi * gather.ground_view[:faces.outputs]).astype(np.float32),
                                   ground_indirect, texels=texel_product), stats
-
-
-def horizontal_cosines(patches: SkyPatches) -> np.ndarray:
-    """(N,) mean cosine of each patch's directions with the zenith: sum_j w_j c_j is the sky's horizontal
-    irradiance."""
-    return np.maximum(patch_samples(patches, 3)[..., 2], 0.0).mean(axis=1)
-
-
-def sun_patch_weights(patches: SkyPatches, sun_enu: np.ndarray, normal_irradiance: np.ndarray) -> np.ndarray:
-    """(N, 3) the sun's direct normal irradiance spread over the ``SUN_PATCHES`` patches nearest it, weights
-    1 / (1.002 - cos) as ``gendaymtx`` (zeros below the horizon): the sun seen as sky, for its reflected light."""
-    out = np.zeros((len(patches), 3), np.float32)
-    if sun_enu[2] <= 0:
-        return out
-    cosines = patches.patch_directions @ (np.asarray(sun_enu, np.float64) / np.linalg.norm(sun_enu))
-    nearest = np.argsort(-cosines)[:SUN_PATCHES]
-    weights = 1.0 / (1.002 - cosines[nearest])
-    out[nearest] = (weights / weights.sum())[:, None] * np.asarray(normal_irradiance, np.float32)[None, :]
-    return out
-
-
-def ground_radiance(patches: SkyPatches, sky_weights: np.ndarray, sun_enu: np.ndarray,
-                    normal_irradiance: np.ndarray | None, reflectance: float) -> np.ndarray:
-    """(3,) radiance of the ground outside the model: rho_g (sky + sun horizontal irradiance) / pi."""
-    horizontal = horizontal_cosines(patches) @ np.asarray(sky_weights, np.float64)
-    if normal_irradiance is not None and sun_enu[2] > 0:
-        horizontal = horizontal + np.asarray(normal_irradiance, np.float64) * sun_enu[2] / np.linalg.norm(sun_enu)
-    return (reflectance * horizontal / np.pi).astype(np.float32)
 
 
 class Interreflection(Processor):

@@ -11,6 +11,7 @@ import math
 import numpy as np
 import warp as wp
 
+from ...kernels.daylight_relight import sun_levels
 from ...kernels.sampling import tangent_frame, triangle_point
 from ...kernels.sky import SUN_ANGULAR_DIAMETER, reinhart_patches
 from ...kernels.tracer import FAR, triangle_origin
@@ -169,12 +170,6 @@ def sun_bins(suns: np.ndarray, up: np.ndarray, subdivision: int) -> tuple[np.nda
     directions = np.zeros((len(used), 3))
     np.add.at(directions, bins[up], suns[up])
     return bins, directions / np.linalg.norm(directions, axis=1, keepdims=True)
-
-
-def sun_levels(samples: int) -> int:
-    """Steps of a byte that ``sun_bin_hits`` stores the visible share in: the largest multiple of ``samples``
-    up to 255, so ray counts without glazing are stored exactly and shares through glass to 1/levels."""
-    return int(samples) * (255 // int(samples))
 
 
 def sun_bin_hits(tracer, corners: np.ndarray, normals: np.ndarray, directions: np.ndarray, *, samples: int,

@@ -1,4 +1,6 @@
-// usdbake stream viewer: reads GET /stream (stages/serve.py) and draws the scene as it arrives.
+// usdbake stream viewer: reads GET /stream (stages/serve.py) and draws the scene as it arrives, under an orbit
+// camera (drag: turn, shift-drag or right-drag: pan, wheel: zoom). With a daylight stream (daylight.js) it draws
+// the baked faces relit for the date, hour, place and sky of the controls instead of the grid's light.
 //
 // Written here, no third-party code: the frame parser, the two stream decoders (formats/mesh_stream.py and
 // formats/streaming.py, little-endian), the level-of-detail mapping of Pacanowski et al. 2008 section 4.2,
@@ -7,7 +9,7 @@
 // push-pull instead); with the whole stream both read the same vectors.
 //
 // ?limit=F stops reading after that share of the stream bytes (the browser test's checkpoints); ?chunk=N asks
-// the server for N-byte frames.
+// the server for N-byte frames. window.usdbake exposes the controls and the relit values to tests.
 "use strict";
 
 const FRAME_BYTES = 16;
@@ -137,70 +139,387 @@ function shade(meshes, grid) {
   });
 }
 
-function draw(canvas, meshes, colors) {
-  const gl = canvas.getContext("webgl2");
-  if (!gl) return false;
+// ---------------------------------------------------------------------------------------------------------
+// Orbit camera
+
+function bounds(positionArrays) {
   const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
-  for (const m of meshes) if (m) for (let i = 0; i < m.positions.length; i++) {
-    lo[i % 3] = Math.min(lo[i % 3], m.positions[i]); hi[i % 3] = Math.max(hi[i % 3], m.positions[i]);
+  for (const p of positionArrays) for (let i = 0; i < p.length; i++) {
+    lo[i % 3] = Math.min(lo[i % 3], p[i]); hi[i % 3] = Math.max(hi[i % 3], p[i]);
   }
-  const centre = lo.map((x, a) => (x + hi[a]) / 2), radius = Math.max(1e-6, Math.hypot(...hi.map((x, a) => x - lo[a])) / 2);
+  if (!(lo[0] <= hi[0])) return {centre: [0, 0, 0], radius: 1};
+  return {centre: lo.map((x, a) => (x + hi[a]) / 2), radius: Math.max(1e-6, Math.hypot(...hi.map((x, a) => x - lo[a])) / 2)};
+}
+
+function normalize(v) { const l = Math.hypot(v[0], v[1], v[2]) || 1; return v.map(x => x / l); }
+function cross(a, b) { return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]; }
+function dot(a, b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+class OrbitCamera {
+  // Yaw and pitch about the scene's up axis around a target, at a distance; a perspective projection.
+  constructor(canvas, up, box, onChange) {
+    this.up = normalize(up);
+    const helper = Math.abs(this.up[0]) < 0.9 ? [1, 0, 0] : [0, 1, 0];
+    this.east = normalize(cross(helper, this.up));
+    this.north = cross(this.up, this.east);
+    this.target = box.centre.slice();
+    this.radius = box.radius;
+    this.distance = 2.6 * box.radius;
+    this.yaw = 0.785;  // a three-quarter view, as the fixed view before it
+    this.pitch = 0.45;
+    let last = null, panning = false;
+    canvas.addEventListener("contextmenu", event => event.preventDefault());
+    canvas.addEventListener("pointerdown", event => {
+      last = [event.clientX, event.clientY]; panning = event.shiftKey || event.button === 2;
+      canvas.setPointerCapture(event.pointerId);
+    });
+    canvas.addEventListener("pointerup", () => { last = null; });
+    canvas.addEventListener("pointermove", event => {
+      if (!last) return;
+      const dx = event.clientX - last[0], dy = event.clientY - last[1];
+      last = [event.clientX, event.clientY];
+      if (panning) this.pan(dx, dy); else this.turn(dx, dy);
+      onChange();
+    });
+    canvas.addEventListener("wheel", event => { event.preventDefault(); this.zoom(Math.exp(0.001 * event.deltaY)); onChange(); },
+                            {passive: false});
+  }
+
+  turn(dx, dy) {
+    this.yaw -= 0.008 * dx;
+    this.pitch = Math.min(1.55, Math.max(-1.55, this.pitch + 0.008 * dy));
+  }
+
+  zoom(factor) { this.distance = Math.min(50 * this.radius, Math.max(0.01 * this.radius, this.distance * factor)); }
+
+  pan(dx, dy) {
+    const [, right, upward] = this.frame(), step = this.distance * 0.0015;
+    for (let a = 0; a < 3; a++) this.target[a] += step * (-dx * right[a] + dy * upward[a]);
+  }
+
+  frame() {
+    // eye position, and the view's right and up directions
+    const c = Math.cos(this.pitch), offset = [0, 1, 2].map(a =>
+      this.distance * (c * Math.cos(this.yaw) * this.east[a] + c * Math.sin(this.yaw) * this.north[a] + Math.sin(this.pitch) * this.up[a]));
+    const eye = this.target.map((x, a) => x + offset[a]);
+    const forward = normalize(offset.map(x => -x));
+    const right = normalize(cross(forward, this.up));
+    return [eye, right, cross(right, forward), forward];
+  }
+
+  matrix(aspect) {
+    // column-major view-projection for WebGL
+    const [eye, right, upward, forward] = this.frame();
+    const near = Math.max(1e-4 * this.radius, this.distance - 4 * this.radius, 0.005 * this.distance);
+    const far = this.distance + 4 * this.radius, f = 1 / Math.tan(0.5 * 0.9);
+    const view = [right, upward, forward.map(x => -x)];
+    const translation = view.map(row => -dot(row, eye));
+    const m = new Float32Array(16);
+    for (let col = 0; col < 3; col++) {
+      m[4 * col + 0] = f / aspect * view[0][col];
+      m[4 * col + 1] = f * view[1][col];
+      m[4 * col + 2] = (far + near) / (near - far) * view[2][col];
+      m[4 * col + 3] = -view[2][col];
+    }
+    m[12] = f / aspect * translation[0];
+    m[13] = f * translation[1];
+    m[14] = (far + near) / (near - far) * translation[2] + 2 * far * near / (near - far);
+    m[15] = -translation[2];
+    return m;
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Drawing: the streamed meshes with per-vertex grid irradiance, or the daylight faces
+
+const DRAW_VERTEX = `#version 300 es
+  in vec3 p; in vec3 e; uniform mat4 viewProjection; out vec3 colour;
+  void main() { gl_Position = viewProjection * vec4(p, 1.0); colour = e; }`;
+const DRAW_FRAGMENT = `#version 300 es
+  precision highp float; in vec3 colour; uniform float exposure; out vec4 outColour;
+  void main() { vec3 x = colour * exposure; outColour = vec4(x / (1.0 + x), 1.0); }`;
+
+// Daylight faces: irradiance from the relight target (face index per vertex), radiance = albedo / pi x E,
+// tone-mapped, or illuminance (179 lm/W) in false colour on a log scale between two lux levels.
+const DAYLIGHT_VERTEX = `#version 300 es
+  in vec3 p; in float face; in vec3 albedo;
+  uniform mat4 viewProjection; uniform highp sampler2D irradiance;
+  flat out vec4 light; flat out vec3 reflectance;
+  void main() {
+    int f = int(face + 0.5);
+    light = texelFetch(irradiance, ivec2(f % 256, f / 256), 0);
+    reflectance = albedo;
+    gl_Position = viewProjection * vec4(p, 1.0);
+  }`;
+const DAYLIGHT_FRAGMENT = `#version 300 es
+  precision highp float;
+  flat in vec4 light; flat in vec3 reflectance;
+  uniform float exposure; uniform int falseColour; uniform vec2 luxRange;
+  out vec4 outColour;
+  vec3 ramp(float t) {  // blue - cyan - green - yellow - red
+    t = clamp(t, 0.0, 1.0);
+    return clamp(vec3(1.5 - abs(4.0 * t - 3.0), 1.5 - abs(4.0 * t - 2.0), 1.5 - abs(4.0 * t - 1.0)), 0.0, 1.0);
+  }
+  void main() {
+    if (light.a == 0.0) { outColour = vec4(0.35, 0.35, 0.38, 1.0); return; }  // no coefficients yet
+    if (falseColour == 1) {
+      float lux = 179.0 * dot(light.rgb, vec3(0.2126, 0.7152, 0.0722));
+      outColour = vec4(ramp(log(max(lux, 1e-6) / luxRange.x) / log(luxRange.y / luxRange.x)), 1.0);
+      return;
+    }
+    vec3 x = reflectance / 3.14159265 * light.rgb * exposure;
+    outColour = vec4(x / (1.0 + x), 1.0);
+  }`;
+
+class Drawing {
+  constructor(canvas) {
+    this.canvas = canvas;
+    this.gl = canvas.getContext("webgl2", {preserveDrawingBuffer: true});
+    this.items = [];  // {program, buffers: [[name, data, size]], index, count, uniforms}
+  }
+
+  buffer(program, name, data, size) {
+    const gl = this.gl, buffer = gl.createBuffer(), location = gl.getAttribLocation(program, name);
+    gl.bindBuffer(gl.ARRAY_BUFFER, buffer);
+    gl.bufferData(gl.ARRAY_BUFFER, data, gl.STATIC_DRAW);
+    return {buffer, location, size};
+  }
+
+  draw(camera, setUniforms) {
+    const gl = this.gl;
+    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+    gl.viewport(0, 0, this.canvas.width, this.canvas.height);
+    gl.clearColor(0.08, 0.08, 0.1, 1);
+    gl.enable(gl.DEPTH_TEST);
+    gl.enable(gl.CULL_FACE);  // one-sided, as the baker's surfaces: a room's near walls open onto its inside
+    gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
+    const matrix = camera.matrix(this.canvas.width / this.canvas.height);
+    for (const item of this.items) {
+      gl.useProgram(item.program);
+      gl.uniformMatrix4fv(gl.getUniformLocation(item.program, "viewProjection"), false, matrix);
+      setUniforms(item);
+      for (const b of item.buffers) {
+        gl.bindBuffer(gl.ARRAY_BUFFER, b.buffer);
+        gl.enableVertexAttribArray(b.location);
+        gl.vertexAttribPointer(b.location, b.size, b.type || gl.FLOAT, !!b.normalized, 0, 0);
+      }
+      if (item.index) {
+        gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, item.index);
+        gl.drawElements(gl.TRIANGLES, item.count, gl.UNSIGNED_INT, 0);
+      } else {
+        gl.drawArrays(gl.TRIANGLES, 0, item.count);
+      }
+      for (const b of item.buffers) gl.disableVertexAttribArray(b.location);
+    }
+  }
+}
+
+function meshItems(drawing, meshes, colors) {
+  const gl = drawing.gl, program = compile(gl, DRAW_VERTEX, DRAW_FRAGMENT);
   let peak = 1e-12;
   for (const c of colors) if (c) for (const x of c) peak = Math.max(peak, x);
-  const program = gl.createProgram();
-  for (const [type, source] of [[gl.VERTEX_SHADER, `#version 300 es
-      in vec3 p; in vec3 e; uniform vec3 centre; uniform float radius; out vec3 colour;
-      void main() {
-        vec3 q = (p - centre) / radius;
-        float c = 0.7071, s = 0.7071;  // a three-quarter view: turn about y, then tilt
-        vec3 r = vec3(c * q.x + s * q.z, q.y, -s * q.x + c * q.z);
-        r = vec3(r.x, 0.9 * r.y - 0.43 * r.z, 0.43 * r.y + 0.9 * r.z);
-        gl_Position = vec4(0.8 * r.x, 0.8 * r.y, -0.5 * r.z, 1.0);
-        colour = e;
-      }`], [gl.FRAGMENT_SHADER, `#version 300 es
-      precision highp float; in vec3 colour; uniform float exposure; out vec4 outColour;
-      void main() { vec3 x = colour * exposure; outColour = vec4(x / (1.0 + x), 1.0); }`]]) {
-    const shader = gl.createShader(type);
-    gl.shaderSource(shader, source);
-    gl.compileShader(shader);
-    gl.attachShader(program, shader);
-  }
-  gl.linkProgram(program);
-  gl.useProgram(program);
-  gl.uniform3fv(gl.getUniformLocation(program, "centre"), centre);
-  gl.uniform1f(gl.getUniformLocation(program, "radius"), radius);
-  gl.uniform1f(gl.getUniformLocation(program, "exposure"), 4.0 / peak);
-  gl.viewport(0, 0, canvas.width, canvas.height);
-  gl.clearColor(0.08, 0.08, 0.1, 1);
-  gl.enable(gl.DEPTH_TEST);
-  gl.enable(gl.CULL_FACE);  // one-sided, as the baker's surfaces: a room's near walls open onto its inside
-  gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
-  meshes.forEach((mesh, k) => {
-    if (!mesh || !mesh.faces.length) return;
-    for (const [name, data] of [["p", mesh.positions], ["e", colors[k]]]) {
-      const buffer = gl.createBuffer();
-      gl.bindBuffer(gl.ARRAY_BUFFER, buffer);
-      gl.bufferData(gl.ARRAY_BUFFER, data, gl.STATIC_DRAW);
-      const location = gl.getAttribLocation(program, name);
-      gl.enableVertexAttribArray(location);
-      gl.vertexAttribPointer(location, 3, gl.FLOAT, false, 0, 0);
-    }
+  return meshes.map((mesh, k) => {
+    if (!mesh || !mesh.faces.length) return null;
     const index = gl.createBuffer();
     gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, index);
     gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, mesh.faces, gl.STATIC_DRAW);
-    gl.drawElements(gl.TRIANGLES, mesh.faces.length, gl.UNSIGNED_INT, 0);
-  });
-  gl.finish();
-  return true;
+    return {program, buffers: [drawing.buffer(program, "p", mesh.positions, 3), drawing.buffer(program, "e", colors[k], 3)],
+            index, count: mesh.faces.length, exposure: 4.0 / peak};
+  }).filter(x => x);
 }
+
+function daylightItem(drawing, stream) {
+  // The faces unwelded (3 vertices each) with their stream position and albedo.
+  const gl = drawing.gl, program = compile(gl, DAYLIGHT_VERTEX, DAYLIGHT_FRAGMENT), g = stream.geometry;
+  const F = stream.header.faces, p = new Float32Array(9 * F), face = new Float32Array(3 * F), albedo = new Uint8Array(9 * F);
+  for (let f = 0; f < F; f++)
+    for (let c = 0; c < 3; c++) {
+      const v = g.corners[3 * f + c];
+      for (let a = 0; a < 3; a++) { p[9 * f + 3 * c + a] = g.points[3 * v + a]; albedo[9 * f + 3 * c + a] = g.albedo[3 * f + a]; }
+      face[3 * f + c] = f;
+    }
+  const albedoBuffer = drawing.buffer(program, "albedo", albedo, 3);
+  albedoBuffer.type = gl.UNSIGNED_BYTE;
+  albedoBuffer.normalized = true;
+  return {program, buffers: [drawing.buffer(program, "p", p, 3), drawing.buffer(program, "face", face, 1), albedoBuffer],
+          count: 3 * F, daylight: true, positions: g.points};
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Daylight controls
+
+function localTime(date, hour) {
+  // ms of the local standard clock as if it were UTC (what sky.js's sunPosition takes)
+  const [y, m, d] = date.split("-").map(Number);
+  return Date.UTC(y, m - 1, d) + Math.round(hour * 3600e3);
+}
+
+function formatTime(ms) {
+  const t = new Date(ms);
+  const two = x => String(x).padStart(2, "0");
+  return `${t.getUTCFullYear()}-${two(t.getUTCMonth() + 1)}-${two(t.getUTCDate())} ${two(t.getUTCHours())}:${two(t.getUTCMinutes())}`;
+}
+
+function readControls() {
+  const value = id => document.getElementById(id).value;
+  const checked = id => document.getElementById(id).checked;
+  return {date: value("date"), hour: parseFloat(value("hour")), model: value("sky"), turbidity: parseFloat(value("turbidity")),
+          directNormal: parseFloat(value("dni")), diffuseHorizontal: parseFloat(value("dhi")), sun: checked("sun"),
+          useWeather: checked("useWeather"), weatherHour: parseInt(value("weatherHour"), 10),
+          exposure: Math.pow(2, parseFloat(value("exposure"))), falseColour: checked("falseColour"),
+          luxLow: parseFloat(value("luxLow")), luxHigh: parseFloat(value("luxHigh"))};
+}
+
+function skyFor(controls, weather) {
+  // (local time ms, sky parameters) of the controls; a weather-file hour sets the time and the Perez sky.
+  const sky = {model: controls.model, turbidity: controls.turbidity, radiance: 1000, directNormal: controls.directNormal,
+               diffuseHorizontal: controls.diffuseHorizontal, efficacy: "perez", sun: controls.sun};
+  if (controls.useWeather && weather) {
+    const row = Math.min(Math.max(controls.weatherHour, 0), weather.times.length - 1);
+    return {when: weather.times[row], sky: {...sky, model: "perez", directNormal: weather.direct[row], diffuseHorizontal: weather.diffuse[row]}, row};
+  }
+  return {when: localTime(controls.date, controls.hour), sky, row: -1};
+}
+
+function drawLegend(low, high) {
+  const canvas = document.getElementById("legend"), context = canvas.getContext("2d");
+  const w = canvas.width, h = canvas.height;
+  context.clearRect(0, 0, w, h);
+  for (let x = 0; x < w; x++) {
+    const t = x / (w - 1), c = [1.5 - Math.abs(4 * t - 3), 1.5 - Math.abs(4 * t - 2), 1.5 - Math.abs(4 * t - 1)]
+      .map(v => Math.round(255 * Math.min(Math.max(v, 0), 1)));
+    context.fillStyle = `rgb(${c[0]},${c[1]},${c[2]})`;
+    context.fillRect(x, 0, 1, h - 14);
+  }
+  context.fillStyle = "#ddd";
+  context.font = "11px sans-serif";
+  const ticks = 4;
+  for (let i = 0; i <= ticks; i++) {
+    const lux = low * Math.pow(high / low, i / ticks);
+    context.textAlign = i === 0 ? "left" : i === ticks ? "right" : "center";
+    context.fillText(lux >= 100 ? lux.toFixed(0) : lux.toPrecision(2), i * (w - 1) / ticks, h - 2);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// The page
 
 async function run() {
   const query = new URLSearchParams(location.search);
   const limit = parseFloat(query.get("limit") || "1");
   const status = document.getElementById("status");
+  const canvas = document.getElementById("view");
+  const drawing = new Drawing(canvas);
   const response = await fetch("/stream" + (query.get("chunk") ? "?chunk=" + encodeURIComponent(query.get("chunk")) : ""));
   const reader = response.body.getReader();
   let pending = new Uint8Array(0), manifest = null, buffers = [], total = 1, received = 0, done = false;
+  let daylight = null, daylightIndex = -1, renderer = null, camera = null, dirty = false, playing = false;
+  const api = window.usdbake = {relightMs: [], firstLitMs: null, ready: false};
+
+  const redraw = () => {
+    if (!camera) return;
+    const controls = readControls();
+    drawing.draw(camera, item => {
+      const gl = drawing.gl;
+      if (item.daylight) {
+        gl.activeTexture(gl.TEXTURE4);
+        gl.bindTexture(gl.TEXTURE_2D, renderer.target);
+        gl.uniform1i(gl.getUniformLocation(item.program, "irradiance"), 4);
+        gl.uniform1f(gl.getUniformLocation(item.program, "exposure"), controls.exposure);
+        gl.uniform1i(gl.getUniformLocation(item.program, "falseColour"), controls.falseColour ? 1 : 0);
+        gl.uniform2f(gl.getUniformLocation(item.program, "luxRange"), controls.luxLow, controls.luxHigh);
+      } else {
+        gl.uniform1f(gl.getUniformLocation(item.program, "exposure"), item.exposure);
+      }
+    });
+  };
+  const relight = () => {
+    // new lighting: the relight pass, then the picture
+    const controls = readControls(), chosen = skyFor(controls, daylight.weather);
+    const started = performance.now();
+    const frame = daylightWeights(daylight, chosen.when, chosen.sky);
+    renderer.relight(frame);
+    renderer.finish();
+    api.relightMs.push(performance.now() - started);
+    api.frame = {when: chosen.when, sky: chosen.sky, row: chosen.row, sunZenith: frame.position.zenith,
+                 sunAzimuth: frame.position.azimuth};
+    document.getElementById("when").textContent = `${formatTime(chosen.when)} local standard time, sun ` +
+      (frame.position.zenith < 90 ? `${(90 - frame.position.zenith).toFixed(1)} deg up, azimuth ${frame.position.azimuth.toFixed(0)} deg` : "below the horizon");
+    const label = document.getElementById("weatherLabel");
+    label.textContent = chosen.row >= 0 ? `row ${chosen.row + 1} of ${daylight.weather.times.length}: ${formatTime(chosen.when)}, ` +
+      `DNI ${chosen.sky.directNormal.toFixed(0)} W/m², DHI ${chosen.sky.diffuseHorizontal.toFixed(0)} W/m²` : "";
+    drawLegend(controls.luxLow, controls.luxHigh);
+    redraw();
+    if (api.firstLitMs === null && renderer.received > 0) api.firstLitMs = performance.now();
+  };
+  const schedule = () => {
+    if (dirty) return;
+    dirty = true;
+    requestAnimationFrame(() => {
+      dirty = false;
+      if (playing) {
+        const hour = document.getElementById("hour");
+        hour.value = String((parseFloat(hour.value) + 0.1) % 24);
+        schedule();
+      }
+      if (renderer) { renderer.upload(); relight(); } else redraw();
+    });
+  };
+  api.setControls = async values => {
+    // set control values as a person would (then the input events), and wait for the relit picture
+    for (const [id, value] of Object.entries(values)) {
+      const element = document.getElementById(id);
+      if (element.type === "checkbox") element.checked = !!value; else element.value = String(value);
+      element.dispatchEvent(new Event("input", {bubbles: true}));
+      element.dispatchEvent(new Event("change", {bubbles: true}));
+    }
+    await new Promise(resolve => requestAnimationFrame(() => requestAnimationFrame(resolve)));
+    return api.frame;
+  };
+  api.irradiance = () => Array.from(renderer.readIrradiance());
+  api.faceId = () => Array.from(daylight.geometry.faceId);
+  api.received = () => renderer.received;
+  api.benchmarkRelight = frames => {
+    // relight `frames` new hours back to back; per-frame ms of the pass (weights, shader, wait)
+    const controls = readControls(), times = [];
+    for (let k = 0; k < frames; k++) {
+      const chosen = skyFor({...controls, hour: 6 + 12 * k / frames}, daylight.weather);
+      const started = performance.now();
+      renderer.relight(daylightWeights(daylight, chosen.when, chosen.sky));
+      renderer.finish();
+      times.push(performance.now() - started);
+    }
+    return times;
+  };
+  for (const id of ["date", "hour", "sky", "turbidity", "dni", "dhi", "sun", "useWeather", "weatherHour", "exposure",
+                    "falseColour", "luxLow", "luxHigh"])
+    document.getElementById(id).addEventListener("input", schedule);
+  document.getElementById("play").addEventListener("click", () => {
+    playing = !playing;
+    document.getElementById("play").textContent = playing ? "pause" : "play";
+    schedule();
+  });
+
+  const daylightArrived = async payload => {
+    await daylight.push(payload);
+    if (!renderer && daylight.geometry && daylight.sky) {
+      renderer = new DaylightRenderer(drawing.gl, daylight);
+      const item = daylightItem(drawing, daylight);
+      drawing.items = [item];
+      camera = new OrbitCamera(canvas, matVec(daylight.header.to_world, [0, 0, 1]), bounds([item.positions]), redraw);
+      document.getElementById("controls").hidden = false;
+      if (daylight.weather) {
+        document.getElementById("weatherControls").hidden = false;
+        document.getElementById("weatherHour").max = String(daylight.weather.times.length - 1);
+      }
+      const site = daylight.header.site;
+      document.getElementById("site").textContent = `latitude ${site.latitude}, longitude ${site.longitude}, ` +
+        `UTC${site.timezone >= 0 ? "+" : ""}${site.timezone}, north ${site.north} deg` +
+        (daylight.header.weather ? `, weather ${daylight.header.weather.source}` : "");
+    }
+    if (renderer && daylight.faceSections.length) schedule();
+  };
+
   while (!done) {
     const chunk = await reader.read();
     if (chunk.done) break;
@@ -215,30 +534,43 @@ async function run() {
       pending = pending.slice(FRAME_BYTES + length);
       if (index === 0) {
         manifest = JSON.parse(new TextDecoder().decode(payload));
-        const sizes = manifest.meshes.map(m => m.bytes).concat(manifest.grid ? [manifest.grid.bytes] : []);
+        const sizes = manifest.meshes.map(m => m.bytes).concat(manifest.grid ? [manifest.grid.bytes] : [])
+          .concat(manifest.daylight ? [manifest.daylight.bytes] : []);
         buffers = sizes.map(() => []);
         total = Math.max(1, sizes.reduce((a, b) => a + b, 0));
+        if (manifest.daylight) { daylight = new DaylightStream(); daylightIndex = sizes.length; }
       } else {
-        buffers[index - 1].push(payload);
+        if (index === daylightIndex) await daylightArrived(payload); else buffers[index - 1].push(payload);
         received += length;
         if (received / total >= limit) { done = true; break; }
       }
     }
   }
   reader.cancel();
+  if (daylight) await daylight.work;
   const join = parts => { const out = new Uint8Array(parts.reduce((a, p) => a + p.length, 0)); let o = 0; for (const p of parts) { out.set(p, o); o += p.length; } return out; };
   const meshes = manifest.meshes.map((m, k) => decodeMesh(join(buffers[k])));  // null until header and table
-  const grid = manifest.grid ? decodeGrid(join(buffers[buffers.length - 1])) : null;
+  const grid = manifest.grid ? decodeGrid(join(buffers[manifest.meshes.length])) : null;
   const colors = shade(meshes, grid);
-  const drawn = draw(document.getElementById("view"), meshes, colors);
+  if (!renderer) {
+    drawing.items = drawing.gl ? meshItems(drawing, meshes, colors) : [];
+    camera = new OrbitCamera(canvas, [0, 1, 0], bounds(meshes.filter(m => m).map(m => m.positions.subarray(0, 3 * m.level))), redraw);
+    if (drawing.gl) redraw();
+  } else {
+    renderer.upload();
+    relight();
+  }
+  if (drawing.gl) drawing.gl.finish();
   window.usdbakeState = {
-    share: received / total, drawn,
+    share: received / total, drawn: !!drawing.gl,
     meshes: manifest.meshes.map((m, k) => ({prim: m.prim, level: meshes[k] ? meshes[k].level : 0,
                                             faces: meshes[k] ? Array.from(meshes[k].faces) : [],
                                             irradiance: colors[k] ? Array.from(colors[k]) : []})),
     gridReceived: grid ? grid.received.reduce((a, b) => a + b, 0) : 0,
+    daylightFaces: renderer ? renderer.received : 0,
   };
   status.textContent = `${(100 * received / total).toFixed(0)} % of ${total} bytes`;
+  api.ready = true;
   document.body.dataset.ready = "1";
 }
 

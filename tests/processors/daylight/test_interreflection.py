@@ -13,7 +13,8 @@ from daylight_boxes import box_with_skylight, grid_quads, quad_scene
 from tolerances import FLOAT32_ACCUMULATED, INTEGRATING_SPHERE, MC_SIGMAS, SKY_PATCH_INTEGRATION
 from usdbake.kernels.sky import tregenza_patches
 from usdbake.kernels.tracer import Tracer
-from usdbake.processors.daylight.interreflection import BounceOperator, compute_interreflection, sun_patch_weights
+from usdbake.kernels.daylight_relight import sun_patch_weights
+from usdbake.processors.daylight.interreflection import BounceOperator, compute_interreflection
 from usdbake.processors.daylight.sky_visibility import compute_sky_visibility
 
 RADIANCE = 1.0
@@ -116,7 +117,8 @@ def test_a_face_under_glass_reads_the_panes_transmittance():
     """Under a wide horizontal pane of VLT t: the overhead sun (normal incidence) reads t x the open value within
     1%; the uniform sky reads the pane's hemispherical transmittance, 2 int t(theta) cos sin dtheta, of it."""
     from usdbake.processors.daylight.glazing import Glazing
-    from usdbake.processors.daylight.sun_visibility import compute_sun_visibility, sun_bin_hits, sun_levels
+    from usdbake.kernels.daylight_relight import sun_levels
+    from usdbake.processors.daylight.sun_visibility import compute_sun_visibility, sun_bin_hits
 
     vlt = 0.6
     plane = grid_quads((0, 0, 0), (1, 0, 0), (0, 1, 0), 2, 2)

@@ -8,7 +8,8 @@ import pytest
 from tolerances import FLOAT64_ROUNDING, MC_SIGMAS
 from usdbake.kernels.sky import reinhart_patches
 from usdbake.kernels.tracer import Tracer
-from usdbake.processors.daylight.sun_visibility import compute_sun_visibility, sun_bin_hits, sun_bins, sun_levels
+from usdbake.kernels.daylight_relight import sun_levels
+from usdbake.processors.daylight.sun_visibility import compute_sun_visibility, sun_bin_hits, sun_bins
 
 BLOCKER_HEIGHT = 1.0
 """A square roof over x, y in [-5, 0] at z = 1: the faces below it see no sun from overhead."""
