@@ -13,7 +13,7 @@
 
 const DAYLIGHT_MAGIC = "USDBDLS1";
 const SECTION_SKY = 1, SECTION_GEOMETRY = 2, SECTION_WEATHER = 3, SECTION_FACES = 4;
-const TEXTURE_WIDTH = 4096;  // texels per row of the coefficient textures (WebGL2 guarantees 2048; SwiftShader 8192)
+const TEXTURE_WIDTH = 8192;  // texels per row of the coefficient textures at most (WebGL2 guarantees 2048)
 const OUT_WIDTH = 256;  // faces per row of the irradiance target
 
 async function inflate(bytes) {
@@ -30,8 +30,9 @@ function typed(bytes, Type, offset, count) {
 
 class DaylightStream {
   // The stream as it arrives: push() bytes in order; sections are decoded whole, in order.
-  constructor() {
-    this.bytes = new Uint8Array(0);
+  constructor(size) {
+    this.bytes = new Uint8Array(size);  // the whole stream's size (the manifest's): filled in place, never copied
+    this.length = 0;
     this.at = 0;
     this.header = null;
     this.sky = null;
@@ -43,10 +44,8 @@ class DaylightStream {
   }
 
   push(chunk) {
-    const joined = new Uint8Array(this.bytes.length + chunk.length);
-    joined.set(this.bytes);
-    joined.set(chunk, this.bytes.length);
-    this.bytes = joined;
+    this.bytes.set(chunk.subarray(0, this.bytes.length - this.length), this.length);
+    this.length = Math.min(this.bytes.length, this.length + chunk.length);
     this.work = this.work.then(() => this.parse());
     return this.work;
   }
@@ -54,18 +53,18 @@ class DaylightStream {
   async parse() {
     const view = new DataView(this.bytes.buffer);
     if (!this.header) {
-      if (this.bytes.length < 12) return;
+      if (this.length < 12) return;
       if (new TextDecoder().decode(this.bytes.subarray(0, 8)) !== DAYLIGHT_MAGIC) throw new Error("not a daylight stream");
       const length = view.getUint32(8, true);
-      if (this.bytes.length < 12 + length) return;
+      if (this.length < 12 + length) return;
       this.header = JSON.parse(new TextDecoder().decode(this.bytes.subarray(12, 12 + length)));
       this.at = 12 + length;
     }
     const h = this.header;
-    while (this.at + 12 <= this.bytes.length) {
+    while (this.at + 12 <= this.length) {
       const kind = view.getUint32(this.at, true), count = view.getUint32(this.at + 4, true);
       const size = view.getUint32(this.at + 8, true);
-      if (this.at + 12 + size > this.bytes.length) return;  // the section is still arriving
+      if (this.at + 12 + size > this.length) return;  // the section is still arriving
       const data = await inflate(this.bytes.subarray(this.at + 12, this.at + 12 + size));
       this.at += 12 + size;
       const n = h.patch_count, F = h.faces, K = h.indirect_sets, R = h.sun_rows;
@@ -189,10 +188,11 @@ class DaylightRenderer {
     this.K = h.indirect_sets;
     this.quads = Math.ceil(h.patch_count / 4);  // RGBA8 texels per coefficient set and face
     this.perFace = this.quads * (1 + this.K);
-    this.facesPerRow = Math.floor(TEXTURE_WIDTH / this.perFace);
-    const rows = Math.ceil(this.faces / this.facesPerRow);
     if (!gl.getExtension("EXT_color_buffer_float")) throw new Error("WebGL2 without float render targets");
     const limit = gl.getParameter(gl.MAX_TEXTURE_SIZE);
+    this.width = Math.min(limit, TEXTURE_WIDTH);
+    this.facesPerRow = Math.floor(this.width / this.perFace);
+    const rows = Math.ceil(this.faces / this.facesPerRow);
     if (rows > limit) throw new Error(`${this.faces} faces need ${rows} texture rows; this GPU allows ${limit}`);
     this.coefficients = dataTexture(gl, 0, gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE, this.facesPerRow * this.perFace, rows, null);
     // per face: (normal, pi g), (D^g per set, received), (D scale per set, 0)
@@ -203,9 +203,11 @@ class DaylightRenderer {
       for (let a = 0; a < 3; a++) this.faceData[12 * f + a] = g.normals[3 * f + a] / 32767;
     this.perFaceTexture = dataTexture(gl, 1, gl.RGBA32F, gl.RGBA, gl.FLOAT, 3 * 1024, this.faceRows, this.faceData);
     this.R = Math.max(1, h.sun_rows);
-    this.sunPerRow = Math.max(1, Math.floor(TEXTURE_WIDTH / this.R));
+    this.sunQuads = Math.ceil(this.R / 4);  // RGBA8 texels of sun table shares per face
+    this.sunPerRow = Math.floor(this.width / this.sunQuads);
     const sunRows = Math.ceil(this.faces / this.sunPerRow);
-    this.sun = dataTexture(gl, 2, gl.R8, gl.RED, gl.UNSIGNED_BYTE, this.sunPerRow * this.R, sunRows, null);
+    if (sunRows > limit) throw new Error(`${this.faces} faces need ${sunRows} texture rows of sun table; this GPU allows ${limit}`);
+    this.sun = dataTexture(gl, 2, gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE, this.sunPerRow * this.sunQuads, sunRows, null);
     this.sourceRows = Math.ceil(this.faces / 1024);
     this.source = dataTexture(gl, 3, gl.R32I, gl.RED_INTEGER, gl.INT, 1024, this.sourceRows, null);
     this.outRows = Math.ceil(this.faces / OUT_WIDTH);
@@ -280,10 +282,10 @@ class DaylightRenderer {
         float cosine = max(dot(own.xyz, sunDirection), 0.0);
         if (cosine > 0.0) {
           int sunRow = s / ${this.sunPerRow};
-          int sunBase = (s - sunRow * ${this.sunPerRow}) * ${this.R};
+          int sunBase = (s - sunRow * ${this.sunPerRow}) * ${this.sunQuads};
           float seen = 0.0;
           for (int q = 0; q < 4; q++)
-            if (sunRows[q] >= 0) seen += sunWeights[q] * texelFetch(sunShares, ivec2(sunBase + sunRows[q], sunRow), 0).r;
+            if (sunRows[q] >= 0) seen += sunWeights[q] * texelFetch(sunShares, ivec2(sunBase + sunRows[q] / 4, sunRow), 0)[sunRows[q] % 4];
           e += cosine * seen * sunIrradiance;
         }
         irradiance = vec4(e, 1.0);
@@ -315,13 +317,13 @@ class DaylightRenderer {
         const sun = section.sun.subarray(i * this.R, (i + span) * this.R);
         gl.activeTexture(gl.TEXTURE2);
         gl.bindTexture(gl.TEXTURE_2D, this.sun);
-        gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
         // the sun texture holds another number of faces per row than the coefficients: runs of its own rows
         for (let j = 0; j < span;) {
           const f = face + j, r = Math.floor(f / this.sunPerRow), c = f % this.sunPerRow;
           const run = Math.min(this.sunPerRow - c, span - j);
-          gl.texSubImage2D(gl.TEXTURE_2D, 0, c * this.R, r, run * this.R, 1, gl.RED, gl.UNSIGNED_BYTE,
-                           sun.subarray(j * this.R, (j + run) * this.R));
+          const padded = new Uint8Array(run * this.sunQuads * 4);
+          for (let q = 0; q < run; q++) padded.set(sun.subarray((j + q) * this.R, (j + q + 1) * this.R), q * this.sunQuads * 4);
+          gl.texSubImage2D(gl.TEXTURE_2D, 0, c * this.sunQuads, r, run * this.sunQuads, 1, gl.RGBA, gl.UNSIGNED_BYTE, padded);
           j += run;
         }
         i += span;
@@ -348,8 +350,10 @@ class DaylightRenderer {
     return true;
   }
 
-  relight(frame) {
-    // The relight pass for daylightWeights' ``frame``; leaves the irradiance in the target texture (unit 4).
+  relight(frame, limit = this.faces) {
+    // The relight pass for daylightWeights' ``frame``, of stream positions [0, limit) (the coarse faces first:
+    // an interactive preview relights a prefix and shows the rest with their ancestors' light, ``display``);
+    // leaves the irradiance in the target texture (unit 4).
     const gl = this.gl, h = this.stream.header, Q = this.quads, n = h.patch_count;
     const block = new Float32Array(4 * Q * 6);
     const scale = 255 * h.visibility_scale;  // V = (code / 255) x 255 x visibility_scale
@@ -366,7 +370,7 @@ class DaylightRenderer {
     const textures = [this.coefficients, this.perFaceTexture, this.sun, this.source];
     textures.forEach((texture, unit) => { gl.activeTexture(gl.TEXTURE0 + unit); gl.bindTexture(gl.TEXTURE_2D, texture); });
     for (const [name, unit] of Object.entries(units)) gl.uniform1i(gl.getUniformLocation(this.program, name), unit);
-    gl.uniform1i(gl.getUniformLocation(this.program, "faces"), this.faces);
+    gl.uniform1i(gl.getUniformLocation(this.program, "faces"), limit);
     gl.uniform3fv(gl.getUniformLocation(this.program, "ground"), frame.ground);
     const e = frame.eNormal || [0, 0, 0];
     gl.uniform3fv(gl.getUniformLocation(this.program, "sunDirection"), frame.sunWorld);
@@ -377,11 +381,28 @@ class DaylightRenderer {
     // shares are bytes / 255 in the shader; the table's steps are 1 / levels
     gl.uniform4fv(gl.getUniformLocation(this.program, "sunWeights"), nodes.map(x => x[1] * 255 / levels));
     gl.bindFramebuffer(gl.FRAMEBUFFER, this.framebuffer);
-    gl.viewport(0, 0, OUT_WIDTH, this.outRows);
+    gl.viewport(0, 0, OUT_WIDTH, Math.ceil(limit / OUT_WIDTH));
+    this.relit = limit;
     gl.disable(gl.DEPTH_TEST);
     gl.disable(gl.CULL_FACE);
     gl.drawArrays(gl.TRIANGLES, 0, 3);
     gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  }
+
+  display(limit) {
+    // Per face, the stream position whose irradiance it shows after a relight of [0, limit): itself, or its
+    // nearest ancestor below the limit; a texture (unit 5) the drawing reads.
+    const gl = this.gl;
+    if (!this.displayTexture) this.displayTexture = dataTexture(gl, 5, gl.R32I, gl.RED_INTEGER, gl.INT, 1024, this.sourceRows, null);
+    if (this.displayLimit !== limit) {
+      const shown = new Int32Array(1024 * this.sourceRows);
+      shown.set(receivedSource(this.stream.geometry.parent, limit));
+      gl.activeTexture(gl.TEXTURE5);
+      gl.bindTexture(gl.TEXTURE_2D, this.displayTexture);
+      gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, 1024, this.sourceRows, gl.RED_INTEGER, gl.INT, shown);
+      this.displayLimit = limit;
+    }
+    return this.displayTexture;
   }
 
   finish() {

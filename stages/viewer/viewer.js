@@ -232,6 +232,9 @@ class OrbitCamera {
 // ---------------------------------------------------------------------------------------------------------
 // Drawing: the streamed meshes with per-vertex grid irradiance, or the daylight faces
 
+const FRAME_BUDGET_MS = 12;  // a coarse preview relights the stream prefix that fits this, from the last whole relight
+const SETTLE_MS = 250;  // the whole relight follows once the controls rest this long
+
 const DRAW_VERTEX = `#version 300 es
   in vec3 p; in vec3 e; uniform mat4 viewProjection; out vec3 colour;
   void main() { gl_Position = viewProjection * vec4(p, 1.0); colour = e; }`;
@@ -243,11 +246,12 @@ const DRAW_FRAGMENT = `#version 300 es
 // tone-mapped, or illuminance (179 lm/W) in false colour on a log scale between two lux levels.
 const DAYLIGHT_VERTEX = `#version 300 es
   in vec3 p; in float face; in vec3 albedo;
-  uniform mat4 viewProjection; uniform highp sampler2D irradiance;
+  uniform mat4 viewProjection; uniform highp sampler2D irradiance; uniform highp isampler2D display;
   flat out vec4 light; flat out vec3 reflectance;
   void main() {
     int f = int(face + 0.5);
-    light = texelFetch(irradiance, ivec2(f % 256, f / 256), 0);
+    f = texelFetch(display, ivec2(f % 1024, f / 1024), 0).r;  // itself, or its ancestor in a coarse preview
+    light = f < 0 ? vec4(0.0) : texelFetch(irradiance, ivec2(f % 256, f / 256), 0);
     reflectance = albedo;
     gl_Position = viewProjection * vec4(p, 1.0);
   }`;
@@ -409,12 +413,15 @@ async function run() {
   const limit = parseFloat(query.get("limit") || "1");
   const status = document.getElementById("status");
   const canvas = document.getElementById("view");
+  if (query.get("fit") !== "0") { canvas.width = Math.max(320, innerWidth); canvas.height = Math.max(240, innerHeight); }
   const drawing = new Drawing(canvas);
   const response = await fetch("/stream" + (query.get("chunk") ? "?chunk=" + encodeURIComponent(query.get("chunk")) : ""));
   const reader = response.body.getReader();
   let pending = new Uint8Array(0), manifest = null, buffers = [], total = 1, received = 0, done = false;
   let daylight = null, daylightIndex = -1, renderer = null, camera = null, dirty = false, playing = false;
-  const api = window.usdbake = {relightMs: [], firstLitMs: null, ready: false};
+  const api = window.usdbake = {relightMs: [], previewMs: [], fullMs: 1e9, firstLitMs: null, ready: false,
+                                exposureReference: 1, exposureFixed: false};
+  let settle = null, quiet = false;
 
   const redraw = () => {
     if (!camera) return;
@@ -425,7 +432,10 @@ async function run() {
         gl.activeTexture(gl.TEXTURE4);
         gl.bindTexture(gl.TEXTURE_2D, renderer.target);
         gl.uniform1i(gl.getUniformLocation(item.program, "irradiance"), 4);
-        gl.uniform1f(gl.getUniformLocation(item.program, "exposure"), controls.exposure);
+        gl.activeTexture(gl.TEXTURE5);
+        gl.bindTexture(gl.TEXTURE_2D, renderer.display(renderer.relit));
+        gl.uniform1i(gl.getUniformLocation(item.program, "display"), 5);
+        gl.uniform1f(gl.getUniformLocation(item.program, "exposure"), controls.exposure * api.exposureReference);
         gl.uniform1i(gl.getUniformLocation(item.program, "falseColour"), controls.falseColour ? 1 : 0);
         gl.uniform2f(gl.getUniformLocation(item.program, "luxRange"), controls.luxLow, controls.luxHigh);
       } else {
@@ -433,14 +443,29 @@ async function run() {
       }
     });
   };
-  const relight = () => {
-    // new lighting: the relight pass, then the picture
+  const relight = (coarse = false) => {
+    // new lighting: the relight pass (all faces, or while the controls move a prefix that relights within a
+    // frame's budget), then the picture
     const controls = readControls(), chosen = skyFor(controls, daylight.weather);
     const started = performance.now();
     const frame = daylightWeights(daylight, chosen.when, chosen.sky);
-    renderer.relight(frame);
+    const limit = coarse ? Math.min(renderer.faces, Math.max(1024, Math.floor(renderer.faces * FRAME_BUDGET_MS / api.fullMs)))
+      : renderer.faces;
+    renderer.relight(frame, limit);
     renderer.finish();
-    api.relightMs.push(performance.now() - started);
+    const spent = performance.now() - started;
+    if (limit === renderer.faces) { api.relightMs.push(spent); api.fullMs = Math.max(spent, 1e-3); }
+    else api.previewMs.push(spent);
+    if (!api.exposureFixed) {  // exposure 0 stops: 1 / the 90th percentile of the radiance's luminance
+      const e = renderer.readIrradiance(), albedo = daylight.geometry.albedo, luminance = [];
+      for (let f = 0; f < renderer.faces; f++) {
+        const y = (0.2126 * albedo[3 * f] * e[3 * f] + 0.7152 * albedo[3 * f + 1] * e[3 * f + 1] + 0.0722 * albedo[3 * f + 2] * e[3 * f + 2]) / (255 * Math.PI);
+        if (y > 0) luminance.push(y);
+      }
+      luminance.sort((a, b) => a - b);
+      if (luminance.length) api.exposureReference = 1 / luminance[Math.floor(0.9 * (luminance.length - 1))];
+      api.exposureFixed = renderer.received === renderer.faces;
+    }
     api.frame = {when: chosen.when, sky: chosen.sky, row: chosen.row, sunZenith: frame.position.zenith,
                  sunAzimuth: frame.position.azimuth};
     document.getElementById("when").textContent = `${formatTime(chosen.when)} local standard time, sun ` +
@@ -452,7 +477,12 @@ async function run() {
     redraw();
     if (api.firstLitMs === null && renderer.received > 0) api.firstLitMs = performance.now();
   };
-  const schedule = () => {
+  const schedule = (coarse = false) => {
+    // one relight per animation frame: a coarse preview while the controls move or the day plays, the whole
+    // relight once they rest for SETTLE_MS
+    if (quiet) return;
+    clearTimeout(settle);
+    if (coarse && !playing) settle = setTimeout(() => schedule(false), SETTLE_MS);
     if (dirty) return;
     dirty = true;
     requestAnimationFrame(() => {
@@ -460,20 +490,24 @@ async function run() {
       if (playing) {
         const hour = document.getElementById("hour");
         hour.value = String((parseFloat(hour.value) + 0.1) % 24);
-        schedule();
+        schedule(true);
       }
-      if (renderer) { renderer.upload(); relight(); } else redraw();
+      if (renderer) { renderer.upload(); relight(coarse || playing); } else redraw();
     });
   };
   api.setControls = async values => {
-    // set control values as a person would (then the input events), and wait for the relit picture
+    // set control values as a person would (then the input events), and relight at once (not the preview
+    // the events would schedule)
+    quiet = true;
     for (const [id, value] of Object.entries(values)) {
       const element = document.getElementById(id);
       if (element.type === "checkbox") element.checked = !!value; else element.value = String(value);
       element.dispatchEvent(new Event("input", {bubbles: true}));
       element.dispatchEvent(new Event("change", {bubbles: true}));
     }
-    await new Promise(resolve => requestAnimationFrame(() => requestAnimationFrame(resolve)));
+    quiet = false;
+    clearTimeout(settle);
+    relight();
     return api.frame;
   };
   api.irradiance = () => Array.from(renderer.readIrradiance());
@@ -493,11 +527,11 @@ async function run() {
   };
   for (const id of ["date", "hour", "sky", "turbidity", "dni", "dhi", "sun", "useWeather", "weatherHour", "exposure",
                     "falseColour", "luxLow", "luxHigh"])
-    document.getElementById(id).addEventListener("input", schedule);
+    document.getElementById(id).addEventListener("input", () => schedule(true));
   document.getElementById("play").addEventListener("click", () => {
     playing = !playing;
     document.getElementById("play").textContent = playing ? "pause" : "play";
-    schedule();
+    schedule(playing);
   });
 
   const daylightArrived = async payload => {
@@ -508,14 +542,15 @@ async function run() {
       drawing.items = [item];
       camera = new OrbitCamera(canvas, matVec(daylight.header.to_world, [0, 0, 1]), bounds([item.positions]), redraw);
       document.getElementById("controls").hidden = false;
-      if (daylight.weather) {
-        document.getElementById("weatherControls").hidden = false;
-        document.getElementById("weatherHour").max = String(daylight.weather.times.length - 1);
-      }
       const site = daylight.header.site;
       document.getElementById("site").textContent = `latitude ${site.latitude}, longitude ${site.longitude}, ` +
         `UTC${site.timezone >= 0 ? "+" : ""}${site.timezone}, north ${site.north} deg` +
         (daylight.header.weather ? `, weather ${daylight.header.weather.source}` : "");
+    }
+    const weatherControls = document.getElementById("weatherControls");
+    if (daylight.weather && weatherControls.hidden) {  // the WEATHER section follows the geometry
+      weatherControls.hidden = false;
+      document.getElementById("weatherHour").max = String(daylight.weather.times.length - 1);
     }
     if (renderer && daylight.faceSections.length) schedule();
   };
@@ -538,7 +573,7 @@ async function run() {
           .concat(manifest.daylight ? [manifest.daylight.bytes] : []);
         buffers = sizes.map(() => []);
         total = Math.max(1, sizes.reduce((a, b) => a + b, 0));
-        if (manifest.daylight) { daylight = new DaylightStream(); daylightIndex = sizes.length; }
+        if (manifest.daylight) { daylight = new DaylightStream(manifest.daylight.bytes); daylightIndex = sizes.length; }
       } else {
         if (index === daylightIndex) await daylightArrived(payload); else buffers[index - 1].push(payload);
         received += length;
