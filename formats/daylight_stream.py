@@ -25,7 +25,7 @@ stream degrades to coarser light, never to holes.
     SKY (1)       float64 patch samples (N, 9, 3) ENU, solid angles (N,), centre directions (N, 3)
     GEOMETRY (2)  float32 points (P, 3); uint32 corners (F, 3); int16 unit normals x 32767 (F, 3);
                   uint8 albedo x 255 (F, 3); int32 parent (F,), -1 at the roots; uint32 face id (F,):
-                  the face's index in the bake's face order
+                  the face's index in the bake's face order; uint32 prim (F,): index into the header's prims
     WEATHER (3)   float64 local standard time, ms since 1970 (H,); float32 direct-normal and
                   diffuse-horizontal irradiance, W/m^2 (H,) each  (only when the bake names a weather file)
     FACES (4)     ``count`` faces from stream position ``start`` (uint32, first in the payload): uint8 V
@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 MAGIC = b"USDBDLS1"
+OVERLAY_MAGIC = b"USDBANN1"
 HEAD = struct.Struct("<8sI")
 SECTION = struct.Struct("<III")
 """kind, item count, deflated bytes."""
@@ -90,6 +91,8 @@ class DaylightCoefficients:
     """(K, F) float32."""
     sun_hits: np.ndarray
     """(F, R) uint8 sun table shares, face-major."""
+    face_prim: np.ndarray
+    """(F,) uint32 index into ``header["prims"]``."""
     weather_times: np.ndarray | None = None
     """(H,) datetime64[ms] local standard time."""
     weather_direct: np.ndarray | None = None
@@ -112,6 +115,8 @@ class DaylightPrefix:
     """(F,) int32 stream position of each face's parent, -1 at the roots."""
     face_id: np.ndarray
     """(F,) uint32 bake face index of each stream position."""
+    prim: np.ndarray
+    """(F,) uint32 index into ``header["prims"]`` of each stream position."""
     received: int
     """Faces [0, received) have coefficients."""
     visibility: np.ndarray
@@ -225,7 +230,7 @@ def encode_daylight_stream(data: DaylightCoefficients, *, packet_faces: int = 20
              _section(GEOMETRY, faces, data.points.astype("<f4"), data.corners[order].astype("<u4"),
                       np.round(np.clip(data.normals[order], -1, 1) * NORMAL_SCALE).astype("<i2"),
                       np.round(np.clip(data.albedo[order], 0, 1) * 255).astype(np.uint8),
-                      parent.astype("<i4"), order.astype("<u4"))]
+                      parent.astype("<i4"), order.astype("<u4"), data.face_prim[order].astype("<u4"))]
     if data.weather_times is not None:
         parts.append(_section(WEATHER, len(data.weather_times),
                               data.weather_times.astype("datetime64[ms]").astype(np.int64).astype("<f8"),
@@ -238,6 +243,18 @@ def encode_daylight_stream(data: DaylightCoefficients, *, packet_faces: int = 20
                               data.ground_direct[rows].astype("<f4"), data.ground_indirect[:, rows].astype("<f4"),
                               data.sun_hits[rows]))
     return b"".join(parts)
+
+
+def section_ends(data: bytes) -> list[tuple[int, int]]:
+    """(kind, byte offset where it ends) of every whole section of a stream (prefix)."""
+    at, ends = HEAD.size + HEAD.unpack_from(data)[1], []
+    while at + SECTION.size <= len(data):
+        kind, _, size = SECTION.unpack_from(data, at)
+        if at + SECTION.size + size > len(data):
+            break
+        at += SECTION.size + size
+        ends.append((kind, at))
+    return ends
 
 
 def geometry_end(read) -> int:
@@ -296,7 +313,8 @@ def decode_daylight_stream(data: bytes) -> DaylightPrefix:
             out.update(points=reader.take("<f4", (header["points"], 3)), corners=reader.take("<u4", (faces, 3)),
                        normals=reader.take("<i2", (faces, 3)).astype(np.float32) / np.float32(NORMAL_SCALE),
                        albedo=reader.take("u1", (faces, 3)).astype(np.float32) / np.float32(255),
-                       parent=reader.take("<i4", (faces,)).astype(np.int64), face_id=reader.take("<u4", (faces,)))
+                       parent=reader.take("<i4", (faces,)).astype(np.int64), face_id=reader.take("<u4", (faces,)),
+                       prim=reader.take("<u4", (faces,)))
         elif kind == WEATHER:
             out["weather"] = (reader.take("<f8", (count,)).astype(np.int64).astype("datetime64[ms]"),
                               reader.take("<f4", (count,)), reader.take("<f4", (count,)))
@@ -313,3 +331,24 @@ def decode_daylight_stream(data: bytes) -> DaylightPrefix:
     if "corners" not in out:
         raise ValueError("daylight stream: cut before its geometry")
     return DaylightPrefix(header=header, **out)
+
+
+def encode_overlay(metrics: dict[str, np.ndarray], summary: dict) -> bytes:
+    """Per-face overlays (each (F,) float32, stream order) and a JSON summary: ``OVERLAY_MAGIC``, uint32 JSON
+    bytes, the JSON ({"metrics": names, "faces": F, **summary}), then zlib data of the (M, F) float32 values."""
+    names = list(metrics)
+    faces = len(next(iter(metrics.values()))) if metrics else 0
+    text = json.dumps({"metrics": names, "faces": faces, **summary}).encode()
+    values = np.array([metrics[name] for name in names], "<f4").reshape(len(names), faces)
+    return HEAD.pack(OVERLAY_MAGIC, len(text)) + text + zlib.compress(values.tobytes(), 6)
+
+
+def decode_overlay(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
+    """(summary, {metric: (F,) float32}) of ``encode_overlay``'s bytes."""
+    if len(data) < HEAD.size or data[:8] != OVERLAY_MAGIC:
+        raise ValueError("not a usdbake overlay stream (bad magic)")
+    length = HEAD.unpack_from(data)[1]
+    summary = json.loads(data[HEAD.size:HEAD.size + length])
+    values = np.frombuffer(zlib.decompress(data[HEAD.size + length:]), "<f4")
+    values = values.reshape(len(summary["metrics"]), summary["faces"])
+    return summary, dict(zip(summary["metrics"], values))

@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..formats.daylight_stream import DaylightPrefix, decode_daylight_stream, geometry_end, received_source
+from ..formats.daylight_stream import (DaylightPrefix, decode_daylight_stream, decode_overlay, geometry_end,
+                                       received_source)
 from ..formats.mesh_stream import MESH_HEADER, MeshPrefix, decode_mesh_stream
 from ..formats.streaming import HEADER, decode_stream, push_pull
 from ..kernels.daylight_relight import IndirectCoefficients, Receivers, Relighter, SunTable
@@ -86,6 +87,8 @@ class StreamedScene:
     grid: GridPrefix | None
     bytes_read: int
     daylight: StreamedDaylight | None = None
+    overlay: dict[str, np.ndarray] | None = None
+    """annual_daylight's metrics per daylight face (stream order), when the server sends them."""
 
 
 def _get(url: str, *, end: int | None = None, timeout: float = 30.0) -> bytes:
@@ -126,7 +129,8 @@ def fetch_scene(base_url: str, *, fraction: float = 1.0, smooth: bool = True, ti
         data = _get(url, end=_prefix_end(size, fraction, least), timeout=timeout)
         read += len(data)
         daylight = StreamedDaylight(decode_daylight_stream(data))
-    return StreamedScene(meshes, grid, read, daylight)
+    overlay = decode_overlay(_get(base + manifest["overlay"]["url"], timeout=timeout))[1] if manifest.get("overlay") else None
+    return StreamedScene(meshes, grid, read, daylight, overlay)
 
 
 def _grid_from(data: bytes, smooth: bool) -> GridPrefix:
@@ -156,7 +160,7 @@ def stream_scene(base_url: str, *, fractions=(0.1, 0.5, 1.0), chunk: int | None 
     with urllib.request.urlopen(url, timeout=timeout) as response:
         index, length, _ = STREAM_FRAME.unpack(response.read(STREAM_FRAME.size))
         manifest = json.loads(response.read(length))
-        sizes = [m["bytes"] for m in manifest["meshes"]] + [manifest[k]["bytes"] for k in ("grid", "daylight")
+        sizes = [m["bytes"] for m in manifest["meshes"]] + [manifest[k]["bytes"] for k in ("grid", "daylight", "overlay")
                                                            if manifest.get(k)]
         buffers = [bytearray() for _ in sizes]
         total, received = max(1, sum(sizes)), 0
@@ -184,9 +188,12 @@ def _scene_from(manifest: dict, buffers: list, smooth: bool, received: int) -> S
             meshes[mesh["prim"]] = decode_mesh_stream(bytes(data))
     grid_data = bytes(buffers[len(manifest["meshes"])]) if manifest["grid"] else b""
     grid = _grid_from(grid_data, smooth) if len(grid_data) >= HEADER.size else None
-    daylight = None
+    daylight = overlay = None
+    tail = len(manifest["meshes"]) + bool(manifest["grid"])
     if manifest.get("daylight"):
-        data = bytes(buffers[-1])
+        data = bytes(buffers[tail])
         if geometry_end(lambda end: data[:end]) <= len(data):
             daylight = StreamedDaylight(decode_daylight_stream(data))
-    return StreamedScene(meshes, grid, received, daylight)
+    if manifest.get("overlay") and len(buffers[-1]) == manifest["overlay"]["bytes"]:
+        overlay = decode_overlay(bytes(buffers[-1]))[1]
+    return StreamedScene(meshes, grid, received, daylight, overlay)

@@ -14,8 +14,11 @@ route                what
                      they arrive, or the daylight faces relit for any date,
                      hour and sky
 ``GET /manifest``    JSON: the stage, each mesh stream (prim, url, bytes),
-                     the grid stream and the daylight stream; a client
-                     reads it first
+                     the grid stream, the daylight stream and the annual
+                     overlay; a client reads it first
+``GET /overlay``     annual_daylight's metrics on the daylight faces
+                     (``annual_overlay``: read from the bake layer's own
+                     primvars at start, served from memory)
 ``GET /files/NAME``  one stream file: one HTTP range (a client takes a
                      prefix, then the rest), a strong ETag (the file's
                      SHA-256) and If-None-Match
@@ -93,14 +96,22 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from aiohttp import hdrs, web
 from pxr import Sdf, Usd
 
 from ..core.errors import UsageError
+from ..formats.daylight_stream import decode_daylight_stream, encode_overlay, geometry_end
 from .sidecars import owned_sidecars
 
 GRID_PRIM = "/usdbake/IrradianceGrid"
 DAYLIGHT_PRIM = "/usdbake/DaylightStream"
+ANNUAL_PRIM = "/usdbake/AnnualDaylight"
+ANNUAL_PRIMVARS = {"daylightAutonomy": "primvars:bake:daylightAutonomy", "daylightFactor": "primvars:bake:daylightFactor",
+                   "usefulDaylight": "primvars:bake:usefulDaylight", "annualSunHours": "primvars:bake:annualSunHours",
+                   "meanIlluminance": "primvars:bake:meanIlluminance"}
+"""annual_daylight's per-face results the viewer overlays (``usefulDaylight``: below, within, above the band)."""
+OVERLAY_URL = "/overlay"
 MESH_STREAM_ATTRIBUTE = "bake:pmStreamFile"
 FRAME = struct.Struct("<IIQ")
 """Frame header of ``/stream``: stream index (0: the manifest, 1.. the manifest's streams: meshes, then the
@@ -240,10 +251,41 @@ class BakeStreams:
     grid: Stream | None
     daylight: Stream | None = None
     """The daylight coefficients (formats/daylight_stream.py), when the bake ran daylight_stream."""
+    overlay: bytes | None = None
+    """annual_daylight's metrics on the daylight stream's faces (``annual_overlay``), when both ran."""
 
     def ordered(self) -> list[Stream]:
-        """``/stream``'s numbering (1..): the meshes, the grid, the daylight stream."""
-        return self.meshes + [s for s in (self.grid, self.daylight) if s is not None]
+        """``/stream``'s numbering (1..): the meshes, the grid, the daylight stream, the overlay."""
+        overlay = Stream(ANNUAL_PRIM, OVERLAY_URL, "", self.overlay) if self.overlay else None
+        return self.meshes + [s for s in (self.grid, self.daylight, overlay) if s is not None]
+
+
+def annual_overlay(stage: Usd.Stage, layer: Sdf.Layer, daylight: bytes) -> bytes | None:
+    """annual_daylight's per-face metrics on the daylight stream's faces, in stream order, from the bake layer's
+    own primvars on the stream's prims (a prim's primvar element k is its k-th face in the bake's face order);
+    None when the layer has none or they do not fit the stream's faces."""
+    prefix = decode_daylight_stream(daylight[:geometry_end(lambda end: daylight[:end])])
+    faces = len(prefix.face_id)
+    metrics = {}
+    for name, attribute in ANNUAL_PRIMVARS.items():
+        width = 3 if name == "usefulDaylight" else 1
+        values = np.full((faces, width), np.nan, np.float32)
+        for index, prim in enumerate(prefix.header["prims"]):
+            spec = layer.GetAttributeAtPath(f"{prim['path']}.{attribute}")
+            positions = np.flatnonzero(prefix.prim == index)
+            positions = positions[np.argsort(prefix.face_id[positions], kind="stable")]
+            data = np.asarray(spec.default if spec is not None and spec.default is not None else [], np.float32)
+            if data.size != width * len(positions):
+                return None
+            values[positions] = data.reshape(-1, width)
+        if width == 3:
+            metrics.update({f"{name}{part}": values[:, k] for k, part in enumerate(("Below", "Within", "Above"))})
+        else:
+            metrics[name] = values[:, 0]
+    report = stage.GetPrimAtPath(ANNUAL_PRIM)
+    summary = {key: float(report.GetAttribute(f"bake:annual:{key}").Get()) for key in ("sDA", "ASE")
+               if report and report.GetAttribute(f"bake:annual:{key}").HasAuthoredValue()}
+    return encode_overlay(metrics, summary)
 
 
 def stage_streams(path: str, *, log=print) -> BakeStreams:
@@ -289,7 +331,8 @@ def stage_streams(path: str, *, log=print) -> BakeStreams:
         files.close()
         raise UsageError(f"{path}: no streams to serve: bake it with -p progressive_mesh, -p irradiance_grid "
                          f"and/or -p daylight_stream")
-    return BakeStreams(Path(path).name, files, meshes, grid, daylight)
+    overlay = annual_overlay(stage, layer, daylight.data) if daylight else None
+    return BakeStreams(Path(path).name, files, meshes, grid, daylight, overlay)
 
 
 class Slots:
@@ -389,14 +432,15 @@ def make_app(path: str, *, limits: Limits = Limits(), log=print) -> web.Applicat
     runner's: pass ``keepalive_timeout=limits.header_timeout`` to ``web.AppRunner`` or ``web.run_app``."""
     streams = stage_streams(path, log=log)
     ordered = streams.ordered()
-    by_name = {stream.name: stream for stream in ordered}
+    by_name = {stream.name: stream for stream in ordered if stream.data is not streams.overlay}
 
     def entry(stream: Stream) -> dict:
         return {"url": f"/files/{stream.name}", "bytes": len(stream.data)}
 
     manifest = {"stage": streams.stage, "meshes": [{"prim": m.prim, **entry(m)} for m in streams.meshes],
                 "grid": entry(streams.grid) if streams.grid else None,
-                "daylight": entry(streams.daylight) if streams.daylight else None}
+                "daylight": entry(streams.daylight) if streams.daylight else None,
+                "overlay": {"url": OVERLAY_URL, "bytes": len(streams.overlay)} if streams.overlay else None}
     header = json.dumps(manifest).encode()
     page = (VIEWER / "index.html").read_text()
     scripts = {name: (VIEWER / name).read_text() for name in VIEWER_SCRIPTS}
@@ -407,6 +451,11 @@ def make_app(path: str, *, limits: Limits = Limits(), log=print) -> web.Applicat
 
     async def viewer_script(request: web.Request) -> web.Response:
         return web.Response(content_type="text/javascript", text=scripts[request.path.lstrip("/")])
+
+    async def overlay_route(request: web.Request) -> web.Response:
+        if streams.overlay is None:
+            raise web.HTTPNotFound(text="no annual_daylight results on this bake's daylight faces")
+        return web.Response(body=streams.overlay, content_type="application/octet-stream")
 
     async def manifest_route(request: web.Request) -> web.Response:
         response = web.Response(text=json.dumps(manifest), content_type="application/json")
@@ -452,6 +501,7 @@ def make_app(path: str, *, limits: Limits = Limits(), log=print) -> web.Applicat
     for name in VIEWER_SCRIPTS:
         app.router.add_get(f"/{name}", viewer_script)
     app.router.add_get("/manifest", manifest_route)
+    app.router.add_get(OVERLAY_URL, overlay_route)
     app.router.add_get("/files/{name}", file_route)
     app.router.add_get("/stream", stream_route)
     app.on_cleanup.append(close_folder)

@@ -32,12 +32,14 @@ def params(weather: Path | None) -> dict:
 
 
 def bake_daylight(folder: Path, weather: Path | None) -> Path:
-    """``usdbake bake samples/window_room.usda -p daylight_stream`` into ``folder``."""
+    """``usdbake bake samples/window_room.usda -p daylight_stream`` into ``folder``; with ``weather`` also
+    ``-p annual_daylight`` on that year (the viewer's overlays)."""
     from usdbake.cli.main import main
 
     out = folder / "room.usdc"
     settings = [f"daylight_stream.{k}={v}" for k, v in params(weather)["daylight_stream"].items()]
-    code = main(["bake", str(SAMPLES / "window_room.usda"), "-o", str(out), "-p", "daylight_stream",
+    annual = ["-p", "annual_daylight", "--set", f"annual_daylight.weather={weather}"] if weather else []
+    code = main(["bake", str(SAMPLES / "window_room.usda"), "-o", str(out), "-p", "daylight_stream", *annual,
                  "--cache", str(folder / "cache"), *sum((["--set", s] for s in settings), [])])
     assert code == 0
     return out

@@ -41,6 +41,8 @@ def stream_coefficients(scene, product: SkyVisibilityProduct, inter: Interreflec
     """The stream's arrays: the product's faces in order, V as the bake's own uint8 codes."""
     prims = [{"path": scene.prim_paths[prim], "faces": int((product.face_prim == prim).sum())}
              for prim in product.prims]
+    prim_index = np.zeros(int(max(product.prims.max(initial=0), product.face_prim.max(initial=0))) + 1, np.int64)
+    prim_index[product.prims] = np.arange(len(product.prims))
     header = {
         "patches": {"layout": product.patches.layout, "count": len(product.patches),
                     "subdivision": int(product.patches.subdivision)},
@@ -58,7 +60,7 @@ def stream_coefficients(scene, product: SkyVisibilityProduct, inter: Interreflec
         product.face_vertices.astype(np.uint32), product.face_normals.astype(np.float32),
         scene.tri_albedo[product.face_source].astype(np.float32), product.visibility, inter.sky_indirect,
         inter.ground_direct, inter.ground_indirect, np.ascontiguousarray(table.hits.T),
-        weather.times if weather is not None else None,
+        prim_index[product.face_prim].astype(np.uint32), weather.times if weather is not None else None,
         weather.direct_normal if weather is not None else None,
         weather.diffuse_horizontal if weather is not None else None)
 

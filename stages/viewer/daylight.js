@@ -75,7 +75,7 @@ class DaylightStream {
       } else if (kind === SECTION_GEOMETRY) {
         this.geometry = {points: take(Float32Array, 3 * h.points), corners: take(Uint32Array, 3 * F),
                          normals: take(Int16Array, 3 * F), albedo: take(Uint8Array, 3 * F), parent: take(Int32Array, F),
-                         faceId: take(Uint32Array, F)};
+                         faceId: take(Uint32Array, F), prim: take(Uint32Array, F)};
       } else if (kind === SECTION_WEATHER) {
         this.weather = {times: take(Float64Array, count), direct: take(Float32Array, count), diffuse: take(Float32Array, count)};
       } else if (kind === SECTION_FACES) {
@@ -143,16 +143,16 @@ function daylightWeights(stream, when, sky) {
                   diffuseHorizontal: sky.diffuseHorizontal, dayOfYear: day, efficacy: sky.efficacy};
   const weights = skyWeights(stream.sky.samples, stream.sky.solidAngles, sky.model, sunLayout, params);
   const eNormal = sky.sun ? sunNormal(sky.model, sunSite, params) : null;
-  const bounced = Float64Array.from(weights);
+  const sunPatches = [];  // [patch, rgb]: the sun's direct normal irradiance spread over its nearest patches
   if (eNormal) {
     const s = sunPatchWeights(stream.sky.directions, sunLayout, eNormal);
-    for (let i = 0; i < 3 * n; i++) bounced[i] += s[i];
+    for (let j = 0; j < n; j++) if (s[3 * j] || s[3 * j + 1] || s[3 * j + 2]) sunPatches.push([j, [s[3 * j], s[3 * j + 1], s[3 * j + 2]]]);
   }
   if (!stream.cosines) stream.cosines = horizontalCosines(stream.sky.samples, n);
   const ground = groundRadiance(stream.cosines, weights, sunLayout, eNormal, h.ground_reflectance);
   const sunWorld = matVec(h.to_world, sunLayout);
   const nodes = eNormal ? sunTableNodes(h.sun_table, position.declination, position.hourAngle) : [];
-  return {weights, bounced, ground, eNormal, sunWorld, nodes, position};
+  return {weights, sunPatches, ground, eNormal, sunWorld, nodes, position};
 }
 
 function compile(gl, vertex, fragment) {
@@ -186,15 +186,18 @@ class DaylightRenderer {
     this.stream = stream;
     this.faces = h.faces;
     this.K = h.indirect_sets;
-    this.quads = Math.ceil(h.patch_count / 4);  // RGBA8 texels per coefficient set and face
-    this.perFace = this.quads * (1 + this.K);
+    this.quads = Math.ceil(h.patch_count / 4);  // texels per coefficient set and face, 4 patches each
+    this.perFace = this.quads * this.K;
     if (!gl.getExtension("EXT_color_buffer_float")) throw new Error("WebGL2 without float render targets");
     const limit = gl.getParameter(gl.MAX_TEXTURE_SIZE);
     this.width = Math.min(limit, TEXTURE_WIDTH);
     this.facesPerRow = Math.floor(this.width / this.perFace);
     const rows = Math.ceil(this.faces / this.facesPerRow);
     if (rows > limit) throw new Error(`${this.faces} faces need ${rows} texture rows; this GPU allows ${limit}`);
-    this.coefficients = dataTexture(gl, 0, gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE, this.facesPerRow * this.perFace, rows, null);
+    // C = V + D per set (float32: the sky's light direct and bounced in one sum), and D's own codes for the
+    // sun's 4 patches (its light only bounces: E_sun keeps the sun table)
+    this.combined = dataTexture(gl, 0, gl.RGBA32F, gl.RGBA, gl.FLOAT, this.facesPerRow * this.perFace, rows, null);
+    this.indirectCodes = dataTexture(gl, 6, gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE, this.facesPerRow * this.perFace, rows, null);
     // per face: (normal, pi g), (D^g per set, received), (D scale per set, 0)
     this.faceRows = Math.ceil(this.faces / 1024);
     this.faceData = new Float32Array(1024 * this.faceRows * 12);
@@ -221,40 +224,41 @@ class DaylightRenderer {
       this.relightShader());
     this.weights = gl.createBuffer();
     gl.bindBuffer(gl.UNIFORM_BUFFER, this.weights);
-    gl.bufferData(gl.UNIFORM_BUFFER, 4 * 4 * this.quads * 6, gl.DYNAMIC_DRAW);
+    gl.bufferData(gl.UNIFORM_BUFFER, 4 * 4 * this.quads * 3, gl.DYNAMIC_DRAW);
     gl.uniformBlockBinding(this.program, gl.getUniformBlockIndex(this.program, "Weights"), 0);
     this.received = 0;
   }
 
   relightShader() {
-    // One fragment per face: Eq. 1 over the patches, 4 per RGBA8 texel (codes / 255). V = code x scale (the
-    // scale folded into the weights); D = s (code / 255)^2 (square-root codes).
+    // One fragment per face, Eq. 1 with the interreflection's terms: E = sum_j C_ij w_j + sum_{4 sun patches}
+    // D_ij s_j + ground + sun, C = V + D (float32, 4 patches per texel), D = s (code / 255)^2 (square-root codes).
     const Q = this.quads, K = this.K;
-    const indirect = K === 1 ? `
-        vec3 d = vec3(0.0);
+    const sky = K === 1 ? `
         for (int t = 0; t < ${Q}; t++) {
-          vec4 c = texelFetch(coefficients, ivec2(base + ${Q} + t, row), 0);
-          c *= c;
-          d += vec3(dot(c, br[t]), dot(c, bg[t]), dot(c, bb[t]));
-        }
-        e += d * scales.x;` : `
-        vec3 d = vec3(0.0);
+          vec4 c = texelFetch(combined, ivec2(base + t, row), 0);
+          e += vec3(dot(c, wr[t]), dot(c, wg[t]), dot(c, wb[t]));
+        }` : `
         for (int t = 0; t < ${Q}; t++) {
-          vec4 r = texelFetch(coefficients, ivec2(base + ${Q} + t, row), 0);
-          vec4 g = texelFetch(coefficients, ivec2(base + ${2 * Q} + t, row), 0);
-          vec4 b = texelFetch(coefficients, ivec2(base + ${3 * Q} + t, row), 0);
-          d += vec3(dot(r * r, br[t]), dot(g * g, bg[t]), dot(b * b, bb[t]));
-        }
-        e += d * scales.xyz;`;
+          e += vec3(dot(texelFetch(combined, ivec2(base + t, row), 0), wr[t]),
+                    dot(texelFetch(combined, ivec2(base + ${Q} + t, row), 0), wg[t]),
+                    dot(texelFetch(combined, ivec2(base + ${2 * Q} + t, row), 0), wb[t]));
+        }`;
+    const sunPatch = (k, channels) => `
+            { float d = texelFetch(indirectCodes, ivec2(base + ${k * Q} + j / 4, row), 0)[j % 4];
+              e${channels} += scales[${k}] * d * d * sunPatchLight[q]${channels}; }`;
+    const bounced = K === 1 ? sunPatch(0, "") : sunPatch(0, ".r") + sunPatch(1, ".g") + sunPatch(2, ".b");
     return `#version 300 es
       precision highp float; precision highp int;
-      uniform highp sampler2D coefficients;
+      uniform highp sampler2D combined;
+      uniform highp sampler2D indirectCodes;
       uniform highp sampler2D perFace;
       uniform highp sampler2D sunShares;
       uniform highp isampler2D source;
-      layout(std140) uniform Weights { vec4 wr[${Q}]; vec4 wg[${Q}]; vec4 wb[${Q}]; vec4 br[${Q}]; vec4 bg[${Q}]; vec4 bb[${Q}]; };
+      layout(std140) uniform Weights { vec4 wr[${Q}]; vec4 wg[${Q}]; vec4 wb[${Q}]; };
       uniform int faces;
       uniform vec3 ground;
+      uniform ivec4 sunPatches;
+      uniform vec3 sunPatchLight[4];
       uniform vec3 sunDirection;
       uniform vec3 sunIrradiance;
       uniform ivec4 sunRows;
@@ -269,14 +273,14 @@ class DaylightRenderer {
         int row = s / ${this.facesPerRow};
         int base = (s - row * ${this.facesPerRow}) * ${this.perFace};
         vec3 e = vec3(0.0);
-        for (int t = 0; t < ${Q}; t++) {
-          vec4 c = texelFetch(coefficients, ivec2(base + t, row), 0);
-          e += vec3(dot(c, wr[t]), dot(c, wg[t]), dot(c, wb[t]));
-        }
+        ${sky}
         vec4 own = texelFetch(perFace, ivec2(3 * (face % 1024), face / 1024), 0);
         vec4 groundTerms = texelFetch(perFace, ivec2(3 * (s % 1024) + 1, s / 1024), 0);
         vec4 scales = texelFetch(perFace, ivec2(3 * (s % 1024) + 2, s / 1024), 0);
-        ${indirect}
+        for (int q = 0; q < 4; q++) {
+          int j = sunPatches[q];
+          if (j >= 0) ${bounced}
+        }
         float g = texelFetch(perFace, ivec2(3 * (s % 1024), s / 1024), 0).w;
         e += (vec3(g) + ${K === 1 ? "vec3(groundTerms.x)" : "groundTerms.xyz"}) * ground;
         float cosine = max(dot(own.xyz, sunDirection), 0.0);
@@ -298,22 +302,29 @@ class DaylightRenderer {
     const sections = stream.faceSections.splice(0);
     if (!sections.length) return false;
     for (const section of sections) {
-      const count = section.count;
-      const texels = new Uint8Array(count * this.perFace * 4);
-      for (let i = 0; i < count; i++) {
-        const o = i * this.perFace * 4;
-        texels.set(section.visibility.subarray(i * n, (i + 1) * n), o);
-        for (let k = 0; k < K; k++)
-          texels.set(section.indirect.subarray((k * count + i) * n, (k * count + i + 1) * n), o + 4 * Q * (k + 1));
-      }
+      const count = section.count, vScale = h.visibility_scale;
+      const codes = new Uint8Array(count * this.perFace * 4), sums = new Float32Array(count * this.perFace * 4);
+      for (let i = 0; i < count; i++)
+        for (let k = 0; k < K; k++) {
+          const o = (i * K + k) * 4 * Q, d = (k * count + i) * n, scale = section.scale[k * count + i] / (255 * 255);
+          codes.set(section.indirect.subarray(d, d + n), o);
+          for (let j = 0; j < n; j++) {
+            const c = section.indirect[d + j];
+            sums[o + j] = section.visibility[i * n + j] * vScale + c * c * scale;
+          }
+        }
       // whole rows of the coefficient texture: sections start at multiples of packet_faces, not of facesPerRow
       for (let i = 0; i < count;) {
         const face = section.start + i, row = Math.floor(face / this.facesPerRow), column = face % this.facesPerRow;
         const span = Math.min(this.facesPerRow - column, count - i);
         gl.activeTexture(gl.TEXTURE0);
-        gl.bindTexture(gl.TEXTURE_2D, this.coefficients);
+        gl.bindTexture(gl.TEXTURE_2D, this.combined);
+        gl.texSubImage2D(gl.TEXTURE_2D, 0, column * this.perFace, row, span * this.perFace, 1, gl.RGBA, gl.FLOAT,
+                         sums.subarray(i * this.perFace * 4, (i + span) * this.perFace * 4));
+        gl.activeTexture(gl.TEXTURE6);
+        gl.bindTexture(gl.TEXTURE_2D, this.indirectCodes);
         gl.texSubImage2D(gl.TEXTURE_2D, 0, column * this.perFace, row, span * this.perFace, 1, gl.RGBA, gl.UNSIGNED_BYTE,
-                         texels.subarray(i * this.perFace * 4, (i + span) * this.perFace * 4));
+                         codes.subarray(i * this.perFace * 4, (i + span) * this.perFace * 4));
         const sun = section.sun.subarray(i * this.R, (i + span) * this.R);
         gl.activeTexture(gl.TEXTURE2);
         gl.bindTexture(gl.TEXTURE_2D, this.sun);
@@ -355,21 +366,24 @@ class DaylightRenderer {
     // an interactive preview relights a prefix and shows the rest with their ancestors' light, ``display``);
     // leaves the irradiance in the target texture (unit 4).
     const gl = this.gl, h = this.stream.header, Q = this.quads, n = h.patch_count;
-    const block = new Float32Array(4 * Q * 6);
-    const scale = 255 * h.visibility_scale;  // V = (code / 255) x 255 x visibility_scale
+    const block = new Float32Array(4 * Q * 3);
     for (let j = 0; j < n; j++)
-      for (let c = 0; c < 3; c++) {
-        block[c * 4 * Q + j] = frame.weights[3 * j + c] * scale;
-        block[(3 + c) * 4 * Q + j] = frame.bounced[3 * j + c];
-      }
+      for (let c = 0; c < 3; c++) block[c * 4 * Q + j] = frame.weights[3 * j + c];
+    const patches = [-1, -1, -1, -1], light = new Float32Array(12);
+    frame.sunPatches.forEach(([j, rgb], q) => { patches[q] = j; light.set(rgb, 3 * q); });
     gl.useProgram(this.program);
     gl.bindBuffer(gl.UNIFORM_BUFFER, this.weights);
     gl.bufferSubData(gl.UNIFORM_BUFFER, 0, block);
     gl.bindBufferBase(gl.UNIFORM_BUFFER, 0, this.weights);
-    const units = {coefficients: 0, perFace: 1, sunShares: 2, source: 3};
-    const textures = [this.coefficients, this.perFaceTexture, this.sun, this.source];
-    textures.forEach((texture, unit) => { gl.activeTexture(gl.TEXTURE0 + unit); gl.bindTexture(gl.TEXTURE_2D, texture); });
-    for (const [name, unit] of Object.entries(units)) gl.uniform1i(gl.getUniformLocation(this.program, name), unit);
+    const units = [["combined", this.combined, 0], ["perFace", this.perFaceTexture, 1], ["sunShares", this.sun, 2],
+                   ["source", this.source, 3], ["indirectCodes", this.indirectCodes, 6]];
+    for (const [name, texture, unit] of units) {
+      gl.activeTexture(gl.TEXTURE0 + unit);
+      gl.bindTexture(gl.TEXTURE_2D, texture);
+      gl.uniform1i(gl.getUniformLocation(this.program, name), unit);
+    }
+    gl.uniform4iv(gl.getUniformLocation(this.program, "sunPatches"), patches);
+    gl.uniform3fv(gl.getUniformLocation(this.program, "sunPatchLight"), light);
     gl.uniform1i(gl.getUniformLocation(this.program, "faces"), limit);
     gl.uniform3fv(gl.getUniformLocation(this.program, "ground"), frame.ground);
     const e = frame.eNormal || [0, 0, 0];

@@ -247,24 +247,30 @@ const DRAW_FRAGMENT = `#version 300 es
 const DAYLIGHT_VERTEX = `#version 300 es
   in vec3 p; in float face; in vec3 albedo;
   uniform mat4 viewProjection; uniform highp sampler2D irradiance; uniform highp isampler2D display;
-  flat out vec4 light; flat out vec3 reflectance;
+  uniform highp sampler2D overlay;
+  flat out vec4 light; flat out vec3 reflectance; flat out float metric;
   void main() {
-    int f = int(face + 0.5);
-    f = texelFetch(display, ivec2(f % 1024, f / 1024), 0).r;  // itself, or its ancestor in a coarse preview
+    int own = int(face + 0.5);
+    int f = texelFetch(display, ivec2(own % 1024, own / 1024), 0).r;  // itself, or its ancestor in a coarse preview
     light = f < 0 ? vec4(0.0) : texelFetch(irradiance, ivec2(f % 256, f / 256), 0);
+    metric = texelFetch(overlay, ivec2(own % 1024, own / 1024), 0).r;
     reflectance = albedo;
     gl_Position = viewProjection * vec4(p, 1.0);
   }`;
 const DAYLIGHT_FRAGMENT = `#version 300 es
   precision highp float;
-  flat in vec4 light; flat in vec3 reflectance;
-  uniform float exposure; uniform int falseColour; uniform vec2 luxRange;
+  flat in vec4 light; flat in vec3 reflectance; flat in float metric;
+  uniform float exposure; uniform int falseColour; uniform vec2 luxRange; uniform vec2 metricRange;
   out vec4 outColour;
   vec3 ramp(float t) {  // blue - cyan - green - yellow - red
     t = clamp(t, 0.0, 1.0);
     return clamp(vec3(1.5 - abs(4.0 * t - 3.0), 1.5 - abs(4.0 * t - 2.0), 1.5 - abs(4.0 * t - 1.0)), 0.0, 1.0);
   }
   void main() {
+    if (falseColour == 2) {  // an annual metric, linear between metricRange
+      outColour = vec4(ramp((metric - metricRange.x) / (metricRange.y - metricRange.x)), 1.0);
+      return;
+    }
     if (light.a == 0.0) { outColour = vec4(0.35, 0.35, 0.38, 1.0); return; }  // no coefficients yet
     if (falseColour == 1) {
       float lux = 179.0 * dot(light.rgb, vec3(0.2126, 0.7152, 0.0722));
@@ -370,7 +376,7 @@ function readControls() {
   return {date: value("date"), hour: parseFloat(value("hour")), model: value("sky"), turbidity: parseFloat(value("turbidity")),
           directNormal: parseFloat(value("dni")), diffuseHorizontal: parseFloat(value("dhi")), sun: checked("sun"),
           useWeather: checked("useWeather"), weatherHour: parseInt(value("weatherHour"), 10),
-          exposure: Math.pow(2, parseFloat(value("exposure"))), falseColour: checked("falseColour"),
+          exposure: Math.pow(2, parseFloat(value("exposure"))), falseColour: checked("falseColour"), overlay: value("overlay"),
           luxLow: parseFloat(value("luxLow")), luxHigh: parseFloat(value("luxHigh"))};
 }
 
@@ -385,7 +391,28 @@ function skyFor(controls, weather) {
   return {when: localTime(controls.date, controls.hour), sky, row: -1};
 }
 
-function drawLegend(low, high) {
+// The annual overlays the server may send (stages/serve.py ANNUAL_PRIMVARS): label and legend range.
+const OVERLAYS = {
+  daylightAutonomy: ["daylight autonomy (share of occupied hours)", 0, 1],
+  usefulDaylightWithin: ["UDI within the band (share)", 0, 1],
+  usefulDaylightBelow: ["UDI below the band (share)", 0, 1],
+  usefulDaylightAbove: ["UDI above the band (share)", 0, 1],
+  daylightFactor: ["daylight factor (%)", 0, 10],
+  annualSunHours: ["sunlit occupied hours", 0, 500],
+  meanIlluminance: ["mean illuminance (lux)", 0, 2000],
+};
+
+function decodeOverlay(buffer) {
+  // formats/daylight_stream.encode_overlay: magic, JSON, zlib (M, F) float32
+  const view = new DataView(buffer.buffer, buffer.byteOffset, buffer.byteLength), length = view.getUint32(8, true);
+  const summary = JSON.parse(new TextDecoder().decode(buffer.subarray(12, 12 + length)));
+  return inflate(buffer.subarray(12 + length)).then(bytes => {
+    const values = new Float32Array(bytes.buffer), F = summary.faces;
+    return {summary, metrics: Object.fromEntries(summary.metrics.map((name, k) => [name, values.subarray(k * F, (k + 1) * F)]))};
+  });
+}
+
+function drawLegend(low, high, linear = false) {
   const canvas = document.getElementById("legend"), context = canvas.getContext("2d");
   const w = canvas.width, h = canvas.height;
   context.clearRect(0, 0, w, h);
@@ -399,7 +426,7 @@ function drawLegend(low, high) {
   context.font = "11px sans-serif";
   const ticks = 4;
   for (let i = 0; i <= ticks; i++) {
-    const lux = low * Math.pow(high / low, i / ticks);
+    const lux = linear ? low + (high - low) * i / ticks : low * Math.pow(high / low, i / ticks);
     context.textAlign = i === 0 ? "left" : i === ticks ? "right" : "center";
     context.fillText(lux >= 100 ? lux.toFixed(0) : lux.toPrecision(2), i * (w - 1) / ticks, h - 2);
   }
@@ -421,7 +448,18 @@ async function run() {
   let daylight = null, daylightIndex = -1, renderer = null, camera = null, dirty = false, playing = false;
   const api = window.usdbake = {relightMs: [], previewMs: [], fullMs: 1e9, firstLitMs: null, ready: false,
                                 exposureReference: 1, exposureFixed: false};
-  let settle = null, quiet = false;
+  let settle = null, quiet = false, overlay = null, overlayIndex = -1, overlayParts = [];
+  const overlayTextures = {};
+  const overlayTexture = name => {
+    // per face (stream order) values of one annual metric as an R32F texture (unit 7); zeros for none
+    const key = name || "";
+    if (!overlayTextures[key]) {
+      const values = new Float32Array(1024 * renderer.sourceRows);
+      if (name) values.set(overlay.metrics[name]);
+      overlayTextures[key] = dataTexture(drawing.gl, 7, drawing.gl.R32F, drawing.gl.RED, drawing.gl.FLOAT, 1024, renderer.sourceRows, values);
+    }
+    return overlayTextures[key];
+  };
 
   const redraw = () => {
     if (!camera) return;
@@ -436,21 +474,26 @@ async function run() {
         gl.bindTexture(gl.TEXTURE_2D, renderer.display(renderer.relit));
         gl.uniform1i(gl.getUniformLocation(item.program, "display"), 5);
         gl.uniform1f(gl.getUniformLocation(item.program, "exposure"), controls.exposure * api.exposureReference);
-        gl.uniform1i(gl.getUniformLocation(item.program, "falseColour"), controls.falseColour ? 1 : 0);
+        const shown = overlay && controls.overlay !== "light" ? OVERLAYS[controls.overlay] : null;
+        gl.uniform1i(gl.getUniformLocation(item.program, "falseColour"), shown ? 2 : controls.falseColour ? 1 : 0);
         gl.uniform2f(gl.getUniformLocation(item.program, "luxRange"), controls.luxLow, controls.luxHigh);
+        gl.uniform2f(gl.getUniformLocation(item.program, "metricRange"), shown ? shown[1] : 0, shown ? shown[2] : 1);
+        gl.activeTexture(gl.TEXTURE7);
+        gl.bindTexture(gl.TEXTURE_2D, overlayTexture(shown ? controls.overlay : null));
+        gl.uniform1i(gl.getUniformLocation(item.program, "overlay"), 7);
       } else {
         gl.uniform1f(gl.getUniformLocation(item.program, "exposure"), item.exposure);
       }
     });
   };
+  const previewLimit = () => Math.min(renderer.faces, Math.max(1024, Math.floor(renderer.faces * FRAME_BUDGET_MS / api.fullMs)));
   const relight = (coarse = false) => {
     // new lighting: the relight pass (all faces, or while the controls move a prefix that relights within a
     // frame's budget), then the picture
     const controls = readControls(), chosen = skyFor(controls, daylight.weather);
     const started = performance.now();
     const frame = daylightWeights(daylight, chosen.when, chosen.sky);
-    const limit = coarse ? Math.min(renderer.faces, Math.max(1024, Math.floor(renderer.faces * FRAME_BUDGET_MS / api.fullMs)))
-      : renderer.faces;
+    const limit = coarse ? previewLimit() : renderer.faces;
     renderer.relight(frame, limit);
     renderer.finish();
     const spent = performance.now() - started;
@@ -473,7 +516,8 @@ async function run() {
     const label = document.getElementById("weatherLabel");
     label.textContent = chosen.row >= 0 ? `row ${chosen.row + 1} of ${daylight.weather.times.length}: ${formatTime(chosen.when)}, ` +
       `DNI ${chosen.sky.directNormal.toFixed(0)} W/m², DHI ${chosen.sky.diffuseHorizontal.toFixed(0)} W/m²` : "";
-    drawLegend(controls.luxLow, controls.luxHigh);
+    const shown = overlay && controls.overlay !== "light" ? OVERLAYS[controls.overlay] : null;
+    if (shown) drawLegend(shown[1], shown[2], true); else drawLegend(controls.luxLow, controls.luxHigh);
     redraw();
     if (api.firstLitMs === null && renderer.received > 0) api.firstLitMs = performance.now();
   };
@@ -513,20 +557,22 @@ async function run() {
   api.irradiance = () => Array.from(renderer.readIrradiance());
   api.faceId = () => Array.from(daylight.geometry.faceId);
   api.received = () => renderer.received;
-  api.benchmarkRelight = frames => {
-    // relight `frames` new hours back to back; per-frame ms of the pass (weights, shader, wait)
+  api.overlay = name => Array.from(overlay.metrics[name]);
+  api.benchmarkRelight = (frames, coarse = false) => {
+    // relight `frames` new hours back to back (all faces, or the coarse preview's prefix); per-frame ms of the
+    // pass (sky, sun and weights in JavaScript, the shader, the wait for it)
     const controls = readControls(), times = [];
     for (let k = 0; k < frames; k++) {
       const chosen = skyFor({...controls, hour: 6 + 12 * k / frames}, daylight.weather);
       const started = performance.now();
-      renderer.relight(daylightWeights(daylight, chosen.when, chosen.sky));
+      renderer.relight(daylightWeights(daylight, chosen.when, chosen.sky), coarse ? previewLimit() : renderer.faces);
       renderer.finish();
       times.push(performance.now() - started);
     }
-    return times;
+    return {ms: times, faces: coarse ? previewLimit() : renderer.faces};
   };
   for (const id of ["date", "hour", "sky", "turbidity", "dni", "dhi", "sun", "useWeather", "weatherHour", "exposure",
-                    "falseColour", "luxLow", "luxHigh"])
+                    "falseColour", "luxLow", "luxHigh", "overlay"])
     document.getElementById(id).addEventListener("input", () => schedule(true));
   document.getElementById("play").addEventListener("click", () => {
     playing = !playing;
@@ -555,6 +601,26 @@ async function run() {
     if (renderer && daylight.faceSections.length) schedule();
   };
 
+  const overlayArrived = async payload => {
+    overlayParts.push(payload);
+    const held = overlayParts.reduce((a, p) => a + p.length, 0);
+    if (held < manifest.overlay.bytes) return;
+    const joined = new Uint8Array(held);
+    let at = 0;
+    for (const part of overlayParts) { joined.set(part, at); at += part.length; }
+    overlay = await decodeOverlay(joined);
+    const select = document.getElementById("overlay");
+    for (const name of overlay.summary.metrics) {
+      const option = document.createElement("option");
+      option.value = name;
+      option.textContent = OVERLAYS[name] ? OVERLAYS[name][0] : name;
+      select.appendChild(option);
+    }
+    const s = overlay.summary;
+    document.getElementById("annual").textContent = "sDA" in s ? `sDA ${(100 * s.sDA).toFixed(1)} %, ASE ${(100 * s.ASE).toFixed(1)} %` : "";
+    document.getElementById("overlayControls").hidden = false;
+  };
+
   while (!done) {
     const chunk = await reader.read();
     if (chunk.done) break;
@@ -571,11 +637,14 @@ async function run() {
         manifest = JSON.parse(new TextDecoder().decode(payload));
         const sizes = manifest.meshes.map(m => m.bytes).concat(manifest.grid ? [manifest.grid.bytes] : [])
           .concat(manifest.daylight ? [manifest.daylight.bytes] : []);
+        if (manifest.daylight) { daylight = new DaylightStream(manifest.daylight.bytes); daylightIndex = sizes.length; }
+        if (manifest.overlay) { sizes.push(manifest.overlay.bytes); overlayIndex = sizes.length; }
         buffers = sizes.map(() => []);
         total = Math.max(1, sizes.reduce((a, b) => a + b, 0));
-        if (manifest.daylight) { daylight = new DaylightStream(manifest.daylight.bytes); daylightIndex = sizes.length; }
       } else {
-        if (index === daylightIndex) await daylightArrived(payload); else buffers[index - 1].push(payload);
+        if (index === daylightIndex) await daylightArrived(payload);
+        else if (index === overlayIndex) await overlayArrived(payload);
+        else buffers[index - 1].push(payload);
         received += length;
         if (received / total >= limit) { done = true; break; }
       }

@@ -152,3 +152,35 @@ def test_a_cut_stream_is_relit_from_what_arrived(served, share):
     assert (want[:, 1] > 0).sum() > received  # the faces not received show their ancestors' light
     np.testing.assert_allclose(got, want, rtol=BROWSER_FLOAT32, atol=BROWSER_FLOAT32 * want.max())
     page.close()
+
+
+def test_the_annual_overlays_are_the_bakes_metrics(served, tmp_path):
+    from pxr import Usd
+
+    url, browser, lib, baked = served
+    stage = Usd.Stage.Open(str(baked))
+    overlay = fetch_scene(url).overlay
+    page = open_page(browser, url)
+    assert page.is_visible("#overlayControls")
+    report = stage.GetPrimAtPath("/usdbake/AnnualDaylight")
+    assert page.inner_text("#annual") == (f"sDA {100 * report.GetAttribute('bake:annual:sDA').Get():.1f} %, "
+                                          f"ASE {100 * report.GetAttribute('bake:annual:ASE').Get():.1f} %")
+    # each face's DA, as the page holds it in stream order, is the primvar annual_daylight wrote on its prim
+    order = np.asarray(page.evaluate("window.usdbake.faceId()"), np.int64)
+    page_da = np.asarray(page.evaluate("window.usdbake.overlay('daylightAutonomy')"), np.float64)
+    np.testing.assert_array_equal(page_da, overlay["daylightAutonomy"])
+    by_face = np.empty_like(page_da)
+    by_face[order] = page_da
+    for path in sorted(set(lib.prims)):
+        faces = np.flatnonzero(np.array(lib.prims) == path)
+        written = stage.GetPrimAtPath(path).GetAttribute("primvars:bake:daylightAutonomy").Get()
+        np.testing.assert_allclose(by_face[faces], np.asarray(written), rtol=0, atol=0)
+    assert 0 < by_face.max() <= 1 and by_face.min() >= 0
+    pictures = []
+    for choice in ("light", "daylightAutonomy", "usefulDaylightWithin"):
+        set_controls(page, overlay=choice)
+        path = tmp_path / f"overlay_{choice}.png"
+        page.locator("#view").screenshot(path=str(path))
+        pictures.append(path.read_bytes())
+    assert len(set(pictures)) == 3
+    page.close()

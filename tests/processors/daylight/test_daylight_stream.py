@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from daylight_boxes import box_with_skylight
-from usdbake.formats.daylight_stream import (SECTION, decode_daylight_stream, encode_daylight_stream,
-                                             progressive_faces, received_source)
+from usdbake.formats.daylight_stream import (decode_daylight_stream, encode_daylight_stream, progressive_faces,
+                                             received_source, section_ends)
 from usdbake.kernels.sky import tregenza_patches
 from usdbake.kernels.tracer import Tracer
 from usdbake.preview.stream_client import StreamedDaylight
@@ -38,19 +38,6 @@ def baked():
     return relighter, inter, encode_daylight_stream(data, packet_faces=64)
 
 
-def sections(stream: bytes) -> list[int]:
-    """Byte offsets where each section ends."""
-    import json
-    import struct
-    length = struct.unpack_from("<I", stream, 8)[0]
-    at, ends = 12 + length, []
-    json.loads(stream[12:at])
-    while at < len(stream):
-        at += SECTION.size + SECTION.unpack_from(stream, at)[2]
-        ends.append(at)
-    return ends
-
-
 def test_the_whole_stream_relights_as_the_library_within_the_indirect_codes(baked):
     relighter, inter, stream = baked
     client = StreamedDaylight(decode_daylight_stream(stream))
@@ -75,7 +62,7 @@ def test_the_whole_stream_relights_as_the_library_within_the_indirect_codes(bake
 
 def test_a_cut_stream_relights_every_face_from_its_ancestors(baked):
     relighter, _, stream = baked
-    ends = sections(stream)
+    ends = [end for _, end in section_ends(stream)]
     whole = StreamedDaylight(decode_daylight_stream(stream))
     full = whole.at("2026-06-21T12:00", sky="overcast")
     previous = None
