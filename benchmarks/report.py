@@ -202,6 +202,18 @@ TARGETS = [
      "office_texels_mean_illuminance_median_abs_error", ">=", 0.0),
     ("Lightmaps (daylight): peak memory of the glazed room's daylight bake, target=texture (MB; the issue sets no "
      "bound; target=vertex: room_vertex_peak_mb)", "daylight_lightmaps", "room_texture_peak_mb", ">=", 0.0),
+    # Issue 32, daylight in the browser (bench_daylight_stream; serve for the 50 clients)
+    ("Daylight stream: browser vs library (daylight.DaylightRelighter.at), 10 cases, worst lit face", "daylight_stream",
+     "browser_vs_library_max", "<=", 0.01),
+    ("Daylight stream: relight of all 100k faces per frame, headless Chromium, SwiftShader on 2 cores (ms)",
+     "daylight_stream", "relight_ms", "<=", 16.0),
+    ("Daylight stream: the coarse preview relit while the controls move, same room (ms; report)", "daylight_stream",
+     "preview_ms", ">=", 0.0),
+    ("Daylight stream: first lit frame of the 100k-face room over loopback (s)", "daylight_stream", "first_lit_s",
+     "<=", 2.0),
+    ("Daylight stream: bytes on the wire per face (report)", "daylight_stream", "bytes_per_face", ">=", 0.0),
+    ("serve: 50 clients, interleaved /stream with the daylight stream, slowest full scene (s; report)", "serve",
+     "interleaved_full_scene_s_max", ">=", 0.0),
     # Issue 28 (technique packages): checked by tests/test_import_rules.py and counted by hand so far
     ("largest library module (lines)", "plan", "largest_module_lines", "<=", 500),
     ("places where six or more lines of real logic repeat", "plan", "real_logic_repeats", "<=", 10),

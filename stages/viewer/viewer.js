@@ -557,6 +557,12 @@ async function run() {
   api.irradiance = () => Array.from(renderer.readIrradiance());
   api.faceId = () => Array.from(daylight.geometry.faceId);
   api.received = () => renderer.received;
+  api.setCamera = view => {
+    // {yaw, pitch (radians), distance (scene units), target [x, y, z]}: any of them; then the picture
+    Object.assign(camera, view);
+    redraw();
+    drawing.gl.finish();
+  };
   api.overlay = name => Array.from(overlay.metrics[name]);
   api.benchmarkRelight = (frames, coarse = false) => {
     // relight `frames` new hours back to back (all faces, or the coarse preview's prefix); per-frame ms of the

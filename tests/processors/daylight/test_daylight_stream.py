@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 
 from daylight_boxes import box_with_skylight
-from usdbake.formats.daylight_stream import (decode_daylight_stream, encode_daylight_stream, progressive_faces,
-                                             received_source, section_ends)
+from usdbake.formats.daylight_stream import decode_daylight_stream, encode_daylight_stream, received_source, section_ends
 from usdbake.kernels.sky import tregenza_patches
 from usdbake.kernels.tracer import Tracer
 from usdbake.preview.stream_client import StreamedDaylight
@@ -81,17 +80,3 @@ def test_a_cut_stream_relights_every_face_from_its_ancestors(baked):
     np.testing.assert_array_equal(previous, full)
     torn = decode_daylight_stream(stream[:ends[-1] - 5])  # a torn last section is dropped, not misread
     assert torn.received < len(torn.parent)
-
-
-def test_progressive_order_sends_coarse_faces_first_and_parents_before_children():
-    rng = np.random.default_rng(3)
-    centroids = rng.uniform(-5, 5, (5000, 3))
-    normals = rng.normal(size=(5000, 3))
-    order, parent = progressive_faces(centroids, normals)
-    assert sorted(order) == list(range(5000))
-    assert ((parent < np.arange(5000)) & (parent >= -1)).all()
-    assert (parent == -1).sum() <= 6  # one root per facing class
-    # the first 1/8 of the stream covers the whole box: every octant has faces in it
-    head = centroids[order[:625]]
-    octants = {tuple(x) for x in (head > 0).astype(int)}
-    assert len(octants) == 8
