@@ -518,6 +518,7 @@ async function run() {
       `DNI ${chosen.sky.directNormal.toFixed(0)} W/m², DHI ${chosen.sky.diffuseHorizontal.toFixed(0)} W/m²` : "";
     const shown = overlay && controls.overlay !== "light" ? OVERLAYS[controls.overlay] : null;
     if (shown) drawLegend(shown[1], shown[2], true); else drawLegend(controls.luxLow, controls.luxHigh);
+    document.getElementById("legend").hidden = !shown && !controls.falseColour;
     redraw();
     if (api.firstLitMs === null && renderer.received > 0) api.firstLitMs = performance.now();
   };
@@ -597,7 +598,7 @@ async function run() {
       const site = daylight.header.site;
       document.getElementById("site").textContent = `latitude ${site.latitude}, longitude ${site.longitude}, ` +
         `UTC${site.timezone >= 0 ? "+" : ""}${site.timezone}, north ${site.north} deg` +
-        (daylight.header.weather ? `, weather ${daylight.header.weather.source}` : "");
+        (daylight.header.weather ? `, weather ${daylight.header.weather.source.split(/[\\/]/).pop()}` : "");
     }
     const weatherControls = document.getElementById("weatherControls");
     if (daylight.weather && weatherControls.hidden) {  // the WEATHER section follows the geometry
