@@ -116,9 +116,9 @@ WRITE_PIECE = 64 * 1024
 docstring)."""
 VIEWER = Path(__file__).with_name("viewer")
 """The browser viewer (index.html and its scripts: WebGL2, written here) served at / ."""
-VIEWER_SCRIPTS = ("viewer.js", "sky.js", "daylight.js")
+VIEWER_SCRIPTS = ("viewer.js", "sky.js", "daylight.js", "camera.js", "controls.js")
 """The viewer's scripts, each served at /NAME: the stream reader and drawing, the sky models (the kernels'
-sky, sun and luminous efficacy, ported), the daylight relighting."""
+sky, sun and luminous efficacy, ported), the daylight relighting, the orbit camera, the daylight controls."""
 
 
 @dataclass(frozen=True)

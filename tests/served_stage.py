@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import asyncio
 import threading
+import urllib.error
+import urllib.request
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -43,3 +45,13 @@ def running(app: web.Application):
         thread.join(5)
         loop.run_until_complete(runner.cleanup())
         loop.close()
+
+
+def get(url: str, headers=None):
+    """(status, headers, body) of a GET, error statuses included."""
+    request = urllib.request.Request(url, headers=headers or {})
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return response.status, response.headers, response.read()  # headers: case-insensitive
+    except urllib.error.HTTPError as error:
+        return error.code, error.headers, error.read()

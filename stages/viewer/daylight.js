@@ -307,9 +307,10 @@ class DaylightRenderer {
       for (let i = 0; i < count; i++)
         for (let k = 0; k < K; k++) {
           const o = (i * K + k) * 4 * Q, d = (k * count + i) * n, scale = section.scale[k * count + i] / (255 * 255);
-          codes.set(section.indirect.subarray(d, d + n), o);
+          const green = (count + i) * n;  // three sets come as G and R - G, B - G modulo 256
           for (let j = 0; j < n; j++) {
-            const c = section.indirect[d + j];
+            const c = K === 3 && k !== 1 ? (section.indirect[d + j] + section.indirect[green + j]) & 255 : section.indirect[d + j];
+            codes[o + j] = c;
             sums[o + j] = section.visibility[i * n + j] * vScale + c * c * scale;
           }
         }

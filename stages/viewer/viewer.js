@@ -1,6 +1,6 @@
 // usdbake stream viewer: reads GET /stream (stages/serve.py) and draws the scene as it arrives, under an orbit
-// camera (drag: turn, shift-drag or right-drag: pan, wheel: zoom). With a daylight stream (daylight.js) it draws
-// the baked faces relit for the date, hour, place and sky of the controls instead of the grid's light.
+// camera (camera.js). With a daylight stream (daylight.js) it draws
+// the baked faces relit for the date, hour, place and sky of the controls (controls.js) instead of the grid's light.
 //
 // Written here, no third-party code: the frame parser, the two stream decoders (formats/mesh_stream.py and
 // formats/streaming.py, little-endian), the level-of-detail mapping of Pacanowski et al. 2008 section 4.2,
@@ -140,96 +140,6 @@ function shade(meshes, grid) {
 }
 
 // ---------------------------------------------------------------------------------------------------------
-// Orbit camera
-
-function bounds(positionArrays) {
-  const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
-  for (const p of positionArrays) for (let i = 0; i < p.length; i++) {
-    lo[i % 3] = Math.min(lo[i % 3], p[i]); hi[i % 3] = Math.max(hi[i % 3], p[i]);
-  }
-  if (!(lo[0] <= hi[0])) return {centre: [0, 0, 0], radius: 1};
-  return {centre: lo.map((x, a) => (x + hi[a]) / 2), radius: Math.max(1e-6, Math.hypot(...hi.map((x, a) => x - lo[a])) / 2)};
-}
-
-function normalize(v) { const l = Math.hypot(v[0], v[1], v[2]) || 1; return v.map(x => x / l); }
-function cross(a, b) { return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]; }
-function dot(a, b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-
-class OrbitCamera {
-  // Yaw and pitch about the scene's up axis around a target, at a distance; a perspective projection.
-  constructor(canvas, up, box, onChange) {
-    this.up = normalize(up);
-    const helper = Math.abs(this.up[0]) < 0.9 ? [1, 0, 0] : [0, 1, 0];
-    this.east = normalize(cross(helper, this.up));
-    this.north = cross(this.up, this.east);
-    this.target = box.centre.slice();
-    this.radius = box.radius;
-    this.distance = 2.6 * box.radius;
-    this.yaw = 0.785;  // a three-quarter view, as the fixed view before it
-    this.pitch = 0.45;
-    let last = null, panning = false;
-    canvas.addEventListener("contextmenu", event => event.preventDefault());
-    canvas.addEventListener("pointerdown", event => {
-      last = [event.clientX, event.clientY]; panning = event.shiftKey || event.button === 2;
-      canvas.setPointerCapture(event.pointerId);
-    });
-    canvas.addEventListener("pointerup", () => { last = null; });
-    canvas.addEventListener("pointermove", event => {
-      if (!last) return;
-      const dx = event.clientX - last[0], dy = event.clientY - last[1];
-      last = [event.clientX, event.clientY];
-      if (panning) this.pan(dx, dy); else this.turn(dx, dy);
-      onChange();
-    });
-    canvas.addEventListener("wheel", event => { event.preventDefault(); this.zoom(Math.exp(0.001 * event.deltaY)); onChange(); },
-                            {passive: false});
-  }
-
-  turn(dx, dy) {
-    this.yaw -= 0.008 * dx;
-    this.pitch = Math.min(1.55, Math.max(-1.55, this.pitch + 0.008 * dy));
-  }
-
-  zoom(factor) { this.distance = Math.min(50 * this.radius, Math.max(0.01 * this.radius, this.distance * factor)); }
-
-  pan(dx, dy) {
-    const [, right, upward] = this.frame(), step = this.distance * 0.0015;
-    for (let a = 0; a < 3; a++) this.target[a] += step * (-dx * right[a] + dy * upward[a]);
-  }
-
-  frame() {
-    // eye position, and the view's right and up directions
-    const c = Math.cos(this.pitch), offset = [0, 1, 2].map(a =>
-      this.distance * (c * Math.cos(this.yaw) * this.east[a] + c * Math.sin(this.yaw) * this.north[a] + Math.sin(this.pitch) * this.up[a]));
-    const eye = this.target.map((x, a) => x + offset[a]);
-    const forward = normalize(offset.map(x => -x));
-    const right = normalize(cross(forward, this.up));
-    return [eye, right, cross(right, forward), forward];
-  }
-
-  matrix(aspect) {
-    // column-major view-projection for WebGL
-    const [eye, right, upward, forward] = this.frame();
-    const near = Math.max(1e-4 * this.radius, this.distance - 4 * this.radius, 0.005 * this.distance);
-    const far = this.distance + 4 * this.radius, f = 1 / Math.tan(0.5 * 0.9);
-    const view = [right, upward, forward.map(x => -x)];
-    const translation = view.map(row => -dot(row, eye));
-    const m = new Float32Array(16);
-    for (let col = 0; col < 3; col++) {
-      m[4 * col + 0] = f / aspect * view[0][col];
-      m[4 * col + 1] = f * view[1][col];
-      m[4 * col + 2] = (far + near) / (near - far) * view[2][col];
-      m[4 * col + 3] = -view[2][col];
-    }
-    m[12] = f / aspect * translation[0];
-    m[13] = f * translation[1];
-    m[14] = (far + near) / (near - far) * translation[2] + 2 * far * near / (near - far);
-    m[15] = -translation[2];
-    return m;
-  }
-}
-
-// ---------------------------------------------------------------------------------------------------------
 // Drawing: the streamed meshes with per-vertex grid irradiance, or the daylight faces
 
 const FRAME_BUDGET_MS = 12;  // a coarse preview relights the stream prefix that fits this, from the last whole relight
@@ -353,83 +263,6 @@ function daylightItem(drawing, stream) {
   albedoBuffer.normalized = true;
   return {program, buffers: [drawing.buffer(program, "p", p, 3), drawing.buffer(program, "face", face, 1), albedoBuffer],
           count: 3 * F, daylight: true, positions: g.points};
-}
-
-// ---------------------------------------------------------------------------------------------------------
-// Daylight controls
-
-function localTime(date, hour) {
-  // ms of the local standard clock as if it were UTC (what sky.js's sunPosition takes)
-  const [y, m, d] = date.split("-").map(Number);
-  return Date.UTC(y, m - 1, d) + Math.round(hour * 3600e3);
-}
-
-function formatTime(ms) {
-  const t = new Date(ms);
-  const two = x => String(x).padStart(2, "0");
-  return `${t.getUTCFullYear()}-${two(t.getUTCMonth() + 1)}-${two(t.getUTCDate())} ${two(t.getUTCHours())}:${two(t.getUTCMinutes())}`;
-}
-
-function readControls() {
-  const value = id => document.getElementById(id).value;
-  const checked = id => document.getElementById(id).checked;
-  return {date: value("date"), hour: parseFloat(value("hour")), model: value("sky"), turbidity: parseFloat(value("turbidity")),
-          directNormal: parseFloat(value("dni")), diffuseHorizontal: parseFloat(value("dhi")), sun: checked("sun"),
-          useWeather: checked("useWeather"), weatherHour: parseInt(value("weatherHour"), 10),
-          exposure: Math.pow(2, parseFloat(value("exposure"))), falseColour: checked("falseColour"), overlay: value("overlay"),
-          luxLow: parseFloat(value("luxLow")), luxHigh: parseFloat(value("luxHigh"))};
-}
-
-function skyFor(controls, weather) {
-  // (local time ms, sky parameters) of the controls; a weather-file hour sets the time and the Perez sky.
-  const sky = {model: controls.model, turbidity: controls.turbidity, radiance: 1000, directNormal: controls.directNormal,
-               diffuseHorizontal: controls.diffuseHorizontal, efficacy: "perez", sun: controls.sun};
-  if (controls.useWeather && weather) {
-    const row = Math.min(Math.max(controls.weatherHour, 0), weather.times.length - 1);
-    return {when: weather.times[row], sky: {...sky, model: "perez", directNormal: weather.direct[row], diffuseHorizontal: weather.diffuse[row]}, row};
-  }
-  return {when: localTime(controls.date, controls.hour), sky, row: -1};
-}
-
-// The annual overlays the server may send (stages/serve.py ANNUAL_PRIMVARS): label and legend range.
-const OVERLAYS = {
-  daylightAutonomy: ["daylight autonomy (share of occupied hours)", 0, 1],
-  usefulDaylightWithin: ["UDI within the band (share)", 0, 1],
-  usefulDaylightBelow: ["UDI below the band (share)", 0, 1],
-  usefulDaylightAbove: ["UDI above the band (share)", 0, 1],
-  daylightFactor: ["daylight factor (%)", 0, 10],
-  annualSunHours: ["sunlit occupied hours", 0, 500],
-  meanIlluminance: ["mean illuminance (lux)", 0, 2000],
-};
-
-function decodeOverlay(buffer) {
-  // formats/daylight_stream.encode_overlay: magic, JSON, zlib (M, F) float32
-  const view = new DataView(buffer.buffer, buffer.byteOffset, buffer.byteLength), length = view.getUint32(8, true);
-  const summary = JSON.parse(new TextDecoder().decode(buffer.subarray(12, 12 + length)));
-  return inflate(buffer.subarray(12 + length)).then(bytes => {
-    const values = new Float32Array(bytes.buffer), F = summary.faces;
-    return {summary, metrics: Object.fromEntries(summary.metrics.map((name, k) => [name, values.subarray(k * F, (k + 1) * F)]))};
-  });
-}
-
-function drawLegend(low, high, linear = false) {
-  const canvas = document.getElementById("legend"), context = canvas.getContext("2d");
-  const w = canvas.width, h = canvas.height;
-  context.clearRect(0, 0, w, h);
-  for (let x = 0; x < w; x++) {
-    const t = x / (w - 1), c = [1.5 - Math.abs(4 * t - 3), 1.5 - Math.abs(4 * t - 2), 1.5 - Math.abs(4 * t - 1)]
-      .map(v => Math.round(255 * Math.min(Math.max(v, 0), 1)));
-    context.fillStyle = `rgb(${c[0]},${c[1]},${c[2]})`;
-    context.fillRect(x, 0, 1, h - 14);
-  }
-  context.fillStyle = "#ddd";
-  context.font = "11px sans-serif";
-  const ticks = 4;
-  for (let i = 0; i <= ticks; i++) {
-    const lux = linear ? low + (high - low) * i / ticks : low * Math.pow(high / low, i / ticks);
-    context.textAlign = i === 0 ? "left" : i === ticks ? "right" : "center";
-    context.fillText(lux >= 100 ? lux.toFixed(0) : lux.toPrecision(2), i * (w - 1) / ticks, h - 2);
-  }
 }
 
 // ---------------------------------------------------------------------------------------------------------

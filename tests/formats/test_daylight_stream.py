@@ -101,3 +101,32 @@ def test_the_overlay_round_trips():
         np.testing.assert_array_equal(decoded[name], values[name])
     with pytest.raises(ValueError, match="bad magic"):
         decode_overlay(b"USDBDLS1" + bytes(8))
+
+
+def test_a_broken_stream_is_refused_with_what_is_wrong():
+    import json
+    import struct
+    import zlib
+
+    stream = encode_daylight_stream(coefficients(), packet_faces=64)
+    length = struct.unpack_from("<I", stream, 8)[0]
+    header = json.loads(stream[12:12 + length])
+
+    def with_header(**changes):
+        text = json.dumps(dict(header, **changes)).encode()
+        return stream[:8] + struct.pack("<I", len(text)) + text + stream[12 + length:]
+
+    with pytest.raises(ValueError, match="header faces = -1 is not a count"):
+        decode_daylight_stream(with_header(faces=-1))
+    with pytest.raises(ValueError, match="header patch_count = 'many'"):
+        decode_daylight_stream(with_header(patch_count="many"))
+    with pytest.raises(ValueError, match="section 1 holds .* not the"):  # counts that the data does not hold
+        decode_daylight_stream(with_header(patch_count=13))
+    with pytest.raises(ValueError, match="unreadable header"):
+        decode_daylight_stream(stream[:12] + b"\xff" * length + stream[12 + length:])
+    bomb = zlib.compress(bytes(50_000_000))  # inflates far past what the counts need: stopped at the need
+    section = struct.pack("<III", 1, 12, len(bomb)) + bomb
+    with pytest.raises(ValueError, match=r"holds \d+\+ bytes"):
+        decode_daylight_stream(stream[:12 + length] + section)
+    with pytest.raises(ValueError, match="not zlib data"):
+        decode_daylight_stream(stream[:12 + length] + struct.pack("<III", 1, 12, 4) + b"junk")

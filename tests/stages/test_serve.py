@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from pxr import Usd
 
 from repo_paths import SAMPLES
-from served_stage import bake_streams, running
+from served_stage import bake_streams, get, running
 from usdbake.formats.mesh_stream import decode_mesh_stream
 from usdbake.kernels.direction24 import dequantize_vectors
 from usdbake.preview.stream_client import fetch_scene, stream_scene
@@ -33,15 +33,6 @@ from usdbake.stages.serve import interleave, make_app
 @pytest.fixture(scope="module")
 def baked(tmp_path_factory):
     return bake_streams(tmp_path_factory.mktemp("served"))
-
-
-def get(url: str, headers=None):
-    request = urllib.request.Request(url, headers=headers or {})
-    try:
-        with urllib.request.urlopen(request, timeout=10) as response:
-            return response.status, response.headers, response.read()  # headers: case-insensitive
-    except urllib.error.HTTPError as error:
-        return error.code, error.headers, error.read()
 
 
 def test_whole_streams_rebuild_the_bake(baked):

@@ -146,6 +146,8 @@ FAST_PARAMS: dict[str, dict[str, dict]] = {
     "light_probes": {"light_probes": {"probes": 64, "iterations": 1, "rays": 16, "placement_rays": 8}},
     "irradiance_grid": {"irradiance_grid": {"vertices": 64, "rays": 16}},
     "progressive_mesh": {},
+    "daylight_stream": {"sky_visibility": FAST_SKY, "interreflection": FAST_BOUNCES,
+                        "daylight_stream": {"declination_step": 12.0, "hour_step": 15.0, "sun_samples": 2}},
     "annual_daylight": {"sky_visibility": FAST_SKY, "interreflection": FAST_BOUNCES,
                         "annual_daylight": {"weather": TMY3, "sun_bins": 1, "sun_samples": 1}},
 }
