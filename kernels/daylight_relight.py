@@ -75,6 +75,19 @@ def sky_weights(patches: SkyPatches, model: str, sun_layout: np.ndarray, *, turb
     return (values * patches.patch_solid_angles[:, None]).astype(np.float32)
 
 
+def sky_and_sun(patches: SkyPatches, model: str, sun_site: np.ndarray, sun_layout: np.ndarray, day: int, *,
+                sun: bool, turbidity: float, uniform_radiance: float, direct_normal: float, diffuse_horizontal: float,
+                efficacy: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """One time's (N, 3) sky patch weights (``sky_weights``) and the sun's (3,) direct normal irradiance
+    (``sun_normal``; None without a sun, or with ``sun`` off)."""
+    weights = sky_weights(patches, model, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
+                          direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day,
+                          efficacy=efficacy)
+    e_normal = sun_normal(model, sun_site, turbidity=turbidity, direct_normal=direct_normal, day_of_year=day,
+                          diffuse_horizontal=diffuse_horizontal, efficacy=efficacy) if sun else None
+    return weights, e_normal
+
+
 def visible_factors(efficacy: str, direct_normal: float, diffuse_horizontal: float, sun_enu: np.ndarray,
                     day: int) -> tuple[float, float]:
     """(beam, diffuse) factors from solar to visible-equivalent W/m^2 (lux / 179): the Perez et al. 1990
@@ -240,12 +253,10 @@ class Relighter:
         sun_layout = self.turn @ sun_site
         day = int(day_of_year(times)[0])
         patches = self.receivers.patches
-        weights = sky_weights(patches, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
-                              direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day,
-                              efficacy=efficacy)
+        weights, e_normal = sky_and_sun(patches, sky, sun_site, sun_layout, day, sun=sun, turbidity=turbidity,
+                                        uniform_radiance=uniform_radiance, direct_normal=direct_normal,
+                                        diffuse_horizontal=diffuse_horizontal, efficacy=efficacy)
         direct = None
-        e_normal = sun_normal(sky, sun_site, turbidity=turbidity, direct_normal=direct_normal, day_of_year=day,
-                              diffuse_horizontal=diffuse_horizontal, efficacy=efficacy) if sun else None
         if e_normal is not None:
             sun_world = (self.receivers.to_world @ sun_layout).astype(np.float32)
             seen = self.table.visibility(float(position.declination[0]), float(position.hour_angle[0]))

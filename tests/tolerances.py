@@ -535,3 +535,17 @@ PATCH_MIDPOINT_RULE = 1e-5
 """A 200 x 200 midpoint rule in (z, azimuth) of a sky patch's mean cosine against its closed form
 (test_patch_visibility): the rule's error is O(h^2) except in the zenith cap, where r = sqrt(1 - z^2)
 has an infinite slope and it converges as h^1.5; measured 4.1e-7 on Tregenza's and 64 uniform patches."""
+
+# Daylight in the browser (issue 32)
+JAVASCRIPT_PORT = 1e-6
+"""stages/viewer/sky.js against the kernels it ports, both float64: measured 4e-14 where Python stays float64
+and 6-8e-8 where Python rounds its result to float32 (sky weights, sun patch weights, ground radiance)."""
+JAVASCRIPT_PORT_ABSOLUTE = 1e-9
+"""The same, as a share of the largest value compared: patches near the horizon and below it hold values far
+smaller than the sky's brightest, where a relative bound alone says nothing."""
+BROWSER_FLOAT32 = 1e-4
+"""The viewer's relight shader against numpy relighting the same decoded stream: float32 sums over 256
+patches in another order, plus the browser's V + D stored as one float32 sum; measured 2e-6 to 4e-7."""
+INDIRECT_CODE_RELIGHT = 0.01
+"""A lit face's irradiance relit from the stream (D through its 8-bit square-root codes) against the library
+with float32 D: measured worst 0.75 % over a year of skies on a skylit box, 0.77 % on a 112k-face room."""

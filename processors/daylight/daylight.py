@@ -53,7 +53,7 @@ from ...core import Context, ParamError, Params, Primvar, Processor, Result, par
 from .products import DaylightProduct, InterreflectionProduct, SkyVisibilityProduct
 from ...core.scene import Scene
 from ...kernels.daylight_relight import (MAX_DECLINATION, Receivers, Relighter, SunTable, ground_radiance,
-                                        relight_daylight, sky_weights, sun_normal, sun_patch_weights)
+                                        relight_daylight, sky_and_sun, sun_patch_weights)
 from ...kernels.lights import LUMINANCE
 from ...kernels.sky import enu_to_world
 from ...kernels.solar import SunPosition, day_of_year, horizontal_position, parse_times, sun_position
@@ -107,12 +107,10 @@ def compute_daylight(tracer, scene: Scene, product, times: np.ndarray, *, latitu
     for k, sun_site in enumerate(position.enu()):
         sun_layout = turn @ sun_site
         day = int(day_of_year(times[k])[0])
-        weights = sky_weights(product.patches, sky, sun_layout, turbidity=turbidity, radiance=uniform_radiance,
-                              direct_normal=direct_normal, diffuse_horizontal=diffuse_horizontal, day_of_year=day,
-                              efficacy=efficacy)
+        weights, e_normal = sky_and_sun(product.patches, sky, sun_site, sun_layout, day, sun=sun, turbidity=turbidity,
+                                        uniform_radiance=uniform_radiance, direct_normal=direct_normal,
+                                        diffuse_horizontal=diffuse_horizontal, efficacy=efficacy)
         direct = None
-        e_normal = sun_normal(sky, sun_site, turbidity=turbidity, direct_normal=direct_normal, day_of_year=day,
-                              diffuse_horizontal=diffuse_horizontal, efficacy=efficacy) if sun else None
         if e_normal is not None:
             sun_world = product.to_world @ sun_layout
             cos_i = np.maximum(product.face_normals @ sun_world.astype(np.float32), 0.0)
@@ -188,6 +186,17 @@ def reinhard_tone_map(radiance: np.ndarray, exposure: float = 0.0) -> tuple[np.n
     return (x / (1.0 + x)).astype(np.float32), k
 
 
+@dataclass(frozen=True)
+class SiteParams(Params):
+    """Where the stage stands: the parameters of the processors that place the sun."""
+
+    latitude: float = param(41.98, "degrees north", low=-90.0, high=90.0)
+    longitude: float = param(2.82, "degrees east", low=-180.0, high=180.0)
+    timezone: float = param(1.0, "hours east of UTC of the local standard time", low=-12.0, high=14.0)
+    north: float = param(0.0, "angle of north from the stage's default north (degrees, counter-clockwise)",
+                         low=-360.0, high=360.0)
+
+
 class Daylight(Processor):
     name = "daylight"
     version = "2"
@@ -199,14 +208,9 @@ class Daylight(Processor):
     provides = (DaylightProduct,)
 
     @dataclass(frozen=True)
-    class Params(Params):
+    class Params(SiteParams):
         times: str = param("2026-06-21T12:00", "ISO 8601 local time, list, or start/end/step "
                            "(e.g. 2026-06-21T06:00/18:00/PT30M)")
-        latitude: float = param(41.98, "degrees north", low=-90.0, high=90.0)
-        longitude: float = param(2.82, "degrees east", low=-180.0, high=180.0)
-        timezone: float = param(1.0, "hours east of UTC of the local standard time", low=-12.0, high=14.0)
-        north: float = param(0.0, "angle of north from the stage's default north (degrees, counter-clockwise)",
-                             low=-360.0, high=360.0)
         sky: str = param("preetham", "sky model: preetham (turbidity), perez (all-weather, from direct_normal and "
                          "diffuse_horizontal), overcast (CIE), uniform", choices=("preetham", "perez", "overcast",
                                                                                    "uniform"))

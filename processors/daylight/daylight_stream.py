@@ -23,12 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...core import Attribute, Context, File, Params, Prim, Processor, Result, param
+from ...core import Attribute, Context, File, Prim, Processor, Result, param
 from ...formats.daylight_stream import (DaylightCoefficients, decode_indirect, encode_daylight_stream,
                                         indirect_codes)
 from ...formats.weather import check_site, read_weather
 from ...kernels.sky import patch_samples
-from .daylight import sun_table
+from .daylight import SiteParams, sun_table
 from .glazing import scene_glazing
 from .products import InterreflectionProduct, SkyVisibilityProduct
 
@@ -84,12 +84,7 @@ class DaylightStream(Processor):
     requires = (SkyVisibilityProduct, InterreflectionProduct)
 
     @dataclass(frozen=True)
-    class Params(Params):
-        latitude: float = param(41.98, "degrees north (a weather file's own site wins)", low=-90.0, high=90.0)
-        longitude: float = param(2.82, "degrees east", low=-180.0, high=180.0)
-        timezone: float = param(1.0, "hours east of UTC of the local standard time", low=-12.0, high=14.0)
-        north: float = param(0.0, "angle of north from the stage's default north (degrees, counter-clockwise)",
-                             low=-360.0, high=360.0)
+    class Params(SiteParams):
         weather: str = param("", "typical-year weather file (.epw or TMY3 .csv) whose 8760 hours the viewer "
                              "can pick; its site replaces latitude, longitude and timezone")
         declination_step: float = param(4.0, "sun table: declination spacing, degrees", low=0.5, high=23.45)

@@ -13,6 +13,7 @@ import pytest
 
 from daylight_served import CASES, bake_daylight, library, tmy3
 from served_stage import running
+from tolerances import BROWSER_FLOAT32, INDIRECT_CODE_RELIGHT
 from usdbake.preview.stream_client import fetch_scene, stream_scene
 from usdbake.stages.serve import make_app
 
@@ -20,11 +21,6 @@ playwright = pytest.importorskip("playwright.sync_api")
 pytest.importorskip("pvlib")
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="no chromium on this machine (apt-get install chromium)")
-BROWSER_FLOAT32 = 1e-4
-"""The page against the Python client relighting the same stream: float32 shader sums against numpy's."""
-INDIRECT_CODES = 0.01
-"""The page against the library: the stream's 8-bit square-root codes of the interreflected coefficients cost
-up to 0.75% of a lit face's irradiance (tests/processors/daylight/test_daylight_stream.py)."""
 
 
 @pytest.fixture(scope="module")
@@ -83,7 +79,7 @@ def test_the_browser_relights_as_the_library(served):
         np.testing.assert_allclose(got, streamed, rtol=BROWSER_FLOAT32, atol=BROWSER_FLOAT32 * want.max())
         lit = want > 0.01 * want.max()
         error = np.abs(got - want)[lit] / want[lit]
-        assert error.max() <= INDIRECT_CODES, (date, hour, sky, float(error.max()))
+        assert error.max() <= INDIRECT_CODE_RELIGHT, (date, hour, sky, float(error.max()))
         print(date, hour, sky, f"largest error {100 * error.max():.2f}%")
     page.close()
 

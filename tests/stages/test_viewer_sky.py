@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tolerances import JAVASCRIPT_PORT, JAVASCRIPT_PORT_ABSOLUTE
 
 from usdbake.kernels.luminous_efficacy import perez_efficacy
 from usdbake.kernels.sky import (patch_layout, patch_radiance, patch_samples, perez_coefficients, perez_sky_state,
@@ -37,8 +38,8 @@ if NODE is None:
     pytest.skip("no node on this machine", allow_module_level=True)
 
 SKY_JS = Path(__file__).resolve().parents[2] / "stages" / "viewer" / "sky.js"
-RTOL = 1e-6
-ATOL_OF_MAX = 1e-9
+RTOL = JAVASCRIPT_PORT
+ATOL_OF_MAX = JAVASCRIPT_PORT_ABSOLUTE
 
 DRIVER = r"""
 "use strict";
