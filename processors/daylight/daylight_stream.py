@@ -20,6 +20,7 @@ Parameters: ``usdbake list daylight_stream`` or docs/processors.md, both generat
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -52,7 +53,8 @@ def stream_coefficients(scene, product: SkyVisibilityProduct, inter: Interreflec
         "up_axis": product.up_axis, "prims": prims,
         "sun_table": {"declinations": table.declinations.tolist(), "hour_angles": table.hour_angles.tolist(),
                       "node_row": table.node_row.tolist(), "samples": int(table.samples)},
-        "weather": {"source": weather.source, "hours": len(weather.times)} if weather is not None else None,
+        # the weather file by name only: the stream goes to anyone who opens the page, its folders need not
+        "weather": {"source": Path(weather.source).name, "hours": len(weather.times)} if weather is not None else None,
     }
     return DaylightCoefficients(
         header, patch_samples(product.patches, 3), product.patches.patch_solid_angles,

@@ -3,6 +3,7 @@
 // interreflection module's terms; kernels/daylight_relight.py is the library's side):
 //
 //   E_i = sum_j V_ij w_j + sum_j D_ij (w_j + s_j) + (pi g_i + D^g_i) L_g + cos(n_i, sun) S_i E_sun
+//       = sum_j C_ij w_j + sum_{4 sun patches} D_ij s_j + ...,  C = V + D (held as one float32 texture)
 //
 // w_j: the sky's patch weights, s_j: the sun's direct normal irradiance spread over its 4 nearest patches,
 // L_g: the ground's radiance, S_i: the sun table blended bilinearly over declination and hour angle.
@@ -439,5 +440,3 @@ class DaylightRenderer {
     return out;
   }
 }
-
-if (typeof module !== "undefined") module.exports = {DaylightStream, DaylightRenderer, daylightWeights, receivedSource, sunTableNodes};

@@ -431,7 +431,7 @@ async function run() {
       const site = daylight.header.site;
       document.getElementById("site").textContent = `latitude ${site.latitude}, longitude ${site.longitude}, ` +
         `UTC${site.timezone >= 0 ? "+" : ""}${site.timezone}, north ${site.north} deg` +
-        (daylight.header.weather ? `, weather ${daylight.header.weather.source.split(/[\\/]/).pop()}` : "");
+        (daylight.header.weather ? `, weather ${daylight.header.weather.source}` : "");
     }
     const weatherControls = document.getElementById("weatherControls");
     if (daylight.weather && weatherControls.hidden) {  // the WEATHER section follows the geometry
