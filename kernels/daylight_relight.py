@@ -14,8 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .luminous_efficacy import perez_efficacy
-from .sky import LUMINOUS_EFFICACY, SkyPatches, enu_to_world, patch_radiance, patch_samples, sun_normal_irradiance
+from .luminous_efficacy import CLEARNESS_EDGES, DIFFUSE_COEFFICIENTS, DIRECT_COEFFICIENTS, perez_efficacy
+from .sky import (LUMINOUS_EFFICACY, PEREZ_CLEARNESS_EDGES, PEREZ_COEFFICIENTS, SkyPatches, enu_to_world,
+                  patch_radiance, patch_samples, sun_normal_irradiance)
 from .solar import day_of_year, sun_position
 
 RELIGHT_CHUNK = 16384
@@ -86,6 +87,16 @@ def sky_and_sun(patches: SkyPatches, model: str, sun_site: np.ndarray, sun_layou
     e_normal = sun_normal(model, sun_site, turbidity=turbidity, direct_normal=direct_normal, day_of_year=day,
                           diffuse_horizontal=diffuse_horizontal, efficacy=efficacy) if sun else None
     return weights, e_normal
+
+
+def sky_model_tables() -> dict:
+    """The sky models' tables, JSON-able, for what evaluates them elsewhere (the browser viewer's sky.js reads
+    them from the daylight stream's header rather than keeping a copy): Perez, Seals & Michalsky 1993 Table 1
+    (bins x parameters x 4, flat) and its clearness edges, and the Perez et al. 1990 efficacy Table 4."""
+    return {"perez_coefficients": PEREZ_COEFFICIENTS.ravel().tolist(),
+            "perez_clearness_edges": PEREZ_CLEARNESS_EDGES.tolist(),
+            "efficacy_clearness_edges": CLEARNESS_EDGES.tolist(),
+            "efficacy_diffuse": DIFFUSE_COEFFICIENTS.tolist(), "efficacy_direct": DIRECT_COEFFICIENTS.tolist()}
 
 
 def visible_factors(efficacy: str, direct_normal: float, diffuse_horizontal: float, sun_enu: np.ndarray,

@@ -28,6 +28,7 @@ from ...core import Attribute, Context, File, Prim, Processor, Result, param
 from ...formats.daylight_stream import (DaylightCoefficients, decode_indirect, encode_daylight_stream,
                                         indirect_codes)
 from ...formats.weather import check_site, read_weather
+from ...kernels.daylight_relight import sky_model_tables
 from ...kernels.sky import patch_samples
 from .daylight import SiteParams, sun_table
 from .glazing import scene_glazing
@@ -54,6 +55,7 @@ def stream_coefficients(scene, product: SkyVisibilityProduct, inter: Interreflec
         "sun_table": {"declinations": table.declinations.tolist(), "hour_angles": table.hour_angles.tolist(),
                       "node_row": table.node_row.tolist(), "samples": int(table.samples)},
         # the weather file by name only: the stream goes to anyone who opens the page, its folders need not
+        "sky_tables": sky_model_tables(),
         "weather": {"source": Path(weather.source).name, "hours": len(weather.times)} if weather is not None else None,
     }
     return DaylightCoefficients(

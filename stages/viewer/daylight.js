@@ -59,6 +59,7 @@ class DaylightStream {
       const length = view.getUint32(8, true);
       if (this.length < 12 + length) return;
       this.header = JSON.parse(new TextDecoder().decode(this.bytes.subarray(12, 12 + length)));
+      setSkyTables(this.header.sky_tables);  // sky.js evaluates the kernels' own tables
       this.at = 12 + length;
     }
     const h = this.header;

@@ -144,28 +144,22 @@ const XYZ_TO_SRGB = [[3.2404542, -1.5371385, -0.4985314],
                      [-0.9692660, 1.8760108, 0.0415560],
                      [0.0556434, -0.2040259, 1.0572252]];
 
-// Perez, Seals & Michalsky 1993, "All-weather model for sky luminance distribution", Table 1 (with the 1993
-// erratum): for each of the 8 sky-clearness bins, x1..x4 of a, b, c, d and e, where
-// x = x1 + x2 Z + Delta (x3 + x4 Z). Flat, index [bin * 20 + parameter * 4 + k].
-const PEREZ_COEFFICIENTS = [
-  1.3525, -0.2576, -0.2690, -1.4366, -0.7670, 0.0007, 1.2734, -0.1233, 2.8000, 0.6004, 1.2375, 1.0000,
-  1.8734, 0.6297, 0.9738, 0.2809, 0.0356, -0.1246, -0.5718, 0.9938,
-  -1.2219, -0.7730, 1.4148, 1.1016, -0.2054, 0.0367, -3.9128, 0.9156, 6.9750, 0.1774, 6.4477, -0.1239,
-  -1.5798, -0.5081, -1.7812, 0.1080, 0.2624, 0.0672, -0.2190, -0.4285,
-  -1.1000, -0.2515, 0.8952, 0.0156, 0.2782, -0.1812, -4.5000, 1.1766, 24.7219, -13.0812, -37.7000, 34.8438,
-  -5.0000, 1.5218, 3.9229, -2.6204, -0.0156, 0.1597, 0.4199, -0.5562,
-  -0.5484, -0.6654, -0.2672, 0.7117, 0.7234, -0.6219, -5.6812, 2.6297, 33.3389, -18.3000, -62.2500, 52.0781,
-  -3.5000, 0.0016, 1.1477, 0.1062, 0.4659, -0.3296, -0.0876, -0.0329,
-  -0.6000, -0.3566, -2.5000, 2.3250, 0.2937, 0.0496, -5.6812, 1.8415, 21.0000, -4.7656, -21.5906, 7.2492,
-  -3.5000, -0.1554, 1.4062, 0.3988, 0.0032, 0.0766, -0.0656, -0.1294,
-  -1.0156, -0.3670, 1.0078, 1.4051, 0.2875, -0.5328, -3.8500, 3.3750, 14.0000, -0.9999, -7.1406, 7.5469,
-  -3.4000, -0.1078, -1.0750, 1.5702, -0.0672, 0.4016, 0.3017, -0.4844,
-  -1.0000, 0.0211, 0.5025, -0.5119, -0.3000, 0.1922, 0.7023, -1.6317, 19.0000, -5.0000, 1.2438, -1.9094,
-  -4.0000, 0.0250, 0.3844, 0.2656, 1.0468, -0.3788, -2.4517, 1.4656,
-  -1.0500, 0.0289, 0.4260, 0.3590, -0.3250, 0.1156, 0.7781, 0.0025, 31.0625, -14.5000, -46.1148, 55.3750,
-  -7.2312, 0.4050, 13.3500, 0.6234, 1.5000, -0.6426, 1.8564, 0.5636,
-];
-const PEREZ_CLEARNESS_EDGES = [1.065, 1.230, 1.500, 1.950, 2.800, 4.500, 6.200];  // upper edges of bins 1..7
+// The model tables (Perez, Seals & Michalsky 1993 Table 1 with its erratum; Perez et al. 1990 Table 4) come
+// from the kernels, not from a copy here: the daylight stream's header carries them (kernels/daylight_relight.
+// sky_model_tables), and setSkyTables takes them before any sky is evaluated.
+let SKY_TABLES = null;
+
+function setSkyTables(tables) {
+  // {perez_coefficients: 160 numbers [bin][parameter][k], perez_clearness_edges: 7, efficacy_clearness_edges: 7,
+  //  efficacy_diffuse: 8 rows of 4, efficacy_direct: 8 rows of 4}
+  SKY_TABLES = tables;
+}
+
+function skyTables() {
+  if (!SKY_TABLES) throw new Error("sky.js: setSkyTables() has not been given the kernels' tables");
+  return SKY_TABLES;
+}
+
 const SOLAR_CONSTANT = 1367.0;  // W/m^2 at the mean Earth-Sun distance
 
 function skyPerez(cosTheta, gamma, c) {
@@ -294,10 +288,11 @@ function perezCoefficients(sunZenith, epsilon, delta) {
   // perez_coefficients: [a, b, c, d, e] of the all-weather model for one sky state (sunZenith radians);
   // bin 1 has its own c and d.
   const z = +sunZenith;
-  const base = 20 * skySearchRight(PEREZ_CLEARNESS_EDGES, epsilon);
-  const x = (p, k) => PEREZ_COEFFICIENTS[base + 4 * p + k];
+  const tables = skyTables();
+  const base = 20 * skySearchRight(tables.perez_clearness_edges, epsilon);
+  const x = (p, k) => tables.perez_coefficients[base + 4 * p + k];
   const out = [0, 1, 2, 3, 4].map((p) => x(p, 0) + x(p, 1) * z + delta * (x(p, 2) + x(p, 3) * z));
-  if (epsilon < PEREZ_CLEARNESS_EDGES[0]) {
+  if (epsilon < tables.perez_clearness_edges[0]) {
     out[2] = Math.exp(Math.pow(delta * (x(2, 0) + x(2, 1) * z), x(2, 2))) - x(2, 3);
     out[3] = -Math.exp(delta * (x(3, 0) + x(3, 1) * z)) + x(3, 2) + delta * x(3, 3);
   }
@@ -418,33 +413,10 @@ function patchRadiance(samples, model, sunEnu, params = {}) {
 // ---------------------------------------------------------------------------
 // kernels/luminous_efficacy.py: Perez, Ineichen, Seals, Michalsky & Stewart 1990, as gendaymtx -O0
 
-const CLEARNESS_EDGES = [1.065, 1.230, 1.500, 1.950, 2.800, 4.500, 6.200];  // Table 1; bin 8 open above 6.2
 const CLEARNESS_RANGE = [1.0, 11.9];
 const BRIGHTNESS_RANGE = [0.01, 0.6];
 const ZENITH_RANGE_DEG = [3.0, 90.0];
 const DEFAULT_DEW_POINT = 11.0;  // degC, gendaymtx's default
-// Table 4, one row per clearness bin (overcast first), columns a, b, c, d.
-const DIFFUSE_COEFFICIENTS = [  // K_d = a + b W + c cos Z + d ln Delta (lm/W), eqn 7
-  [97.24, -0.46, 12.00, -8.91],
-  [107.22, 1.15, 0.59, -3.95],
-  [104.97, 2.96, -5.53, -8.77],
-  [102.39, 5.59, -13.95, -13.90],
-  [100.71, 5.94, -22.75, -23.74],
-  [106.42, 3.83, -36.15, -28.83],
-  [141.88, 1.90, -53.24, -14.03],
-  [152.23, 0.35, -45.27, -7.98],
-];
-const DIRECT_COEFFICIENTS = [  // K_b = a + b W + c exp(5.73 Z - 5) + d Delta (lm/W, at least 0), eqn 8
-  [57.20, -4.55, -2.98, 117.12],
-  [98.99, -3.46, -1.21, 12.38],
-  [109.83, -4.90, -1.71, -8.81],
-  [110.34, -5.84, -1.99, -4.56],
-  [106.36, -3.97, -1.75, -6.16],
-  [107.19, -1.25, -1.51, -26.73],
-  [105.75, 0.77, -1.26, -34.44],
-  [101.18, 1.58, -1.10, -8.29],
-];
-
 function eccentricity(dayOfYear) {
   // (R0 / R)^2, Spencer 1971 (the series gendaymtx uses); dayOfYear 1 = 1 January.
   const angle = (skyFinite(dayOfYear, 1.0) - 1.0) * (2.0 * Math.PI / 365.0);
@@ -480,10 +452,11 @@ function perezEfficacy(directNormal, diffuseHorizontal, sunZenithDeg, dayOfYear,
   const [epsilon, delta] = efficacySkyState(directNormal, diffuseHorizontal, sunZenithDeg, dayOfYear);
   const zenith = skyClip(skyFinite(sunZenithDeg, 90.0), ZENITH_RANGE_DEG[0], ZENITH_RANGE_DEG[1]) * SKY_DEG2RAD;
   const water = precipitableWater(dewPointC);
-  const which = skySearchRight(CLEARNESS_EDGES, epsilon);
-  let [a, b, c, d] = DIFFUSE_COEFFICIENTS[which];
+  const tables = skyTables();
+  const which = skySearchRight(tables.efficacy_clearness_edges, epsilon);
+  let [a, b, c, d] = tables.efficacy_diffuse[which];
   const kDiffuse = a + b * water + c * Math.cos(zenith) + d * Math.log(delta);
-  [a, b, c, d] = DIRECT_COEFFICIENTS[which];
+  [a, b, c, d] = tables.efficacy_direct[which];
   const kBeam = Math.max(a + b * water + c * Math.exp(5.73 * zenith - 5.0) + d * delta, 0.0);
   return [kBeam, kDiffuse];
 }
@@ -592,7 +565,7 @@ function groundRadiance(cosines, weights, sunEnu, normalIrradiance, reflectance)
 
 if (typeof module !== "undefined") {
   module.exports = {
-    dayOfYear, julianDay, refraction, horizontalPosition, sunEnu, sunPosition,
+    setSkyTables, dayOfYear, julianDay, refraction, horizontalPosition, sunEnu, sunPosition,
     preethamRadiance, overcastRadiance, airMass, sunNormalIrradiance, perezSkyState, perezCoefficients,
     perezRelativeLuminance, hemisphereQuadrature, perezRadiance, patchRadiance,
     eccentricity, efficacyAirMass, precipitableWater, efficacySkyState, perezEfficacy,

@@ -19,19 +19,8 @@ from usdbake.kernels.sky import (patch_layout, patch_radiance, patch_samples, pe
                                  sun_normal_irradiance, tregenza_patches)
 from usdbake.kernels.solar import day_of_year, refraction, sun_position
 
-try:  # the relighting helpers, shared by the daylight technique and the stream client
-    from usdbake.kernels.daylight_relight import (ground_radiance, horizontal_cosines, sky_weights, sun_normal,
-                                                  sun_patch_weights, visible_factors)
-except ImportError:  # before they moved out of the daylight processor (there sky_weights takes a product)
-    from types import SimpleNamespace
-
-    from usdbake.processors.daylight import daylight as _daylight
-    from usdbake.processors.daylight.interreflection import ground_radiance, horizontal_cosines, sun_patch_weights
-
-    sun_normal, visible_factors = _daylight.sun_normal, _daylight.visible_factors
-
-    def sky_weights(patches, *args, **kwargs):
-        return _daylight.sky_weights(SimpleNamespace(patches=patches), *args, **kwargs)
+from usdbake.kernels.daylight_relight import (ground_radiance, horizontal_cosines, sky_model_tables, sky_weights,
+                                              sun_normal, sun_patch_weights, visible_factors)
 
 NODE = shutil.which("node")
 if NODE is None:
@@ -58,6 +47,7 @@ const encode = (v) => ArrayBuffer.isView(v) ? Array.from(v)
   : Array.isArray(v) ? v.map(encode)
   : (v !== null && typeof v === "object") ? Object.fromEntries(Object.entries(v).map(([k, x]) => [k, encode(x)]))
   : v;
+sky.setSkyTables(input.skyTables);
 const results = input.calls.map(([fn, args]) => encode(sky[fn](...args.map(decode))));
 process.stdout.write(JSON.stringify({exports: Object.keys(sky), globals, results}));
 """
@@ -243,6 +233,7 @@ def run(tmp_path_factory):
     driver = tmp_path_factory.mktemp("sky_js") / "driver.js"
     driver.write_text(DRIVER)
     done = subprocess.run([NODE, str(driver), str(SKY_JS)], input=json.dumps({"tables": calls.tables,
+                                                                              "skyTables": sky_model_tables(),
                                                                               "calls": calls.calls}),
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
@@ -334,6 +325,7 @@ def test_perez_sky_state_and_coefficients_in_every_bin(tmp_path):
             cases.append((zenith, dni, dhi, 100))
     script = tmp_path / "perez.js"
     script.write_text(f"const sky = require({json.dumps(str(SKY_JS))});\nconst cases = {json.dumps(cases)};\n"
+                      f"sky.setSkyTables({json.dumps(sky_model_tables())});\n"
                       "process.stdout.write(JSON.stringify(cases.map(([z, dni, dhi, day]) => {\n"
                       "  const state = sky.perezSkyState(z, dni, dhi, day);\n"
                       "  return [state, sky.perezCoefficients(z, state[0], state[1]),\n"
