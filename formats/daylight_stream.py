@@ -61,13 +61,15 @@ NORMAL_SCALE = 32767.0
 
 @dataclass(frozen=True)
 class DaylightCoefficients:
-    """Everything the stream carries, in the bake's face order (the encoder's input, the decoder's output)."""
+    """Everything the stream carries, in the bake's face order: the encoder's input (a client decodes a
+    ``DaylightPrefix``, in stream order)."""
 
     header: dict
     """JSON-able: faces, points, patches {layout, count, subdivision}, indirect_sets, bounces,
     ground_reflectance, visibility_scale, site {latitude, longitude, timezone, north}, to_world (3x3),
     origin (3), up_axis, sun_table {declinations, hour_angles, node_row, samples}, prims [{path, faces}],
-    packet_faces, weather {source, hours} or null."""
+    packet_faces, sky_tables (``kernels/daylight_relight.sky_model_tables``), weather {source, hours} or
+    null."""
     patch_samples: np.ndarray
     """(N, 9, 3) float64 ENU."""
     solid_angles: np.ndarray
