@@ -422,6 +422,23 @@ class DaylightRenderer {
     return this.displayTexture;
   }
 
+  shownFace(face) {
+    // the stream position whose irradiance face shows after the last relight (itself, or an ancestor)
+    let f = face;
+    while (f >= 0 && f >= Math.min(this.received, this.relit)) f = this.stream.geometry.parent[f];
+    return f;
+  }
+
+  readFace(face) {
+    // [r, g, b] irradiance of one stream position from the render target ([0, 0, 0] for -1)
+    if (face < 0) return [0, 0, 0];
+    const gl = this.gl, texel = new Float32Array(4);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, this.framebuffer);
+    gl.readPixels(face % OUT_WIDTH, Math.floor(face / OUT_WIDTH), 1, 1, gl.RGBA, gl.FLOAT, texel);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+    return [texel[0], texel[1], texel[2]];
+  }
+
   finish() {
     // Wait for the relight pass: read one texel back (a readPixels waits for the GPU).
     const gl = this.gl, texel = new Float32Array(4);

@@ -398,6 +398,23 @@ async function run() {
     drawing.gl.finish();
   };
   api.overlay = name => Array.from(overlay.metrics[name]);
+  api.probe = (x, y) => {
+    // the face under canvas pixel (x, y) and its light: illuminance (179 lm/W), luminance of its Lambertian
+    // radiance, the prim it belongs to; shown in the panel (a click does this)
+    const [eye, direction] = camera.ray(x, y, canvas.width, canvas.height);
+    const g = daylight.geometry, face = pickFace(g.points, g.corners, eye, direction);
+    const label = document.getElementById("probe");
+    if (face < 0) { label.textContent = ""; return {face, eye, direction}; }
+    const shown = renderer.shownFace(face), e = renderer.readFace(shown);
+    const luma = c => 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+    const albedo = [0, 1, 2].map(a => g.albedo[3 * face + a] / 255);
+    const result = {face, eye, direction, prim: daylight.header.prims[g.prim[face]].path, irradiance: e,
+                    lux: LUMINOUS_EFFICACY * luma(e),
+                    luminance: LUMINOUS_EFFICACY * luma(e.map((v, a) => v * albedo[a])) / Math.PI};
+    label.textContent = `${result.prim}, face ${g.faceId[face]}: ${result.lux.toFixed(0)} lux, ` +
+      `${result.luminance.toFixed(1)} cd/m²` + (shown !== face ? " (its ancestor's light: still arriving)" : "");
+    return result;
+  };
   api.benchmarkRelight = (frames, coarse = false) => {
     // relight `frames` new hours back to back (all faces, or the coarse preview's prefix); per-frame ms of the
     // pass (sky, sun and weights in JavaScript, the shader, the wait for it)
@@ -426,7 +443,8 @@ async function run() {
       renderer = new DaylightRenderer(drawing.gl, daylight);
       const item = daylightItem(drawing, daylight);
       drawing.items = [item];
-      camera = new OrbitCamera(canvas, matVec(daylight.header.to_world, [0, 0, 1]), bounds([item.positions]), redraw);
+      camera = new OrbitCamera(canvas, matVec(daylight.header.to_world, [0, 0, 1]), bounds([item.positions]), redraw,
+                               (x, y) => api.probe(x, y));
       document.getElementById("controls").hidden = false;
       const site = daylight.header.site;
       document.getElementById("site").textContent = `latitude ${site.latitude}, longitude ${site.longitude}, ` +

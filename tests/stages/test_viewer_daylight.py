@@ -180,3 +180,50 @@ def test_the_annual_overlays_are_the_bakes_metrics(served, tmp_path):
         pictures.append(path.read_bytes())
     assert len(set(pictures)) == 3
     page.close()
+
+
+def nearest_front_hit(points: np.ndarray, corners: np.ndarray, eye, direction) -> tuple[int, np.ndarray]:
+    """(face, distances): a plainly written float64 ray cast over every face, fronts only (counter-clockwise
+    seen from the eye, as the page draws them); distances inf where missed."""
+    a, b, c = (points[corners[:, k]].astype(np.float64) for k in range(3))
+    d, o = np.asarray(direction, np.float64), np.asarray(eye, np.float64)
+    e1, e2 = b - a, c - a
+    normal = np.cross(e1, e2)
+    facing = normal @ d < 0
+    t = ((a - o) * normal).sum(axis=1) / np.where(facing, normal @ d, -1.0)
+    hit = o + t[:, None] * d
+    inside = np.ones(len(a), bool)
+    for p, q in ((a, b), (b, c), (c, a)):
+        inside &= (np.cross(q - p, hit - p) * normal).sum(axis=1) >= 0
+    distance = np.where(facing & inside & (t > 0), t, np.inf)
+    return int(np.argmin(distance)) if np.isfinite(distance).any() else -1, distance
+
+
+def test_a_click_reads_the_face_under_it(served):
+    url, browser, lib, _ = served
+    page = open_page(browser, url)
+    set_controls(page, date="2026-12-21", hour=12.0, sky="preetham", sun=True, useWeather=False, overlay="light")
+    page.evaluate("v => window.usdbake.setCamera(v)", {"yaw": -2.2, "pitch": 0.95, "distance": 7.5,
+                                                      "target": [-1.2, -0.6, 0.8]})
+    prefix = fetch_scene(url).daylight.prefix
+    irradiance_now = np.asarray(page.evaluate("window.usdbake.irradiance()"), np.float64).reshape(-1, 3)
+    width, height = page.evaluate("[document.getElementById('view').width, document.getElementById('view').height]")
+    hits = 0
+    for x, y in ((width // 2, height // 2), (width // 2 + 60, height // 2 + 40), (width // 2 - 80, height // 2 + 90),
+                 (width // 2 + 150, height // 2 - 60), (5, 5)):
+        probe = page.evaluate("([x, y]) => window.usdbake.probe(x, y)", [x, y])
+        face, distance = nearest_front_hit(prefix.points, prefix.corners, probe["eye"], probe["direction"])
+        if face < 0:
+            assert probe["face"] == -1 and page.inner_text("#probe") == ""
+            continue
+        hits += 1
+        assert probe["face"] == face or distance[probe["face"]] <= distance[face] * (1 + 1e-6), (x, y)  # an edge
+        luma = np.array([0.2126, 0.7152, 0.0722])
+        assert probe["lux"] == pytest.approx(179.0 * irradiance_now[probe["face"]] @ luma, rel=1e-6)
+        assert probe["prim"] == lib.prims[int(prefix.face_id[probe["face"]])]
+    assert hits >= 3
+    page.mouse.click(width // 2, height // 2)  # as a person: the panel names the prim and the lux
+    label = page.inner_text("#probe")
+    assert "lux" in label and lib.prims[int(prefix.face_id[
+        page.evaluate(f"window.usdbake.probe({width // 2}, {height // 2}).face")])] in label
+    page.close()
