@@ -26,6 +26,8 @@ stream degrades to coarser light, never to holes.
     GEOMETRY (2)  float32 points (P, 3); uint32 corners (F, 3); int16 unit normals x 32767 (F, 3);
                   uint8 albedo x 255 (F, 3); int32 parent (F,), -1 at the roots; uint32 face id (F,):
                   the face's index in the bake's face order; uint32 prim (F,): index into the header's prims
+    CONTEXT (5)   float32 corners (T, 3, 3) and uint8 albedo x 255 (T, 3) of the scene's other triangles
+                  (instances, prims that are not receivers): drawn for context, not relit  (only when any)
     WEATHER (3)   float64 local standard time, ms since 1970 (H,); float32 direct-normal and
                   diffuse-horizontal irradiance, W/m^2 (H,) each  (only when the bake names a weather file)
     FACES (4)     ``count`` faces from stream position ``start`` (uint32, first in the payload): uint8 V
@@ -53,7 +55,7 @@ OVERLAY_MAGIC = b"USDBANN1"
 HEAD = struct.Struct("<8sI")
 SECTION = struct.Struct("<III")
 """kind, item count, deflated bytes."""
-SKY, GEOMETRY, WEATHER, FACES = 1, 2, 3, 4
+SKY, GEOMETRY, WEATHER, FACES, CONTEXT = 1, 2, 3, 4, 5
 LEVELS = 10
 """Centroid grid of the progressive order: 2^LEVELS cells per axis at the finest level."""
 NORMAL_SCALE = 32767.0
@@ -100,6 +102,10 @@ class DaylightCoefficients:
     """(H,) datetime64[ms] local standard time."""
     weather_direct: np.ndarray | None = None
     weather_diffuse: np.ndarray | None = None
+    context: np.ndarray | None = None
+    """(T, 3, 3) float32 the scene's triangles that are not faces here (instances, other prims), or None."""
+    context_albedo: np.ndarray | None = None
+    """(T, 3) float32."""
 
 
 @dataclass(frozen=True)
@@ -132,6 +138,10 @@ class DaylightPrefix:
     """(F, R) uint8."""
     weather: tuple[np.ndarray, np.ndarray, np.ndarray] | None
     """(times datetime64[ms], direct normal, diffuse horizontal) or None."""
+    context: np.ndarray
+    """(T, 3, 3) float32 the context triangles (not relit), T = 0 when none arrived."""
+    context_albedo: np.ndarray
+    """(T, 3) float32."""
 
 
 def _reversed_morton(cells: np.ndarray, bits: int) -> np.ndarray:
@@ -247,6 +257,9 @@ def encode_daylight_stream(data: DaylightCoefficients, *, packet_faces: int = 20
                       np.round(np.clip(data.normals[order], -1, 1) * NORMAL_SCALE).astype("<i2"),
                       np.round(np.clip(data.albedo[order], 0, 1) * 255).astype(np.uint8),
                       parent.astype("<i4"), order.astype("<u4"), data.face_prim[order].astype("<u4"))]
+    if data.context is not None and len(data.context):
+        parts.append(_section(CONTEXT, len(data.context), data.context.astype("<f4"),
+                              np.round(np.clip(data.context_albedo, 0, 1) * 255).astype(np.uint8)))
     if data.weather_times is not None:
         parts.append(_section(WEATHER, len(data.weather_times),
                               data.weather_times.astype("datetime64[ms]").astype(np.int64).astype("<f8"),
@@ -337,7 +350,8 @@ def decode_daylight_stream(data: bytes) -> DaylightPrefix:
     not yet whole are not received. ValueError for anything that is not such a stream."""
     header, at = _header(data)
     faces, n, k, r = header["faces"], header["patch_count"], header["indirect_sets"], header["sun_rows"]
-    out: dict = {"weather": None, "received": 0}
+    out: dict = {"weather": None, "received": 0, "context": np.zeros((0, 3, 3), np.float32),
+                 "context_albedo": np.zeros((0, 3), np.float32)}
     scale = np.float32(header.get("visibility_scale", 0.0))
     while at + SECTION.size <= len(data):
         kind, count, size = SECTION.unpack_from(data, at)
@@ -360,6 +374,9 @@ def decode_daylight_stream(data: bytes) -> DaylightPrefix:
             out.update(visibility=np.zeros((faces, n), np.float32), indirect=np.zeros((k, faces, n), np.float32),
                        ground_direct=np.zeros(faces, np.float32), ground_indirect=np.zeros((k, faces), np.float32),
                        sun_hits=np.zeros((faces, r), np.uint8))
+        elif kind == CONTEXT:
+            reader = _Reader(payload, kind, [("<f4", (count, 3, 3)), ("u1", (count, 3))])
+            out.update(context=reader.take(), context_albedo=reader.take().astype(np.float32) / np.float32(255))
         elif kind == WEATHER:
             reader = _Reader(payload, kind, [("<f8", (count,)), ("<f4", (count,)), ("<f4", (count,))])
             out["weather"] = (reader.take().astype(np.int64).astype("datetime64[ms]"), reader.take(), reader.take())

@@ -5,7 +5,8 @@ precomputed so any sky relights at interactive rates). This processor packs what
 no rays (``kernels/daylight_relight.py``'s ``Relighter``): the sky visibility factors V, the
 interreflection's indirect coefficients D and ground terms, and a sun table (the sun's visibility on a
 declination x hour-angle grid over its yearly path at the site's latitude: ``daylight.sun_table``), with
-the refined mesh, albedo, site and north, into ``formats/daylight_stream.py``'s file. ``usdbake serve``
+the refined mesh, albedo, site and north, and the scene's other triangles (instances, prims that are
+not receivers: the interreflection's transport faces) for context, into ``formats/daylight_stream.py``'s file. ``usdbake serve``
 streams it after the geometry; the viewer relights it on the GPU for any date, hour and sky, and
 ``preview/stream_client.py`` relights it as the library does.
 
@@ -32,6 +33,7 @@ from ...kernels.daylight_relight import sky_model_tables
 from ...kernels.sky import patch_samples
 from .daylight import SiteParams, sun_table
 from .glazing import scene_glazing
+from .interreflection import transport_faces
 from .products import InterreflectionProduct, SkyVisibilityProduct
 
 STREAM_PRIM = "/usdbake/DaylightStream"
@@ -45,6 +47,7 @@ def stream_coefficients(scene, product: SkyVisibilityProduct, inter: Interreflec
              for prim in product.prims]
     prim_index = np.zeros(int(max(product.prims.max(initial=0), product.face_prim.max(initial=0))) + 1, np.int64)
     prim_index[product.prims] = np.arange(len(product.prims))
+    context = transport_faces(scene, product)  # the triangles light bounces off that are not faces here
     header = {
         "patches": {"layout": product.patches.layout, "count": len(product.patches),
                     "subdivision": int(product.patches.subdivision)},
@@ -66,7 +69,8 @@ def stream_coefficients(scene, product: SkyVisibilityProduct, inter: Interreflec
         inter.ground_direct, inter.ground_indirect, np.ascontiguousarray(table.hits.T),
         prim_index[product.face_prim].astype(np.uint32), weather.times if weather is not None else None,
         weather.direct_normal if weather is not None else None,
-        weather.diffuse_horizontal if weather is not None else None)
+        weather.diffuse_horizontal if weather is not None else None,
+        context.corners[context.outputs:], scene.tri_albedo[context.extra_triangles])
 
 
 def indirect_code_error(indirect: np.ndarray) -> float:

@@ -13,7 +13,7 @@
 "use strict";
 
 const DAYLIGHT_MAGIC = "USDBDLS1";
-const SECTION_SKY = 1, SECTION_GEOMETRY = 2, SECTION_WEATHER = 3, SECTION_FACES = 4;
+const SECTION_SKY = 1, SECTION_GEOMETRY = 2, SECTION_WEATHER = 3, SECTION_FACES = 4, SECTION_CONTEXT = 5;
 const TEXTURE_WIDTH = 8192;  // texels per row of the coefficient textures at most (WebGL2 guarantees 2048)
 const OUT_WIDTH = 256;  // faces per row of the irradiance target
 
@@ -39,6 +39,7 @@ class DaylightStream {
     this.sky = null;
     this.geometry = null;
     this.weather = null;
+    this.context = null;  // the scene's other triangles (instances, prims that are not receivers): not relit
     this.received = 0;
     this.faceSections = [];  // decoded FACES sections not yet taken by the renderer
     this.work = Promise.resolve();
@@ -78,6 +79,8 @@ class DaylightStream {
         this.geometry = {points: take(Float32Array, 3 * h.points), corners: take(Uint32Array, 3 * F),
                          normals: take(Int16Array, 3 * F), albedo: take(Uint8Array, 3 * F), parent: take(Int32Array, F),
                          faceId: take(Uint32Array, F), prim: take(Uint32Array, F)};
+      } else if (kind === SECTION_CONTEXT) {
+        this.context = {corners: take(Float32Array, 9 * count), albedo: take(Uint8Array, 3 * count)};
       } else if (kind === SECTION_WEATHER) {
         this.weather = {times: take(Float64Array, count), direct: take(Float32Array, count), diffuse: take(Float32Array, count)};
       } else if (kind === SECTION_FACES) {

@@ -265,6 +265,22 @@ function daylightItem(drawing, stream) {
           count: 3 * F, daylight: true, positions: g.points};
 }
 
+function contextItem(drawing, context, up) {
+  // The scene's triangles that carry no daylight (instances, prims that are not receivers): albedo under a
+  // plain light from above, so shadows on the relit faces have their casters beside them.
+  const gl = drawing.gl, program = compile(gl, DRAW_VERTEX, DRAW_FRAGMENT), T = context.corners.length / 9;
+  const colours = new Float32Array(9 * T), P = context.corners;
+  for (let f = 0; f < T; f++) {
+    const o = 9 * f, u = [P[o + 3] - P[o], P[o + 4] - P[o + 1], P[o + 5] - P[o + 2]];
+    const v = [P[o + 6] - P[o], P[o + 7] - P[o + 1], P[o + 8] - P[o + 2]];
+    const shade = 0.5 + 0.4 * dot(normalize(cross(u, v)), up);
+    for (let c = 0; c < 3; c++)
+      for (let a = 0; a < 3; a++) colours[o + 3 * c + a] = shade * context.albedo[3 * f + a] / 255;
+  }
+  return {program, buffers: [drawing.buffer(program, "p", context.corners, 3), drawing.buffer(program, "e", colours, 3)],
+          count: 3 * T, exposure: 3.0};
+}
+
 // ---------------------------------------------------------------------------------------------------------
 // The page
 
@@ -391,6 +407,7 @@ async function run() {
   api.irradiance = () => Array.from(renderer.readIrradiance());
   api.faceId = () => Array.from(daylight.geometry.faceId);
   api.received = () => renderer.received;
+  api.contextFaces = () => (daylight.context ? daylight.context.corners.length / 9 : 0);
   api.setCamera = view => {
     // {yaw, pitch (radians), distance (scene units), target [x, y, z]}: any of them; then the picture
     Object.assign(camera, view);
@@ -450,6 +467,10 @@ async function run() {
       document.getElementById("site").textContent = `latitude ${site.latitude}, longitude ${site.longitude}, ` +
         `UTC${site.timezone >= 0 ? "+" : ""}${site.timezone}, north ${site.north} deg` +
         (daylight.header.weather ? `, weather ${daylight.header.weather.source}` : "");
+    }
+    if (renderer && daylight.context && !drawing.items.some(item => item.context)) {
+      drawing.items.push({...contextItem(drawing, daylight.context, matVec(daylight.header.to_world, [0, 0, 1])), context: true});
+      redraw();
     }
     const weatherControls = document.getElementById("weatherControls");
     if (daylight.weather && weatherControls.hidden) {  // the WEATHER section follows the geometry

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from usdbake.formats.daylight_stream import (FACES, GEOMETRY, DaylightCoefficients, decode_daylight_stream,
+from usdbake.formats.daylight_stream import (CONTEXT, FACES, GEOMETRY, DaylightCoefficients, decode_daylight_stream,
                                              decode_indirect, decode_overlay, encode_daylight_stream, encode_overlay,
                                              geometry_end, indirect_codes, progressive_faces, received_source,
                                              section_ends)
@@ -27,7 +27,8 @@ def coefficients(faces: int = 300, patches: int = 12, sets: int = 1, rows: int =
         rng.integers(0, 256, (faces, patches), dtype=np.uint8),
         (rng.uniform(0, 1, (sets, faces, patches)) ** 3).astype(np.float32), rng.uniform(0, 2, faces).astype(np.float32),
         rng.uniform(0, 1, (sets, faces)).astype(np.float32), rng.integers(0, 255, (faces, rows), dtype=np.uint8),
-        np.zeros(faces, np.uint32))
+        np.zeros(faces, np.uint32), context=rng.uniform(-1, 1, (5, 3, 3)).astype(np.float32),
+        context_albedo=np.full((5, 3), 0.4, np.float32))
 
 
 @pytest.mark.parametrize("sets", [1, 3])
@@ -41,6 +42,8 @@ def test_the_stream_round_trips(sets):
     np.testing.assert_array_equal(decoded.corners, data.corners[order])
     np.testing.assert_allclose(decoded.normals, data.normals[order], atol=1 / 32767)
     np.testing.assert_array_equal(decoded.ground_direct, data.ground_direct[order])
+    np.testing.assert_array_equal(decoded.context, data.context)  # not relit: in their own order
+    np.testing.assert_allclose(decoded.context_albedo, 0.4, atol=0.5 / 255)
     scale = data.indirect.max(axis=2)[:, order]
     error = np.abs(decoded.indirect - data.indirect[:, order]) / scale[..., None]
     assert error.max() <= 1 / 255 + 1e-6
@@ -59,11 +62,11 @@ def test_square_root_codes_are_finer_at_small_values():
 def test_a_prefix_decodes_what_it_holds():
     stream = encode_daylight_stream(coefficients(), packet_faces=64)
     ends = section_ends(stream)
-    assert [kind for kind, _ in ends][:2] == [1, GEOMETRY] and [kind for kind, _ in ends][2:] == [FACES] * 5
+    assert [kind for kind, _ in ends][:3] == [1, GEOMETRY, CONTEXT] and [kind for kind, _ in ends][3:] == [FACES] * 5
     assert geometry_end(lambda end: stream[:end]) == ends[1][1]
     with pytest.raises(ValueError, match="cut before its geometry"):
         decode_daylight_stream(stream[:ends[1][1] - 1])
-    for k, (_, end) in enumerate(ends[1:]):
+    for k, (_, end) in enumerate(ends[2:]):
         prefix = decode_daylight_stream(stream[:end + 3])  # a few bytes of the next section: dropped
         assert prefix.received == min(300, 64 * k)
         assert not prefix.visibility[prefix.received:].any()

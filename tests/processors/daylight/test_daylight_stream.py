@@ -81,3 +81,31 @@ def test_a_cut_stream_relights_every_face_from_its_ancestors(baked):
     np.testing.assert_array_equal(previous, full)
     torn = decode_daylight_stream(stream[:ends[-1] - 5])  # a torn last section is dropped, not misread
     assert torn.received < len(torn.parent)
+
+
+def test_the_scenes_other_triangles_travel_for_context():
+    """instanced_props: the floor is the one receiver; its PointInstancer's crates, vases and benches cast
+    the shadows on it, so they travel as context triangles. Receivers and context together are the scene's
+    whole surface (its triangle areas, summed independently)."""
+    from pxr import Usd
+
+    from repo_paths import SAMPLES
+    from stress.stage_builders_stress import fast_params
+    from usdbake.core.pipeline import Pipeline
+    from usdbake.core.records import File
+    from usdbake.core.runtime import Runtime
+    from usdbake.stages.extract import extract_scene
+
+    scene = extract_scene(Usd.Stage.Open(str(SAMPLES / "instanced_props.usda")))
+    steps = Pipeline.build(["daylight_stream"], fast_params("daylight_stream"),
+                           runtime=Runtime(Tracer.from_scene)).run(scene)
+    stream = next(r.data for s in steps if s.name == "daylight_stream" for r in s.result.outputs if isinstance(r, File))
+    prefix = decode_daylight_stream(stream)
+    assert [p["path"] for p in prefix.header["prims"]] == ["/World/Floor"] and len(prefix.context) > 1000
+
+    def area(corners):
+        corners = corners.astype(np.float64)
+        return 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
+
+    receivers = area(prefix.points[prefix.corners.astype(np.int64)])
+    assert receivers + area(prefix.context) == pytest.approx(float(scene.tri_areas.sum()), rel=1e-5)
