@@ -124,7 +124,6 @@ def sun_normal(sky: str, sun_site: np.ndarray, *, turbidity: float, direct_norma
     return np.full(3, float(direct_normal) * beam)
 
 
-
 SUN_PATCHES = 4
 """Patches the sun's reflected light is spread over (``gendaymtx``: the 4 nearest, weights 1 / (1.002 - cos))."""
 

@@ -25,14 +25,16 @@ def annual_overlay(stage: Usd.Stage, layer: Sdf.Layer, daylight: bytes) -> bytes
     None when the layer has none or they do not fit the stream's faces."""
     prefix = decode_daylight_stream(daylight[:geometry_end(lambda end: daylight[:end])])
     faces = len(prefix.face_id)
+    by_prim = []  # per prim: its stream positions in the bake's face order (its primvars' element order)
+    for index, prim in enumerate(prefix.header["prims"]):
+        positions = np.flatnonzero(prefix.prim == index)
+        by_prim.append((prim["path"], positions[np.argsort(prefix.face_id[positions], kind="stable")]))
     metrics = {}
     for name, attribute in ANNUAL_PRIMVARS.items():
         width = 3 if name == "usefulDaylight" else 1
         values = np.full((faces, width), np.nan, np.float32)
-        for index, prim in enumerate(prefix.header["prims"]):
-            spec = layer.GetAttributeAtPath(f"{prim['path']}.{attribute}")
-            positions = np.flatnonzero(prefix.prim == index)
-            positions = positions[np.argsort(prefix.face_id[positions], kind="stable")]
+        for path, positions in by_prim:
+            spec = layer.GetAttributeAtPath(f"{path}.{attribute}")
             data = np.asarray(spec.default if spec is not None and spec.default is not None else [], np.float32)
             if data.size != width * len(positions):
                 return None

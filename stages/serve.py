@@ -248,10 +248,13 @@ class BakeStreams:
     overlay: bytes | None = None
     """annual_daylight's metrics on the daylight stream's faces (``annual_overlay``), when both ran."""
 
+    def files(self) -> list[Stream]:
+        """The stream files (``/files/NAME``): the meshes, the grid, the daylight stream."""
+        return self.meshes + [s for s in (self.grid, self.daylight) if s is not None]
+
     def ordered(self) -> list[Stream]:
-        """``/stream``'s numbering (1..): the meshes, the grid, the daylight stream, the overlay."""
-        overlay = Stream(ANNUAL_PRIM, OVERLAY_URL, "", self.overlay) if self.overlay else None
-        return self.meshes + [s for s in (self.grid, self.daylight, overlay) if s is not None]
+        """``/stream``'s numbering (1..): the files, then the overlay (from memory, no file)."""
+        return self.files() + ([Stream(ANNUAL_PRIM, OVERLAY_URL, "", self.overlay)] if self.overlay else [])
 
 
 def stage_streams(path: str, *, log=print) -> BakeStreams:
@@ -398,7 +401,7 @@ def make_app(path: str, *, limits: Limits = Limits(), log=print) -> web.Applicat
     runner's: pass ``keepalive_timeout=limits.header_timeout`` to ``web.AppRunner`` or ``web.run_app``."""
     streams = stage_streams(path, log=log)
     ordered = streams.ordered()
-    by_name = {stream.name: stream for stream in ordered if stream.data is not streams.overlay}
+    by_name = {stream.name: stream for stream in streams.files()}
 
     def entry(stream: Stream) -> dict:
         return {"url": f"/files/{stream.name}", "bytes": len(stream.data)}
